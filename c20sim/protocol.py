@@ -1,0 +1,542 @@
+"""Modbus RTU as the ZBLD.C20 speaks it: CRC, frames, and framing by silence.
+
+Sans-I/O (after h11): :class:`RtuFramer` is fed bytes with their arrival time
+and hands back :class:`FrameEvent` values; it never reads a port or a clock.
+A frame ends after 3.5 character times of silence; a gap of more than 1.5
+characters inside a frame makes it invalid (sheet, section 1). Transports
+without line timing (TCP) also complete a frame as soon as the expected length
+of a known function code is reached. Garbage, truncated frames and frames sent
+back to back are split apart so that none of them costs the next valid frame.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal
+
+__all__ = [
+    "BROADCAST",
+    "MAX_ADU",
+    "MAX_WRITE_REGISTERS",
+    "Direction",
+    "ExceptionCode",
+    "ExceptionResponse",
+    "FrameEvent",
+    "FrameKind",
+    "FunctionCode",
+    "ReadRequest",
+    "ReadResponse",
+    "Request",
+    "Response",
+    "RtuFramer",
+    "UnsupportedRequest",
+    "WriteMultipleRequest",
+    "WriteMultipleResponse",
+    "WriteSingleRequest",
+    "WriteSingleResponse",
+    "char_time",
+    "crc16",
+    "crc_ok",
+    "decode_request",
+    "decode_response",
+    "encode",
+    "expected_length",
+    "silence_times",
+    "with_crc",
+]
+
+#: Longest RTU frame (Modbus serial line spec): address + 253-byte PDU + CRC.
+MAX_ADU = 256
+#: Most registers one 0x10 request can carry (Modbus application spec).
+MAX_WRITE_REGISTERS = 123
+#: Address 0: a write to every drive, never answered (sheet 1.a).
+BROADCAST = 0
+
+
+class FunctionCode(enum.IntEnum):
+    """The function codes of the sheet, section 1.b."""
+
+    READ_REGISTERS = 0x03  #: read register operation
+    WRITE_SINGLE = 0x06  #: write single register operation
+    WRITE_MULTIPLE = 0x10  #: write multiple register operations
+
+
+class ExceptionCode(enum.IntEnum):
+    """Exception codes of the sheet, section 1.4 ("exception code")."""
+
+    ILLEGAL_FUNCTION = 0x01  #: Illegal order: the slave does not support this command
+    ILLEGAL_ADDRESS = 0x02  #: Illegal data address: the requested address is out of range
+    ILLEGAL_VALUE = 0x03  #: Illegal data value: the data contains values that are not allowed
+    OPERATION_FAILED = 0x04  #: operation failed, e.g. function code written while 200EH = 0
+    PASSWORD_ERROR = 0x05  #: the password written at the validation address is wrong
+    FRAME_ERROR = 0x06  #: data frame error: wrong frame length or bad RTU CRC
+    READ_ONLY = 0x07  #: parameter is read-only
+    NOT_WHILE_RUNNING = 0x08  #: parameter cannot be changed during operation
+
+    @property
+    def meaning(self) -> str:
+        return _EXCEPTION_MEANINGS[self]
+
+
+_EXCEPTION_MEANINGS = {
+    ExceptionCode.ILLEGAL_FUNCTION: "illegal function",
+    ExceptionCode.ILLEGAL_ADDRESS: "illegal data address",
+    ExceptionCode.ILLEGAL_VALUE: "illegal data value",
+    ExceptionCode.OPERATION_FAILED: "operation failed",
+    ExceptionCode.PASSWORD_ERROR: "password error",
+    ExceptionCode.FRAME_ERROR: "data frame error",
+    ExceptionCode.READ_ONLY: "parameter is read-only",
+    ExceptionCode.NOT_WHILE_RUNNING: "parameter cannot be changed while running",
+}
+
+
+# --- CRC-16/MODBUS: poly 0xA001 (reflected 0x8005), init 0xFFFF, low byte first.
+
+
+def _make_crc_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC_TABLE = _make_crc_table()
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/MODBUS of ``data`` (sheet 1.d)."""
+    crc = 0xFFFF
+    table = _CRC_TABLE
+    for byte in data:
+        crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+    return crc
+
+
+def with_crc(body: bytes) -> bytes:
+    """``body`` followed by its CRC, low byte first."""
+    return body + crc16(body).to_bytes(2, "little")
+
+
+def crc_ok(frame: bytes) -> bool:
+    """True if the last two bytes of ``frame`` are the CRC of the rest."""
+    return len(frame) >= 4 and crc16(frame[:-2]) == int.from_bytes(frame[-2:], "little")
+
+
+# --- Frame values.
+
+
+@dataclass(frozen=True, slots=True)
+class ReadRequest:
+    """0x03: read ``count`` registers from ``start``."""
+
+    slave: int
+    start: int
+    count: int
+    function: int = FunctionCode.READ_REGISTERS
+
+
+@dataclass(frozen=True, slots=True)
+class WriteSingleRequest:
+    """0x06: write ``value`` to ``register``."""
+
+    slave: int
+    register: int
+    value: int
+    function: int = FunctionCode.WRITE_SINGLE
+
+
+@dataclass(frozen=True, slots=True)
+class WriteMultipleRequest:
+    """0x10: write ``values`` from ``start``.
+
+    ``count`` and ``byte_count`` are kept as sent, so that the slave can refuse
+    a frame whose counts disagree with its data (exception 0x03).
+    """
+
+    slave: int
+    start: int
+    values: tuple[int, ...]
+    count: int = -1
+    byte_count: int = -1
+    function: int = FunctionCode.WRITE_MULTIPLE
+
+    def __post_init__(self) -> None:
+        if self.count < 0:
+            object.__setattr__(self, "count", len(self.values))
+        if self.byte_count < 0:
+            object.__setattr__(self, "byte_count", 2 * len(self.values))
+
+
+@dataclass(frozen=True, slots=True)
+class UnsupportedRequest:
+    """A well-formed frame with a function code the C20 does not implement."""
+
+    slave: int
+    function: int
+    data: bytes
+
+
+Request = ReadRequest | WriteSingleRequest | WriteMultipleRequest | UnsupportedRequest
+
+
+@dataclass(frozen=True, slots=True)
+class ReadResponse:
+    slave: int
+    values: tuple[int, ...]
+    function: int = FunctionCode.READ_REGISTERS
+
+
+@dataclass(frozen=True, slots=True)
+class WriteSingleResponse:
+    slave: int
+    register: int
+    value: int
+    function: int = FunctionCode.WRITE_SINGLE
+
+
+@dataclass(frozen=True, slots=True)
+class WriteMultipleResponse:
+    slave: int
+    start: int
+    count: int
+    function: int = FunctionCode.WRITE_MULTIPLE
+
+
+@dataclass(frozen=True, slots=True)
+class ExceptionResponse:
+    """An exception reply: the request's function code with its MSB set."""
+
+    slave: int
+    request_function: int
+    code: ExceptionCode
+
+    @property
+    def function(self) -> int:
+        return (self.request_function | 0x80) & 0xFF
+
+
+Response = ReadResponse | WriteSingleResponse | WriteMultipleResponse | ExceptionResponse
+
+
+def encode(message: Request | Response) -> bytes:
+    """The RTU frame of a request or response, CRC included."""
+    match message:
+        case ReadRequest(slave, start, count):
+            body = struct.pack(">BBHH", slave, FunctionCode.READ_REGISTERS, start, count)
+        case WriteSingleRequest(slave, register, value):
+            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_SINGLE, register, value)
+        case WriteMultipleRequest(slave, start, values, count, byte_count):
+            body = struct.pack(">BBHHB", slave, FunctionCode.WRITE_MULTIPLE, start, count, byte_count) + struct.pack(
+                f">{len(values)}H", *values
+            )
+        case UnsupportedRequest(slave, function, data):
+            body = bytes((slave, function)) + data
+        case ReadResponse(slave, values):
+            body = struct.pack(f">BBB{len(values)}H", slave, FunctionCode.READ_REGISTERS, 2 * len(values), *values)
+        case WriteSingleResponse(slave, register, value):
+            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_SINGLE, register, value)
+        case WriteMultipleResponse(slave, start, count):
+            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_MULTIPLE, start, count)
+        case ExceptionResponse(slave, _, code):
+            body = bytes((slave, message.function, code))
+        case _:  # pragma: no cover - exhaustive over the unions
+            raise TypeError(f"cannot encode {message!r}")
+    return with_crc(body)
+
+
+Direction = Literal["request", "response"]
+
+
+def expected_length(frame: bytes, direction: Direction) -> int | None:
+    """Length the frame starting with these bytes must have, or None if unknown.
+
+    None means either that the function code is not one the C20 knows, or that
+    the byte giving the length has not arrived yet (:func:`_length_pending`).
+    """
+    if len(frame) < 2:
+        return None
+    function = frame[1]
+    if direction == "request":
+        if function in (FunctionCode.READ_REGISTERS, FunctionCode.WRITE_SINGLE):
+            return 8
+        if function == FunctionCode.WRITE_MULTIPLE:
+            return 9 + frame[6] if len(frame) >= 7 else None
+        return None
+    if function & 0x80:
+        return 5
+    if function == FunctionCode.READ_REGISTERS:
+        return 5 + frame[2] if len(frame) >= 3 else None
+    if function in (FunctionCode.WRITE_SINGLE, FunctionCode.WRITE_MULTIPLE):
+        return 8
+    return None
+
+
+def _known_function(frame: bytes, direction: Direction) -> bool:
+    function = frame[1]
+    if direction == "response" and function & 0x80:
+        return True
+    return function in (FunctionCode.READ_REGISTERS, FunctionCode.WRITE_SINGLE, FunctionCode.WRITE_MULTIPLE)
+
+
+def decode_request(frame: bytes) -> Request:
+    """Decode a request frame whose CRC and length have been checked.
+
+    Raises ValueError for a frame that is not a well-formed request.
+    """
+    if not crc_ok(frame):
+        raise ValueError("bad CRC")
+    length = expected_length(frame, "request")
+    if length is None:
+        if _known_function(frame, "request"):
+            raise ValueError("truncated frame")
+        return UnsupportedRequest(frame[0], frame[1], bytes(frame[2:-2]))
+    if len(frame) != length:
+        raise ValueError(f"frame of {len(frame)} bytes, a function 0x{frame[1]:02X} request has {length}")
+    slave, function = frame[0], frame[1]
+    if function == FunctionCode.READ_REGISTERS:
+        start, count = struct.unpack_from(">HH", frame, 2)
+        return ReadRequest(slave, start, count)
+    if function == FunctionCode.WRITE_SINGLE:
+        register, value = struct.unpack_from(">HH", frame, 2)
+        return WriteSingleRequest(slave, register, value)
+    start, count, byte_count = struct.unpack_from(">HHB", frame, 2)
+    data = frame[7:-2]
+    values = struct.unpack(f">{len(data) // 2}H", data[: len(data) // 2 * 2])
+    return WriteMultipleRequest(slave, start, values, count, byte_count)
+
+
+def decode_response(frame: bytes) -> Response:
+    """Decode a response frame whose CRC and length have been checked.
+
+    Raises ValueError for a frame that is not a well-formed response.
+    """
+    if not crc_ok(frame):
+        raise ValueError("bad CRC")
+    length = expected_length(frame, "response")
+    if length is None:
+        raise ValueError(f"function 0x{frame[1]:02X} is not one the C20 answers")
+    if len(frame) != length:
+        raise ValueError(f"frame of {len(frame)} bytes, a function 0x{frame[1]:02X} response has {length}")
+    slave, function = frame[0], frame[1]
+    if function & 0x80:
+        try:
+            code = ExceptionCode(frame[2])
+        except ValueError:
+            raise ValueError(f"exception code 0x{frame[2]:02X} is not one the C20 sends") from None
+        return ExceptionResponse(slave, function & 0x7F, code)
+    if function == FunctionCode.READ_REGISTERS:
+        byte_count = frame[2]
+        if byte_count % 2:
+            raise ValueError(f"odd byte count {byte_count}")
+        return ReadResponse(slave, struct.unpack_from(f">{byte_count // 2}H", frame, 3))
+    first, second = struct.unpack_from(">HH", frame, 2)
+    if function == FunctionCode.WRITE_SINGLE:
+        return WriteSingleResponse(slave, first, second)
+    return WriteMultipleResponse(slave, first, second)
+
+
+# --- Framing.
+
+
+def char_time(baud: int) -> float:
+    """Seconds one character takes on the line: 11 bits (start, 8 data, parity or 2nd stop, stop)."""
+    return 11.0 / baud
+
+
+def silence_times(baud: int) -> tuple[float, float]:
+    """(t1.5, t3.5) in seconds; fixed at 0.75 ms and 1.75 ms above 19200 baud (Modbus serial line spec)."""
+    if baud > 19200:
+        return 0.00075, 0.00175
+    return 1.5 * char_time(baud), 3.5 * char_time(baud)
+
+
+class FrameKind(enum.Enum):
+    FRAME = "frame"  #: CRC and length good
+    CRC_ERROR = "crc error"  #: the right length for its function code, but a bad CRC
+    LENGTH_ERROR = "length error"  #: a known function code, but the wrong number of bytes
+    NOISE = "noise"  #: too short to be a frame, or broken by a gap inside it
+
+
+@dataclass(frozen=True, slots=True)
+class FrameEvent:
+    """One outcome of framing, for the bus and the frame log."""
+
+    kind: FrameKind
+    data: bytes
+    t: float  #: arrival time of the frame's last byte
+    note: str = ""
+
+    @property
+    def is_frame(self) -> bool:
+        return self.kind is FrameKind.FRAME
+
+
+class RtuFramer:
+    """Splits a byte stream into RTU frames by silence, and by length where asked.
+
+    ``feed(data, t)``: ``data`` arrived at time ``t`` (seconds, any origin),
+    its bytes back to back. ``tick(t)``: tell the framer the time is now
+    ``t``, so that silence can end a frame; call it at :meth:`deadline`.
+    ``next_event()`` returns the next :class:`FrameEvent`, or None.
+
+    ``complete_on_length``: for transports without line timing (TCP), emit a
+    frame as soon as a known function code's length is reached with a good
+    CRC, without waiting for silence. ``check_gaps``: enforce the sheet's
+    1.5-character rule (only meaningful on a line with real byte timing).
+    ``silence``: override t3.5, for transports whose timing is not the line's.
+    """
+
+    def __init__(
+        self,
+        baud: int = 19200,
+        *,
+        direction: Direction = "request",
+        complete_on_length: bool = False,
+        check_gaps: bool = True,
+        silence: float | None = None,
+    ) -> None:
+        self.direction: Direction = direction
+        self.complete_on_length = complete_on_length
+        self.check_gaps = check_gaps
+        self._silence_override = silence
+        self.set_baud(baud)
+        self._buffer = bytearray()
+        self._last_t = 0.0
+        self._broken = ""
+        self._events: deque[FrameEvent] = deque()
+
+    def set_baud(self, baud: int) -> None:
+        """Change the line speed (after a 2009H write); the timing follows."""
+        self.baud = baud
+        self._char = char_time(baud)
+        self.t15, t35 = silence_times(baud)
+        self.t35 = self._silence_override if self._silence_override is not None else t35
+
+    @property
+    def pending(self) -> bool:
+        """True while bytes of an unfinished frame are buffered."""
+        return bool(self._buffer)
+
+    def deadline(self) -> float | None:
+        """Time at which silence ends the buffered frame, or None if nothing is buffered."""
+        return self._last_t + self.t35 if self._buffer else None
+
+    def feed(self, data: bytes, t: float) -> None:
+        if not data:
+            return
+        if self._buffer:
+            # Arrival time of this chunk's first byte, its bytes being back to back.
+            gap = t - (len(data) - 1) * self._char - self._last_t
+            if gap >= self.t35:
+                self._close()
+            elif self.check_gaps and gap > self.t15 and not self._broken:
+                self._broken = f"gap of {gap * 1000:.2f} ms (> t1.5 = {self.t15 * 1000:.2f} ms) inside the frame"
+        self._buffer += data
+        self._last_t = t
+        if self.complete_on_length and not self._broken:
+            self._split(final=False)
+        if len(self._buffer) > MAX_ADU:
+            self._close()
+
+    def tick(self, t: float) -> None:
+        if self._buffer and t - self._last_t >= self.t35:
+            self._close()
+
+    def flush(self) -> None:
+        """End the buffered frame now (the transport closed)."""
+        if self._buffer:
+            self._close()
+
+    def next_event(self) -> FrameEvent | None:
+        return self._events.popleft() if self._events else None
+
+    def events(self) -> list[FrameEvent]:
+        """All pending events, oldest first."""
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    # -- internals
+
+    def _close(self) -> None:
+        if self._broken:
+            self._emit(FrameKind.NOISE, bytes(self._buffer), self._broken)
+            self._buffer.clear()
+        else:
+            self._split(final=True)
+        self._broken = ""
+
+    def _emit(self, kind: FrameKind, data: bytes, note: str = "") -> None:
+        self._events.append(FrameEvent(kind, data, self._last_t, note))
+
+    def _complete_at(self, offset: int) -> int | None:
+        """Length of a complete, CRC-valid frame of a known function code at ``offset``."""
+        buf = self._buffer
+        length = expected_length(bytes(buf[offset : offset + 7]), self.direction)
+        if length is None or offset + length > len(buf):
+            return None
+        if crc16(bytes(buf[offset : offset + length - 2])) != int.from_bytes(
+            buf[offset + length - 2 : offset + length], "little"
+        ):
+            return None
+        return length
+
+    def _split(self, *, final: bool) -> None:
+        buf = self._buffer
+        while buf:
+            length = self._complete_at(0)
+            if length is not None:
+                self._emit(FrameKind.FRAME, bytes(buf[:length]))
+                del buf[:length]
+                continue
+            if not final and self._may_still_complete():
+                return
+            # What is at offset 0 is broken: find the next valid frame behind it.
+            for offset in range(1, len(buf)):
+                if self._complete_at(offset) is not None:
+                    self._emit_bad(bytes(buf[:offset]))
+                    del buf[:offset]
+                    break
+            else:
+                if final:
+                    self._emit_bad(bytes(buf))
+                    buf.clear()
+                return
+
+    def _may_still_complete(self) -> bool:
+        """True if the bytes at offset 0 are the start of a valid frame still arriving."""
+        buf = self._buffer
+        if len(buf) < 2:
+            return True
+        if not _known_function(bytes(buf[:2]), self.direction):
+            return False
+        length = expected_length(bytes(buf[:7]), self.direction)
+        return length is None or len(buf) < length
+
+    def _emit_bad(self, data: bytes) -> None:
+        self._emit(*_classify(data, self.direction))
+
+
+def _classify(data: bytes, direction: Direction) -> tuple[FrameKind, bytes, str]:
+    """Name what is wrong with bytes that do not form a valid frame of a known length."""
+    if len(data) < 4:
+        return FrameKind.NOISE, data, f"{len(data)} byte(s), too short for a frame"
+    if not _known_function(data, direction):
+        if crc_ok(data):
+            return FrameKind.FRAME, data, ""
+        return FrameKind.CRC_ERROR, data, f"bad CRC: got {data[-2:].hex(' ').upper()}, expected {_crc_hex(data)}"
+    length = expected_length(data, direction)
+    if length == len(data):
+        return FrameKind.CRC_ERROR, data, f"bad CRC: got {data[-2:].hex(' ').upper()}, expected {_crc_hex(data)}"
+    wanted = f"{length}" if length is not None else "at least 9"
+    return FrameKind.LENGTH_ERROR, data, f"{len(data)} bytes, a function 0x{data[1]:02X} {direction} has {wanted}"
+
+
+def _crc_hex(data: bytes) -> str:
+    return crc16(data[:-2]).to_bytes(2, "little").hex(" ").upper()
