@@ -54,6 +54,8 @@ MAX_ADU = 256
 MAX_WRITE_REGISTERS = 123
 #: Address 0: a write to every drive, never answered (sheet 1.a).
 BROADCAST = 0
+#: Times closer than this count as equal (float sums of timestamps).
+_EPSILON = 1e-9
 
 
 class FunctionCode(enum.IntEnum):
@@ -433,9 +435,9 @@ class RtuFramer:
         if self._buffer:
             # Arrival time of this chunk's first byte, its bytes being back to back.
             gap = t - (len(data) - 1) * self._char - self._last_t
-            if gap >= self.t35:
+            if gap >= self.t35 - _EPSILON:
                 self._close()
-            elif self.check_gaps and gap > self.t15 and not self._broken:
+            elif self.check_gaps and gap > self.t15 + _EPSILON and not self._broken:
                 self._broken = f"gap of {gap * 1000:.2f} ms (> t1.5 = {self.t15 * 1000:.2f} ms) inside the frame"
         self._buffer += data
         self._last_t = t
@@ -445,7 +447,7 @@ class RtuFramer:
             self._close()
 
     def tick(self, t: float) -> None:
-        if self._buffer and t - self._last_t >= self.t35:
+        if self._buffer and t - self._last_t >= self.t35 - _EPSILON:
             self._close()
 
     def flush(self) -> None:

@@ -26,6 +26,7 @@ __all__ = [
     "format_fcode",
     "is_fcode",
     "parse_fcode",
+    "status2_words",
 ]
 
 
@@ -104,6 +105,19 @@ STATUS_WORDS: Mapping[int, str] = {
     6: "electronic brake",
 }
 
+
+def status2_words(raw: int) -> str:
+    """Status word 2 (2101H) in words: bit 0 bus, bit 4 overload, bits 5-6 control source."""
+    bus = "bus established" if raw & 0x01 else "bus not established"
+    source = {0: "keypad control", 1: "terminal control", 2: "communication control"}.get(
+        (raw >> 5) & 0b11, "control source 11 (undefined)"
+    )
+    words = [bus, source]
+    if raw & 0x10:
+        words.append("overload")
+    return ", ".join(words)
+
+
 BAUD_RATES: tuple[int, ...] = (1200, 2400, 4800, 9600, 19200, 38400, 57600)
 
 
@@ -129,6 +143,7 @@ class RegisterSpec:
     #: the storage cell: a function code's address for a mirrored 20xxH register
     storage: int = -1
     source: str = "sheet"
+    hex_display: bool = False  #: bit fields and codes read best in hex
 
     def __post_init__(self) -> None:
         if self.storage < 0:
@@ -149,6 +164,8 @@ class RegisterSpec:
         """The value in words: ``forward run``, ``50.00 Hz``, ``1500 rpm``."""
         if raw in self.values:
             return self.values[raw]
+        if self.hex_display:
+            return f"0x{raw:04X}"
         if self.scale == 1.0 and not self.unit:
             return f"{raw}"
         decimals = max(0, len(f"{self.scale:g}".partition(".")[2]))
@@ -171,8 +188,11 @@ def _spec(
     *,
     signed: bool = False,
     values: Mapping[int, str] | None = None,
+    hex_display: bool = False,
 ) -> RegisterSpec:
-    return RegisterSpec(address, name, access, minimum, maximum, unit, scale, signed, values or {})
+    return RegisterSpec(
+        address, name, access, minimum, maximum, unit, scale, signed, values or {}, hex_display=hex_display
+    )
 
 
 _RW, _RWS, _R = Access.RW, Access.RW_STOPPED, Access.R
@@ -227,8 +247,8 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             6,
             values={code: f"{rate} baud" for code, rate in enumerate(BAUD_RATES)},
         ),
-        _spec(Reg.VIRTUAL_INPUTS, "virtual input terminals", _RW, 0, 0x1FF),
-        _spec(Reg.VIRTUAL_OUTPUTS, "virtual output terminals", _RW, 0, 0x0F),
+        _spec(Reg.VIRTUAL_INPUTS, "virtual input terminals", _RW, 0, 0x1FF, hex_display=True),
+        _spec(Reg.VIRTUAL_OUTPUTS, "virtual output terminals", _RW, 0, 0x0F, hex_display=True),
         _spec(
             Reg.WRITE_ENABLE,
             "function code write enable",
@@ -246,9 +266,9 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             values={0: "no operation", 1: "restore defaults"},
         ),
         _spec(Reg.STATUS1, "status word 1", _R, 1, 6, values=STATUS_WORDS),
-        _spec(Reg.STATUS2, "status word 2", _R, 0, 0x7F),
-        _spec(Reg.FAULT_CODE, "fault code", _R, 0, 0xFF),
-        _spec(Reg.DRIVE_ID, "drive ID", _R, 0x20, 0x20),
+        _spec(Reg.STATUS2, "status word 2", _R, 0, 0x7F, hex_display=True),
+        _spec(Reg.FAULT_CODE, "fault code", _R, 0, 0xFF, hex_display=True),
+        _spec(Reg.DRIVE_ID, "drive ID", _R, 0x20, 0x20, hex_display=True),
         _spec(Reg.SET_FREQUENCY, "set frequency", _R, 0, 0xFFFF, "Hz", 0.01),
         _spec(Reg.OUTPUT_FREQUENCY, "output frequency", _R, 0, 0xFFFF, "Hz", 0.01),
         _spec(Reg.RAMP_FREQUENCY, "ramp frequency", _R, 0, 0xFFFF, "Hz", 0.01),
@@ -260,10 +280,10 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
         _spec(Reg.BUS_VOLTAGE, "DC bus voltage", _R, 0, 20000, "V", 0.1),
         _spec(Reg.HALL, "Hall value", _R, 0, 7),
         _spec(Reg.SOFTWARE_VERSION, "software version", _R, 100, 9900, "", 0.01),
-        _spec(Reg.CURRENT_FAULT, "current fault type", _R, 0, 0xFF),
+        _spec(Reg.CURRENT_FAULT, "current fault type", _R, 0, 0xFF, hex_display=True),
         _spec(Reg.TEMPERATURE, "inverter temperature", _R, -200, 1200, "degC", 0.1, signed=True),
-        _spec(Reg.INPUT_TERMINALS, "input terminals", _R, 0, 0x1FF),
-        _spec(Reg.OUTPUT_TERMINALS, "output terminals", _R, 0, 0x0F),
+        _spec(Reg.INPUT_TERMINALS, "input terminals", _R, 0, 0x1FF, hex_display=True),
+        _spec(Reg.OUTPUT_TERMINALS, "output terminals", _R, 0, 0x0F, hex_display=True),
         _spec(Reg.AI1_VOLTAGE, "AI1 voltage", _R, 0, 1000, "V", 0.01),
         _spec(Reg.AI2_VOLTAGE, "AI2 voltage", _R, 0, 1000, "V", 0.01),
         _spec(Reg.AI3_VOLTAGE, "AI3 voltage", _R, 0, 1000, "V", 0.01),
@@ -328,6 +348,7 @@ class RegisterMap:
                 fixed.values,
                 storage=fcode,
                 source=param.source,
+                hex_display=fixed.hex_display,
             )
         self._specs = specs
         self.mirrors: Mapping[int, int] = dict(mirrors or {})

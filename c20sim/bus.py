@@ -1,0 +1,167 @@
+"""Several drives on one RS485 line: addressing, broadcast, and the frame log.
+
+The bus takes framing events (:class:`~c20sim.protocol.FrameEvent`) and gives
+back the reply to put on the line, if any. Address 0 is broadcast: a write
+acts on every drive and is never answered, a read is ignored. Reserved
+addresses (F8H-FFH) and absent drives get silence. A frame with a bad CRC or
+length addressed to a drive gets exception 0x06, as the sheet says, unless
+the profile says the model stays silent.
+
+A write to 2008H (address) or 2009H (baud) takes effect after its reply,
+which goes out at the old address and baud: the reply is built from the
+request, and the new settings are read for the next frame. When the only
+drive on the line changes its baud, the line follows (:attr:`Reply.new_baud`);
+with several drives, a drive set to another baud than the line's goes deaf,
+as it would on a real multi-drop line.
+
+Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
+and is passed to each listener (the JSON-lines writer, the dashboard).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from .decode import describe
+from .protocol import (
+    BROADCAST,
+    FrameEvent,
+    FrameKind,
+    ReadRequest,
+    Request,
+    Response,
+    decode_request,
+    encode,
+)
+from .slave import Slave
+
+__all__ = ["Bus", "FrameRecord", "Reply"]
+
+log = logging.getLogger(__name__)
+
+#: Addresses the sheet reserves (1.a): no drive answers them.
+RESERVED = range(0xF8, 0x100)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """One frame on the line, for the frame log."""
+
+    t: float
+    direction: str  #: "rx" (master to drive) or "tx" (drive to master)
+    data: bytes
+    kind: str  #: "request", "reply", "exception", "crc error", "length error", "noise"
+    slave: int | None
+    text: str  #: the frame in words
+    note: str = ""  #: framing error detail, or an injected link fault
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "t": round(self.t, 6),
+            "dir": self.direction,
+            "hex": self.data.hex(" ").upper(),
+            "kind": self.kind,
+            "slave": self.slave,
+            "text": self.text,
+            "note": self.note,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """Bytes to send back, after ``delay`` seconds of turnaround."""
+
+    data: bytes
+    delay: float
+    slave: int
+    new_baud: int | None = None  #: the line's new speed, to apply after sending
+
+
+class Bus:
+    """Drives sharing one line. ``handle`` serves one framing event."""
+
+    def __init__(self, slaves: Iterable[Slave], *, baud: int | None = None, log_size: int = 2000) -> None:
+        self.slaves: list[Slave] = list(slaves)
+        if not self.slaves:
+            raise ValueError("a bus needs at least one drive")
+        self.line_baud = baud if baud is not None else self.slaves[0].baud
+        self.records: deque[FrameRecord] = deque(maxlen=log_size)
+        self._listeners: list[Callable[[FrameRecord], None]] = []
+
+    # -- the frame log
+
+    def subscribe(self, listener: Callable[[FrameRecord], None]) -> Callable[[], None]:
+        """Call ``listener`` with every new record; returns a function that unsubscribes."""
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener)
+
+    def record(self, entry: FrameRecord) -> None:
+        self.records.append(entry)
+        for listener in list(self._listeners):
+            try:
+                listener(entry)
+            except Exception:
+                log.exception("frame log listener failed; removing it")
+                self._listeners.remove(listener)
+
+    # -- serving
+
+    def slave_at(self, address: int) -> Slave | None:
+        """The drive answering ``address`` at the line's baud, if any."""
+        for slave in self.slaves:
+            if slave.address == address and slave.baud == self.line_baud:
+                return slave
+        return None
+
+    def handle(self, event: FrameEvent, now: float | None = None) -> Reply | None:
+        """Serve one framing event; ``now`` is model time (default: the event's time)."""
+        t = event.t if now is None else now
+        if event.kind is FrameKind.FRAME:
+            return self._handle_frame(event, t)
+        slave_address = event.data[0] if event.data else None
+        self.record(
+            FrameRecord(event.t, "rx", event.data, event.kind.value, slave_address, event.kind.value, event.note)
+        )
+        if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
+            return None
+        slave = self.slave_at(slave_address)
+        if slave is None or not slave.profile.protocol.reply_to_bad_crc:
+            return None
+        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, None)
+
+    def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
+        request = decode_request(event.data)
+        address = request.slave
+        text = describe(request, self.slaves[0].registers)
+        if address == BROADCAST:
+            if isinstance(request, ReadRequest):
+                self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast read: ignored"))
+                return None
+            self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast: no reply"))
+            for each in self.slaves:
+                if each.baud == self.line_baud:
+                    each.handle(request, t)
+            return None
+        slave = self.slave_at(address) if address not in RESERVED else None
+        if slave is None:
+            note = "reserved address: silence" if address in RESERVED else "no drive at this address: silence"
+            self.record(FrameRecord(event.t, "rx", event.data, "request", address, text, note))
+            return None
+        self.record(FrameRecord(event.t, "rx", event.data, "request", address, describe(request, slave.registers)))
+        response = slave.handle(request, t)
+        return self._reply(slave, response, event.t, request)
+
+    def _reply(self, slave: Slave, response: Response, t: float, request: Request | None) -> Reply:
+        data = encode(response)
+        kind = "exception" if data[1] & 0x80 else "reply"
+        delay = slave.profile.protocol.turnaround_ms / 1000.0
+        self.record(
+            FrameRecord(t + delay, "tx", data, kind, response.slave, describe(response, slave.registers, request))
+        )
+        new_baud = None
+        if len(self.slaves) == 1 and slave.baud != self.line_baud:
+            new_baud = self.line_baud = slave.baud
+        return Reply(data, delay, response.slave, new_baud)

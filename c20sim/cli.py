@@ -1,0 +1,135 @@
+"""The ``c20sim`` command: argument parsing, and one function per subcommand.
+
+Every user error ends in one line on stderr saying what is wrong and what to
+do, and exit code 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from .decode import decode_frame
+from .errors import C20SimError
+from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
+from .registers import format_fcode
+
+__all__ = ["main"]
+
+
+class UsageError(C20SimError):
+    """A bad command line: printed as one line, exit code 2."""
+
+
+def parse_hex(words: Sequence[str]) -> bytes:
+    """``01 06 20 00``, ``01:06:20:00``, ``0x01,0x06`` or ``01062000`` -> bytes."""
+    text = " ".join(words)
+    for sep in (":", ",", "-", "\n", "\t"):
+        text = text.replace(sep, " ")
+    tokens = [t[2:] if t.lower().startswith("0x") else t for t in text.split()]
+    joined = (
+        "".join(t if len(t) % 2 == 0 else "0" + t for t in tokens)
+        if all(len(t) <= 2 for t in tokens)
+        else "".join(tokens)
+    )
+    try:
+        return bytes.fromhex(joined)
+    except ValueError:
+        raise UsageError(f"not hex bytes: {text.strip()!r}; give a frame such as '01 06 20 00 00 01 43 CA'") from None
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    data = parse_hex(args.hex)
+    if not data:
+        raise UsageError("no bytes given; give a frame such as '01 06 20 00 00 01 43 CA'")
+    profile = load_profile(args.profile)
+    decoded = decode_frame(data, profile.registers)
+    print(f"{data.hex(' ').upper()}")
+    print(f"  {decoded.kind}: {decoded.text}")
+    return 0 if decoded.ok else 1
+
+
+def cmd_profiles(args: argparse.Namespace) -> int:
+    if args.action == "show":
+        if not args.name:
+            raise UsageError("profiles show needs a profile name or path, such as: c20sim profiles show c20-400hr")
+        print(render_profile(load_profile(args.name)), end="")
+        return 0
+    for name, path in available_profiles().items():
+        profile = load_profile(str(path))
+        default = " (default)" if name == DEFAULT_PROFILE else ""
+        print(f"{name:<14} {profile.description}{default}")
+    return 0
+
+
+def render_profile(profile: Profile) -> str:
+    """A profile as a SCADA developer wants to read it: quirks, physics, faults, function codes."""
+    lines = [f"{profile.name}: {profile.description}", f"  file: {profile.path}", ""]
+    proto = profile.protocol
+    lines += [
+        "protocol",
+        f"  bad CRC or length:      {'exception 0x06' if proto.reply_to_bad_crc else 'silence'}",
+        f"  registers per read:     up to {proto.max_read_registers}",
+        f"  turnaround delay:       {proto.turnaround_ms:g} ms",
+        f"  user password:          {'set, written at ' + proto.password_register if proto.password else 'none'}",
+        f"  software version 300AH: {profile.software_version / 100:.2f}",
+        "",
+    ]
+    for title, section in (
+        ("motor", profile.motor),
+        ("supply", profile.supply),
+        ("protection", profile.protection),
+        ("thermal", profile.thermal),
+    ):
+        lines.append(title)
+        lines += [f"  {key:<24} {value:g}" for key, value in vars(section).items()]
+        lines.append("")
+    lines.append("faults (code, name, meaning, source)")
+    for fault in profile.faults.values():
+        lines.append(f"  0x{fault.code:02X} {fault.name:<6} {fault.meaning} [{fault.source}]")
+    lines += ["", "function codes (code, address, name, default, range, access, mirror, source)"]
+    for spec in profile.parameters:
+        mirror = profile.registers.mirrored_by.get(spec.address)
+        mirror_text = f"<-> {mirror:04X}H" if mirror is not None else ""
+        default = spec.describe(profile.defaults[spec.address])
+        lines.append(
+            f"  {format_fcode(spec.address)} {spec.address:04X}H  {spec.name:<26} {default:<12} "
+            f"{spec.minimum}-{spec.maximum:<6} {spec.access.value:<4} {mirror_text:<9} [{spec.source}]"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="c20sim",
+        description="A virtual ZBLD.C20 brushless DC drive behind a Modbus RTU slave.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    decode = sub.add_parser("decode", help="print a captured frame in words, or say what is wrong with it")
+    decode.add_argument("hex", nargs="+", help="the frame's bytes in hex, e.g. 01 06 20 00 00 01 43 CA")
+    decode.add_argument("--profile", default=DEFAULT_PROFILE, help="profile whose register names to use")
+    decode.set_defaults(func=cmd_decode)
+
+    profiles = sub.add_parser("profiles", help="list the shipped profiles, or show one")
+    profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")
+    profiles.add_argument("name", nargs="?", help="profile name or path (for show)")
+    profiles.set_defaults(func=cmd_profiles)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    try:
+        result: int = args.func(args)
+        return result
+    except C20SimError as exc:
+        print(f"c20sim: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,40 @@
+"""Shared helpers for the unit tests: a drive on a bus, fed whole frames."""
+
+from __future__ import annotations
+
+import pytest
+
+from c20sim.bus import Bus, Reply
+from c20sim.profile import Profile, load_profile
+from c20sim.protocol import RtuFramer
+
+
+@pytest.fixture(scope="session")
+def profile() -> Profile:
+    return load_profile("c20-400hr")
+
+
+class Line:
+    """A master's view of a bus: send a frame, get the reply bytes (or None for silence)."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.framer = RtuFramer(bus.line_baud)
+        self.t = 0.0
+        self.replies: list[Reply] = []
+
+    def send(self, frame: bytes | str, dt: float = 0.05) -> bytes | None:
+        data = bytes.fromhex(frame) if isinstance(frame, str) else frame
+        self.t += dt
+        self.framer.feed(data, self.t)
+        self.framer.tick(self.t + 1.0)
+        answers = [r for e in self.framer.events() if (r := self.bus.handle(e)) is not None]
+        assert len(answers) <= 1, answers
+        self.replies += answers
+        if answers and answers[0].new_baud:
+            self.framer.set_baud(answers[0].new_baud)
+        return answers[0].data if answers else None
+
+    def hex(self, frame: bytes | str, dt: float = 0.05) -> str | None:
+        reply = self.send(frame, dt)
+        return reply.hex(" ").upper() if reply is not None else None

@@ -1,0 +1,141 @@
+"""Several drives on one line: addressing, broadcast, silence, address and baud changes, the frame log."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from c20sim.bus import Bus
+from c20sim.drive.store import RegisterStoreDrive
+from c20sim.profile import Profile
+from c20sim.protocol import ReadRequest, ReadResponse, WriteMultipleRequest, WriteSingleRequest, encode, with_crc
+from c20sim.registers import Reg
+from c20sim.slave import Slave
+from tests.conftest import Line
+
+
+def make_slave(profile: Profile, address: int) -> Slave:
+    drive = RegisterStoreDrive(profile)
+    drive.parameters.set(Reg.ADDRESS, address)
+    return Slave(profile, drive)
+
+
+@pytest.fixture
+def three(profile: Profile) -> Line:
+    return Line(Bus([make_slave(profile, a) for a in (1, 2, 5)]))
+
+
+def read(address: int, register: int) -> bytes:
+    return encode(ReadRequest(address, register, 1))
+
+
+def write(address: int, register: int, value: int) -> bytes:
+    return encode(WriteSingleRequest(address, register, value))
+
+
+def test_each_drive_answers_only_its_own_address(three: Line) -> None:
+    for address in (1, 2, 5):
+        reply = three.send(write(address, 0x2001, 100 * address))
+        assert reply == write(address, 0x2001, 100 * address)
+    assert [s.drive.read(0x2001) for s in three.bus.slaves] == [100, 200, 500]
+    assert three.send(read(3, 0x2001)) is None
+    assert three.send(read(2, 0x2001)) == encode(ReadResponse(2, (200,)))
+
+
+def test_broadcast_write_acts_on_every_drive_and_is_never_answered(three: Line) -> None:
+    assert three.send(write(0, 0x2001, 1234)) is None
+    assert [s.drive.read(0x2001) for s in three.bus.slaves] == [1234, 1234, 1234]
+    assert three.send(encode(WriteMultipleRequest(0, 0x2000, (5, 42)))) is None
+    assert [s.drive.read(0x2001) for s in three.bus.slaves] == [42, 42, 42]
+    assert three.bus.records[-1].note == "broadcast: no reply"
+
+
+def test_broadcast_read_is_ignored(three: Line) -> None:
+    assert three.send(read(0, 0x2103)) is None
+    assert three.bus.records[-1].note == "broadcast read: ignored"
+
+
+@pytest.mark.parametrize("address", [0xF8, 0xFA, 0xFF])
+def test_reserved_addresses_get_silence(profile: Profile, address: int) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    assert line.send(read(address, 0x2103)) is None
+    assert line.bus.records[-1].note == "reserved address: silence"
+
+
+def test_bad_crc_for_an_absent_drive_gets_silence(three: Line) -> None:
+    frame = bytearray(read(9, 0x2100))
+    frame[-1] ^= 0xFF
+    assert three.send(bytes(frame)) is None
+
+
+def test_bad_crc_silence_quirk(profile: Profile) -> None:
+    quiet = dataclasses.replace(profile, protocol=dataclasses.replace(profile.protocol, reply_to_bad_crc=False))
+    line = Line(Bus([make_slave(quiet, 1)]))
+    assert line.send("01 03 21 00 00 01 8E 37") is None
+    assert line.bus.records[-1].kind == "crc error"
+
+
+def test_address_change_takes_effect_after_its_reply(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    # The reply to the write goes out from the old address.
+    assert line.send(write(1, 0x2008, 7)) == write(1, 0x2008, 7)
+    assert line.send(read(1, 0x2103)) is None
+    assert line.send(read(7, 0x2008)) is not None
+    assert line.bus.slaves[0].drive.read(0x0800) == 7  # F08.00 holds it
+
+
+def test_baud_change_takes_effect_after_its_reply_on_a_single_drive_line(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    assert line.bus.line_baud == 19200
+    assert line.send(write(1, 0x2009, 3)) == write(1, 0x2009, 3)
+    assert line.replies[-1].new_baud == 9600
+    assert line.bus.line_baud == 9600
+    assert line.send(read(1, 0x2009)) == encode(ReadResponse(1, (3,)))
+
+
+def test_a_drive_set_to_another_baud_on_a_shared_line_goes_deaf(three: Line) -> None:
+    assert three.send(write(2, 0x2009, 3)) == write(2, 0x2009, 3)
+    assert three.replies[-1].new_baud is None
+    assert three.bus.line_baud == 19200
+    assert three.send(read(2, 0x2103)) is None
+    assert three.send(read(1, 0x2103)) is not None
+
+
+def test_frame_log_records_both_directions_in_words(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    seen = []
+    unsubscribe = line.bus.subscribe(seen.append)
+    line.send("01 06 20 00 00 01 43 CA")
+    line.send("01 03 00 32 00 01 25 C5")
+    unsubscribe()
+    line.send("01 03 21 00 00 01 8E 36")
+    assert [(r.direction, r.kind, r.text) for r in seen] == [
+        ("rx", "request", "write 2000H = 0001: forward run"),
+        ("tx", "reply", "write 2000H = 0001: forward run"),
+        ("rx", "request", "read F00.50"),
+        ("tx", "exception", "exception 0x02 to read: illegal data address"),
+    ]
+    assert len(line.bus.records) == 6
+    last = line.bus.records[-1].as_dict()
+    assert last["hex"] == "01 03 02 00 03 F8 45"
+    assert last["text"] == "2100H = 0003: stopped"
+    assert last["dir"] == "tx"
+
+
+def test_frame_log_is_bounded(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)], log_size=10))
+    for _ in range(20):
+        line.send(read(1, 0x2103))
+    assert len(line.bus.records) == 10
+
+
+def test_noise_is_logged_and_not_answered(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    assert line.send("01 03") is None
+    assert line.bus.records[-1].kind == "noise"
+
+
+def test_unsupported_function_on_the_wire(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    assert line.hex(with_crc(bytes.fromhex("01 04 30 00 00 01"))) == "01 84 01 82 C0"

@@ -1,0 +1,83 @@
+"""``c20sim decode`` and ``c20sim profiles``: what a SCADA developer reads."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from c20sim.cli import main
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize(
+    ("frame", "words"),
+    [
+        ("01 06 20 00 00 01 43 CA", "request or echo: slave 1: write 2000H = 0001: forward run; CRC ok"),
+        ("01 03 21 00 00 01 8E 36", "request: slave 1: read 2100H (status word 1); CRC ok"),
+        ("01 06 00 0A 09 C4 AE 0B", "request or echo: slave 1: write F00.10 = 09C4: 25.00 Hz; CRC ok"),
+        ("01 83 02 C0 F1", "exception: slave 1: exception 0x02 to read: illegal data address; CRC ok"),
+        ("01 86 03 02 61", "exception: slave 1: exception 0x03 to write: illegal data value; CRC ok"),
+        ("01 03 02 00 41 78 74", "response: slave 1: read reply: 0041; CRC ok"),
+        ("00 06 20 01 0B B8 D5 59", "request or echo: broadcast: write 2001H = 0BB8: 3000 rpm; CRC ok"),
+    ],
+)
+def test_decode_good_frames(capsys: pytest.CaptureFixture[str], frame: str, words: str) -> None:
+    code, out, _ = run(capsys, "decode", frame)
+    assert code == 0
+    assert out == f"{frame}\n  {words}\n"
+
+
+def test_decode_bad_crc_gives_the_expected_crc(capsys: pytest.CaptureFixture[str]) -> None:
+    # The sheet's erratum: "enable function code writable" with the CRC of writing 0.
+    code, out, _ = run(capsys, "decode", "01:06:20:0e:00:01:e3:c9")
+    assert code == 1
+    assert out.splitlines()[1] == (
+        "  broken: slave 1: write 200EH = 0001: function codes writable; bad CRC: got E3 C9, expected 22 09"
+    )
+
+
+def test_decode_wrong_length(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "decode", "010321000001", "8E")
+    assert code == 1
+    assert "wrong length: 7 bytes; a 0x03 request has 8" in out
+
+
+def test_decode_not_hex(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, "decode", "01", "zz")
+    assert (code, out) == (2, "")
+    assert err == "c20sim: not hex bytes: '01 zz'; give a frame such as '01 06 20 00 00 01 43 CA'\n"
+
+
+def test_profiles_list_and_show(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "profiles")
+    assert code == 0
+    assert "c20-400hr      48 V, 400 W class brushless DC drive, Modbus control (default)" in out
+    assert "c20-2200hv" in out
+    code, out, _ = run(capsys, "profiles", "show", "c20-400hr")
+    assert code == 0
+    assert "  F00.10 000AH  keypad speed setting       50.00 Hz     0-40000  W/R            [sheet]" in out
+    assert "  0x0A UV     bus undervoltage [sheet]" in out
+
+
+def test_profiles_show_unknown(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "profiles", "show", "nope")
+    assert code == 2
+    assert err.startswith("c20sim: nope: no such profile; shipped profiles:")
+
+
+def test_python_dash_m_runs_the_cli() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "c20sim", "decode", "01 06 20 00 00 05 42 09"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 0
+    assert "write 2000H = 0005: stop; CRC ok" in result.stdout

@@ -1,0 +1,90 @@
+"""Profiles load, and a bad one names the file, the key and what is allowed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from c20sim.errors import ProfileError
+from c20sim.profile import DEFAULT_PROFILE, FaultCause, available_profiles, load_profile, profile_path
+from c20sim.registers import Access, Reg
+
+DEFAULT_TEXT = profile_path(DEFAULT_PROFILE).read_text()
+
+
+def test_shipped_profiles_load() -> None:
+    assert set(available_profiles()) >= {"c20-400hr", "c20-2200hv"}
+    for name in available_profiles():
+        profile = load_profile(name)
+        assert profile.name == name
+        assert profile.fault_code(FaultCause.UNDERVOLTAGE) == 0x0A
+
+
+def test_default_profile_facts() -> None:
+    profile = load_profile()
+    assert profile.name == "c20-400hr"
+    assert profile.supply.voltage_v == 48.0
+    assert profile.default(0x000A) == 5000  # F00.10 = 50.00 Hz, the sheet's example
+    assert profile.default(Reg.RUN_CHANNEL) == 2  # communication
+    assert profile.default(Reg.SPEED_SOURCE) == 3  # Modbus
+    assert profile.default(Reg.ADDRESS) == 1
+    assert profile.default(Reg.BAUD) == 4  # 19200
+    assert profile.registers.canonical(Reg.ADDRESS) == 0x0800
+    assert profile.registers[0x0200].access is Access.RW_STOPPED
+    assert profile.protocol.reply_to_bad_crc is True
+    assert profile.protocol.max_read_registers == 1
+
+
+def test_mains_profile_is_a_310_v_model() -> None:
+    profile = load_profile("c20-2200hv")
+    assert 300 <= profile.supply.voltage_v <= 320
+
+
+def bad(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ProfileError) as info:
+        load_profile(str(path))
+    message = str(info.value)
+    assert message.startswith(str(path))
+    return message
+
+
+def test_out_of_range_names_key_and_range(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace("voltage_v = 48.0", "voltage_v = 900.0"))
+    assert message.endswith("supply.voltage_v: 900.0 is out of range; allowed 5 to 800 V")
+
+
+def test_misspelt_key_gets_did_you_mean(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace("turnaround_ms =", "turnarround_ms ="))
+    assert "protocol.turnarround_ms: unknown key (did you mean 'turnaround_ms'?)" in message
+
+
+def test_misspelt_fault_cause(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace('cause = "undervoltage"', 'cause = "undervoltag"'))
+    assert "fault[9].cause: unknown cause 'undervoltag' (did you mean 'undervoltage'?)" in message
+
+
+def test_missing_key(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace("kt_nm_per_a = 0.127", ""))
+    assert "motor.kt_nm_per_a: missing; allowed 0.001 to 20 N m/A" in message
+
+
+def test_parameter_default_outside_its_range(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace("default = 5000", "default = 50000"))
+    assert "parameter F00.10.default: 50000 is out of range; allowed 0 to 40000" in message
+
+
+def test_missing_mirror(tmp_path: Path) -> None:
+    message = bad(tmp_path, DEFAULT_TEXT.replace('mirror = "2008H"', ""))
+    assert "no function code mirrors 2008H (address)" in message
+
+
+def test_bad_toml(tmp_path: Path) -> None:
+    assert "not valid TOML" in bad(tmp_path, DEFAULT_TEXT + "\n[motor\n")
+
+
+def test_unknown_profile_name_suggests_one() -> None:
+    with pytest.raises(ProfileError, match="did you mean 'c20-400hr'"):
+        load_profile("c20-400h")

@@ -1,0 +1,323 @@
+"""CRC, frame encoding and the RTU framer, without a port and without waiting."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from c20sim.protocol import (
+    ExceptionCode,
+    ExceptionResponse,
+    FrameKind,
+    ReadRequest,
+    ReadResponse,
+    RtuFramer,
+    UnsupportedRequest,
+    WriteMultipleRequest,
+    WriteMultipleResponse,
+    WriteSingleRequest,
+    WriteSingleResponse,
+    crc16,
+    decode_request,
+    decode_response,
+    encode,
+    silence_times,
+    with_crc,
+)
+
+H = bytes.fromhex
+T35 = 3.5 * 11 / 19200
+T15 = 1.5 * 11 / 19200
+CHAR = 11 / 19200
+
+
+def test_crc_of_the_sheets_frames() -> None:
+    # Every CRC of the sheet's command table, low byte first (NOTES.md).
+    assert with_crc(H("01 06 20 00 00 01")) == H("01 06 20 00 00 01 43 CA")
+    assert with_crc(H("01 06 20 01 0B B8")) == H("01 06 20 01 0B B8 D4 88")
+    assert with_crc(H("01 03 00 0A 00 01")) == H("01 03 00 0A 00 01 A4 08")
+    assert with_crc(H("01 83 02")) == H("01 83 02 C0 F1")
+    assert with_crc(H("01 86 03")) == H("01 86 03 02 61")
+
+
+def test_crc_check_value() -> None:
+    # The catalogue check value of CRC-16/MODBUS.
+    assert crc16(b"123456789") == 0x4B37
+    assert crc16(b"") == 0xFFFF
+
+
+@pytest.mark.parametrize(
+    ("message", "frame"),
+    [
+        (ReadRequest(1, 0x2100, 1), "01 03 21 00 00 01 8E 36"),
+        (WriteSingleRequest(1, 0x000A, 0x09C4), "01 06 00 0A 09 C4 AE 0B"),
+        (ReadResponse(1, (0x1388,)), "01 03 02 13 88 B5 12"),
+        (WriteSingleResponse(1, 0x2000, 5), "01 06 20 00 00 05 42 09"),
+        (ExceptionResponse(1, 0x03, ExceptionCode.ILLEGAL_ADDRESS), "01 83 02 C0 F1"),
+        (ExceptionResponse(1, 0x06, ExceptionCode.ILLEGAL_VALUE), "01 86 03 02 61"),
+    ],
+)
+def test_encode_matches_the_sheet(message: object, frame: str) -> None:
+    assert encode(message) == H(frame)  # type: ignore[arg-type]
+
+
+def test_write_multiple_round_trip() -> None:
+    request = WriteMultipleRequest(1, 0x2000, (1, 3000))
+    frame = encode(request)
+    assert frame[:7] == H("01 10 20 00 00 02 04")
+    assert decode_request(frame) == request
+    reply = encode(WriteMultipleResponse(1, 0x2000, 2))
+    assert decode_response(reply) == WriteMultipleResponse(1, 0x2000, 2)
+
+
+def test_decode_keeps_disagreeing_counts_for_the_slave_to_refuse() -> None:
+    frame = with_crc(H("01 10 20 00 00 03 04 00 01 0B B8"))
+    request = decode_request(frame)
+    assert isinstance(request, WriteMultipleRequest)
+    assert (request.count, request.byte_count, request.values) == (3, 4, (1, 3000))
+
+
+def test_decode_unknown_function_is_unsupported() -> None:
+    assert decode_request(with_crc(H("01 04 30 00 00 01"))) == UnsupportedRequest(1, 4, H("30 00 00 01"))
+
+
+def test_decode_rejects_bad_crc_and_length() -> None:
+    with pytest.raises(ValueError, match="bad CRC"):
+        decode_request(H("01 06 20 00 00 01 43 CB"))
+    with pytest.raises(ValueError, match="9 bytes"):
+        decode_request(with_crc(H("01 03 21 00 00 01 00")))
+
+
+def test_silence_times() -> None:
+    assert silence_times(19200) == pytest.approx((T15, T35))
+    assert silence_times(9600) == pytest.approx((1.5 * 11 / 9600, 3.5 * 11 / 9600))
+    assert silence_times(38400) == (0.00075, 0.00175)
+    assert silence_times(57600) == (0.00075, 0.00175)
+
+
+# --- the framer
+
+
+def frames(framer: RtuFramer) -> list[tuple[FrameKind, bytes]]:
+    return [(e.kind, e.data) for e in framer.events()]
+
+
+READ = H("01 03 21 00 00 01 8E 36")
+WRITE = H("01 06 20 00 00 01 43 CA")
+
+
+def test_frame_ends_only_after_t35_of_silence() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ, 1.0)
+    framer.tick(1.0 + T35 * 0.99)
+    assert framer.next_event() is None
+    assert framer.deadline() == pytest.approx(1.0 + T35)
+    framer.tick(1.0 + T35)
+    event = framer.next_event()
+    assert event is not None
+    assert (event.kind, event.data, event.t) == (FrameKind.FRAME, READ, 1.0)
+    assert framer.deadline() is None
+
+
+def test_frame_split_into_chunks_is_joined() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ[:3], 1.0)
+    framer.feed(READ[3:], 1.0 + 5 * CHAR)  # byte 4 follows byte 3 after one character time
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ)]
+
+
+def test_gap_over_t15_inside_a_frame_makes_it_invalid() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ[:3], 1.0)
+    framer.feed(READ[3:], 1.0 + 5 * CHAR + T15 * 1.2)
+    framer.tick(2.0)
+    events = framer.events()
+    assert [(e.kind, e.data) for e in events] == [(FrameKind.NOISE, READ)]
+    assert "t1.5" in events[0].note
+
+
+def test_gap_between_t15_and_t35_is_tolerated_without_gap_checks() -> None:
+    framer = RtuFramer(19200, check_gaps=False)
+    framer.feed(READ[:3], 1.0)
+    framer.feed(READ[3:], 1.0 + 5 * CHAR + T15 * 1.2)
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ)]
+
+
+def test_two_frames_separated_by_silence() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ, 1.0)
+    framer.feed(WRITE, 1.0 + 7 * CHAR + T35)
+    framer.tick(5.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ), (FrameKind.FRAME, WRITE)]
+
+
+def test_back_to_back_frames_are_split() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ + WRITE + READ, 1.0)
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ), (FrameKind.FRAME, WRITE), (FrameKind.FRAME, READ)]
+
+
+def test_length_completion_emits_without_silence() -> None:
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(READ[:5], 1.0)
+    assert framer.next_event() is None
+    framer.feed(READ[5:] + WRITE[:2], 1.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ)]
+    framer.feed(WRITE[2:], 1.0)
+    assert frames(framer) == [(FrameKind.FRAME, WRITE)]
+
+
+def test_length_completion_of_write_multiple_waits_for_its_byte_count() -> None:
+    frame = encode(WriteMultipleRequest(1, 0x2000, (1, 3000)))
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    for i in range(len(frame) - 1):
+        framer.feed(frame[i : i + 1], 1.0)
+        assert framer.next_event() is None
+    framer.feed(frame[-1:], 1.0)
+    assert frames(framer) == [(FrameKind.FRAME, frame)]
+
+
+def test_garbage_before_a_frame_costs_nothing() -> None:
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(H("FF 00 13") + READ, 1.0)
+    assert frames(framer) == [(FrameKind.NOISE, H("FF 00 13")), (FrameKind.FRAME, READ)]
+
+
+def test_bad_crc_frame_then_good_frame_back_to_back() -> None:
+    bad = READ[:-1] + b"\x00"
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(bad + WRITE, 1.0)
+    events = framer.events()
+    assert [(e.kind, e.data) for e in events] == [(FrameKind.CRC_ERROR, bad), (FrameKind.FRAME, WRITE)]
+    assert events[0].note == "bad CRC: got 8E 00, expected 8E 36"
+
+
+def test_bad_crc_alone_waits_for_silence_then_is_reported() -> None:
+    bad = READ[:-1] + b"\x00"
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(bad, 1.0)
+    assert framer.next_event() is None
+    framer.tick(1.0 + T35)
+    assert frames(framer) == [(FrameKind.CRC_ERROR, bad)]
+
+
+def test_truncated_frame_is_a_length_error_and_the_next_frame_survives() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(READ[:6], 1.0)
+    framer.feed(WRITE, 1.0 + 8 * CHAR + T35)
+    framer.tick(5.0)
+    events = framer.events()
+    assert [(e.kind, e.data) for e in events] == [(FrameKind.LENGTH_ERROR, READ[:6]), (FrameKind.FRAME, WRITE)]
+    assert events[0].note == "6 bytes, a function 0x03 request has 8"
+
+
+def test_valid_crc_over_a_wrong_length_is_a_length_error() -> None:
+    frame = with_crc(H("01 03 21 00 00 01 00"))
+    framer = RtuFramer(19200)
+    framer.feed(frame, 1.0)
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.LENGTH_ERROR, frame)]
+
+
+def test_unknown_function_with_good_crc_is_a_frame_for_the_slave_to_refuse() -> None:
+    frame = with_crc(H("01 04 30 00 00 01"))
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(frame, 1.0)
+    assert framer.next_event() is None  # its length is unknown: silence ends it
+    framer.tick(1.0 + T35)
+    assert frames(framer) == [(FrameKind.FRAME, frame)]
+
+
+def test_short_noise_is_noise() -> None:
+    framer = RtuFramer(19200)
+    framer.feed(H("00 FF"), 1.0)
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.NOISE, H("00 FF"))]
+
+
+def test_a_runaway_stream_is_cut_at_the_longest_frame() -> None:
+    framer = RtuFramer(19200, complete_on_length=True, check_gaps=False)
+    framer.feed(bytes([0x01, 0x41]) + bytes(300), 1.0)
+    events = framer.events()
+    assert sum(len(e.data) for e in events) == 302
+    assert all(e.kind is not FrameKind.FRAME for e in events)
+    assert not framer.pending
+
+
+def test_baud_change_changes_the_silence() -> None:
+    framer = RtuFramer(19200)
+    framer.set_baud(9600)
+    framer.feed(READ, 1.0)
+    framer.tick(1.0 + T35 * 1.5)  # enough at 19200, not at 9600
+    assert framer.next_event() is None
+    framer.tick(1.0 + 3.5 * 11 / 9600)
+    assert frames(framer) == [(FrameKind.FRAME, READ)]
+
+
+# --- properties
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    chunks=st.lists(st.binary(min_size=0, max_size=40), max_size=12),
+    gaps=st.lists(st.floats(min_value=0, max_value=0.01), min_size=12, max_size=12),
+    on_length=st.booleans(),
+)
+def test_any_byte_stream_never_raises_and_accounts_for_every_byte(
+    chunks: list[bytes], gaps: list[float], on_length: bool
+) -> None:
+    framer = RtuFramer(19200, complete_on_length=on_length, check_gaps=not on_length)
+    t = 0.0
+    for chunk, gap in zip(chunks, gaps, strict=False):
+        t += gap
+        framer.feed(chunk, t)
+        framer.tick(t)
+    framer.flush()
+    events = framer.events()
+    assert b"".join(e.data for e in events) == b"".join(chunks)
+    assert all(e.data for e in events)
+
+
+requests = st.one_of(
+    st.builds(ReadRequest, st.integers(1, 247), st.integers(0, 0xFFFF), st.integers(1, 125)),
+    st.builds(WriteSingleRequest, st.integers(1, 247), st.integers(0, 0xFFFF), st.integers(0, 0xFFFF)),
+    st.builds(
+        WriteMultipleRequest,
+        st.integers(1, 247),
+        st.integers(0, 0xFFFF),
+        st.lists(st.integers(0, 0xFFFF), min_size=1, max_size=20).map(tuple),
+    ),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(garbage=st.binary(max_size=300), request=requests, on_length=st.booleans())
+def test_valid_frame_after_garbage_and_silence_is_recovered(garbage: bytes, request: object, on_length: bool) -> None:
+    frame = encode(request)  # type: ignore[arg-type]
+    framer = RtuFramer(19200, complete_on_length=on_length, check_gaps=not on_length)
+    framer.feed(garbage, 1.0)
+    start = 1.0 + T35 + (len(frame) - 1) * CHAR
+    framer.feed(frame, start)
+    framer.tick(start + T35)
+    events = framer.events()
+    assert events[-1].kind is FrameKind.FRAME
+    assert events[-1].data == frame
+    assert decode_request(events[-1].data) == request
+
+
+@settings(max_examples=200, deadline=None)
+@given(request=requests, flip=st.integers(0, 10_000))
+def test_a_bit_flip_is_never_taken_for_the_original_frame(request: object, flip: int) -> None:
+    frame = bytearray(encode(request))  # type: ignore[arg-type]
+    bit = flip % (len(frame) * 8)
+    frame[bit // 8] ^= 1 << (bit % 8)
+    framer = RtuFramer(19200)
+    framer.feed(bytes(frame), 1.0)
+    framer.tick(2.0)
+    events = framer.events()
+    assert b"".join(e.data for e in events) == bytes(frame)
+    assert all(e.kind is not FrameKind.FRAME or e.data != encode(request) for e in events)  # type: ignore[arg-type]
