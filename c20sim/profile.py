@@ -101,6 +101,14 @@ class SupplyParams:
     bus_capacitance_uf: float = field(metadata=_num(1, 100000, "uF"))
     undervoltage_v: float = field(metadata=_num(1, 800, "V", "trip level while running; below it stopped = off"))
     overvoltage_v: float = field(metadata=_num(5, 1000, "V"))
+    brake_chopper_v: float = field(
+        default=0.0,
+        metadata=_num(0, 1000, "V", "bus voltage above which the brake resistor is switched in; 0 = no chopper"),
+    )
+    brake_resistor_ohm: float = field(default=10.0, metadata=_num(0.1, 100000, "ohm", "brake resistor"))
+    bleed_time_constant_s: float = field(
+        default=2.0, metadata=_num(0.01, 3600, "s", "bus discharge time constant with the supply off")
+    )
 
 
 @dataclass(frozen=True)
@@ -116,6 +124,9 @@ class ProtectionParams:
     )
     stall_time_s: float = field(metadata=_num(0.1, 60, "s"))
     stall_speed_rpm: float = field(metadata=_num(0, 3000, "rpm"))
+    brake_hold_s: float = field(
+        default=0.5, metadata=_num(0, 60, "s", "electronic brake (status 6) hold after a ramp stop reaches zero")
+    )
 
 
 @dataclass(frozen=True)
@@ -127,6 +138,9 @@ class ThermalParams:
     time_constant_s: float = field(metadata=_num(1, 100000, "s"))
     switching_loss_fraction: float = field(metadata=_num(0, 0.5, "", "inverter loss as a fraction of output power"))
     overheat_c: float = field(metadata=_num(40, 150, "degC"))
+    overheat_reset_k: float = field(
+        default=5.0, metadata=_num(0, 50, "K", "an overheat fault resets only this far below overheat_c")
+    )
 
 
 class FaultCause(enum.Enum):
