@@ -21,13 +21,16 @@ and is passed to each listener (the JSON-lines writer, the dashboard).
 from __future__ import annotations
 
 import logging
+import random
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from .decode import describe
+from .linkfaults import LinkFaults
 from .protocol import (
     BROADCAST,
+    ExceptionResponse,
     FrameEvent,
     FrameKind,
     ReadRequest,
@@ -83,11 +86,17 @@ class Reply:
 class Bus:
     """Drives sharing one line. ``handle`` serves one framing event."""
 
-    def __init__(self, slaves: Iterable[Slave], *, baud: int | None = None, log_size: int = 2000) -> None:
+    def __init__(
+        self, slaves: Iterable[Slave], *, baud: int | None = None, log_size: int = 2000, seed: int | None = None
+    ) -> None:
         self.slaves: list[Slave] = list(slaves)
         if not self.slaves:
             raise ValueError("a bus needs at least one drive")
         self.line_baud = baud if baud is not None else self.slaves[0].baud
+        #: link faults of the whole line, and of each drive's interface (by position in ``slaves``)
+        self.link = LinkFaults()
+        self.drive_links: list[LinkFaults] = [LinkFaults() for _ in self.slaves]
+        self.rng = random.Random(seed)
         self.records: deque[FrameRecord] = deque(maxlen=log_size)
         self._listeners: list[Callable[[FrameRecord], None]] = []
 
@@ -108,6 +117,18 @@ class Bus:
                 self._listeners.remove(listener)
 
     # -- serving
+
+    def link_faults(self, address: int | None = None) -> LinkFaults:
+        """The link faults of the drive at ``address``, or of the whole bus for None."""
+        if address is None:
+            return self.link
+        for slave, link in zip(self.slaves, self.drive_links, strict=True):
+            if slave.address == address:
+                return link
+        raise KeyError(f"no drive at address {address}")
+
+    def _links(self, slave: Slave) -> tuple[LinkFaults, LinkFaults]:
+        return self.drive_links[self.slaves.index(slave)], self.link
 
     def slave_at(self, address: int) -> Slave | None:
         """The drive answering ``address`` at the line's baud, if any."""
@@ -130,6 +151,8 @@ class Bus:
         slave = self.slave_at(slave_address)
         if slave is None or not slave.profile.protocol.reply_to_bad_crc:
             return None
+        if any(link.offline for link in self._links(slave)):
+            return None
         return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, None)
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
@@ -141,8 +164,8 @@ class Bus:
                 self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast read: ignored"))
                 return None
             self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast: no reply"))
-            for each in self.slaves:
-                if each.baud == self.line_baud:
+            for each, link in zip(self.slaves, self.drive_links, strict=True):
+                if each.baud == self.line_baud and not (link.offline or self.link.offline):
                     each.handle(request, t)
             return None
         slave = self.slave_at(address) if address not in RESERVED else None
@@ -150,17 +173,35 @@ class Bus:
             note = "reserved address: silence" if address in RESERVED else "no drive at this address: silence"
             self.record(FrameRecord(event.t, "rx", event.data, "request", address, text, note))
             return None
-        self.record(FrameRecord(event.t, "rx", event.data, "request", address, describe(request, slave.registers)))
-        response = slave.handle(request, t)
+        links = self._links(slave)
+        text = describe(request, slave.registers)
+        if any(link.offline for link in links):
+            self.record(FrameRecord(event.t, "rx", event.data, "request", address, text, "drive offline (injected)"))
+            return None
+        self.record(FrameRecord(event.t, "rx", event.data, "request", address, text))
+        forced = next((link.forced_exception for link in links if link.forced_exception is not None), None)
+        if forced is not None:
+            response: Response = ExceptionResponse(address, request.function, forced)
+        else:
+            response = slave.handle(request, t)
         return self._reply(slave, response, event.t, request)
 
-    def _reply(self, slave: Slave, response: Response, t: float, request: Request | None) -> Reply:
-        data = encode(response)
-        kind = "exception" if data[1] & 0x80 else "reply"
+    def _reply(self, slave: Slave, response: Response, t: float, request: Request | None) -> Reply | None:
+        data: bytes | None = encode(response)
+        kind = "exception" if response.function & 0x80 else "reply"
+        text = describe(response, slave.registers, request)
         delay = slave.profile.protocol.turnaround_ms / 1000.0
-        self.record(
-            FrameRecord(t + delay, "tx", data, kind, response.slave, describe(response, slave.registers, request))
-        )
+        notes: list[str] = []
+        for link in self._links(slave):
+            assert data is not None
+            mangled = link.mangle(data, delay, self.rng)
+            data, delay = mangled.data, mangled.delay
+            notes += mangled.notes
+            if data is None:
+                self.record(FrameRecord(t + delay, "tx", b"", "dropped", response.slave, text, "; ".join(notes)))
+                return None
+        assert data is not None
+        self.record(FrameRecord(t + delay, "tx", data, kind, response.slave, text, "; ".join(notes)))
         new_baud = None
         if len(self.slaves) == 1 and slave.baud != self.line_baud:
             new_baud = self.line_baud = slave.baud

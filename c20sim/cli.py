@@ -7,13 +7,17 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
-from .registers import format_fcode
+from .registers import BAUD_RATES, format_fcode
+from .serve import ServeOptions, run_server
+from .simulator import Simulator, make_clock, parse_addresses
 
 __all__ = ["main"]
 
@@ -60,6 +64,75 @@ def cmd_profiles(args: argparse.Namespace) -> int:
         profile = load_profile(str(path))
         default = " (default)" if name == DEFAULT_PROFILE else ""
         print(f"{name:<14} {profile.description}{default}")
+    return 0
+
+
+def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
+    """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
+    where = parser.add_argument_group("endpoints (with none: --pty and --tcp 127.0.0.1:5020)")
+    where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
+    where.add_argument(
+        "--link", metavar="PATH", help="a stable symlink to the pty, such as /tmp/ttyC20 (implies --pty)"
+    )
+    where.add_argument("--serial", metavar="DEVICE", help="a real serial port, such as /dev/ttyUSB0")
+    where.add_argument("--baud", type=int, default=19200, choices=BAUD_RATES, help="serial baud rate (default 19200)")
+    where.add_argument("--parity", default="N", choices=["N", "E", "O"], help="serial parity (default N)")
+    where.add_argument("--stopbits", type=int, default=1, choices=[1, 2], help="serial stop bits (default 1)")
+    where.add_argument("--tcp", metavar="HOST:PORT", help="raw RTU frames over TCP, as a serial device server")
+    where.add_argument("--modbus-tcp", metavar="HOST:PORT", help="Modbus TCP (MBAP), as an Ethernet gateway")
+    where.add_argument("--line-timing", action="store_true", help="pace replies at the baud and enforce t1.5/t3.5")
+    what = parser.add_argument_group("the simulated drives")
+    what.add_argument(
+        "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
+    )
+    what.add_argument(
+        "--drives", default="1", metavar="LIST", help="drive addresses on the bus, such as 1,2,5 (default 1)"
+    )
+    what.add_argument(
+        "--clock", default="realtime", choices=["realtime", "virtual"], help="time source (default realtime)"
+    )
+    what.add_argument("--speed", type=float, default=1.0, help="realtime clock speed factor (default 1)")
+    what.add_argument("--state", metavar="PATH", help="keep function codes (EEPROM) in this file across runs")
+    what.add_argument("--seed", type=int, help="seed for random link faults, for repeatable runs")
+    what.add_argument("--log-frames", metavar="PATH", help="append every frame as a JSON line to this file")
+    what.add_argument("--ready-file", metavar="PATH", help="write the real endpoint addresses as JSON when ready")
+
+
+def build_simulator(args: argparse.Namespace) -> Simulator:
+    profile = load_profile(args.profile)
+    return Simulator(
+        profile,
+        parse_addresses(args.drives),
+        clock=make_clock(args.clock, args.speed),
+        state=Path(args.state) if args.state else None,
+        seed=args.seed,
+    )
+
+
+def serve_options(args: argparse.Namespace) -> ServeOptions:
+    options = ServeOptions(
+        pty=args.pty,
+        link=args.link,
+        serial=args.serial,
+        baud=args.baud,
+        parity=args.parity,
+        stopbits=args.stopbits,
+        tcp=args.tcp,
+        modbus_tcp=args.modbus_tcp,
+        line_timing=args.line_timing,
+        log_frames=args.log_frames,
+        ready_file=args.ready_file,
+    )
+    if not options.any_endpoint:
+        options.pty = True
+        options.tcp = "127.0.0.1:5020"
+    return options
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    options = serve_options(args)  # check the endpoints before building drives
+    sim = build_simulator(args)
+    asyncio.run(run_server(sim, options))
     return 0
 
 
@@ -116,6 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
     profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")
     profiles.add_argument("name", nargs="?", help="profile name or path (for show)")
     profiles.set_defaults(func=cmd_profiles)
+
+    serve = sub.add_parser("serve", help="run the simulator headless until SIGINT or SIGTERM")
+    add_endpoint_options(serve)
+    serve.set_defaults(func=cmd_serve)
     return parser
 
 

@@ -1,0 +1,192 @@
+"""``c20sim serve``: a simulator on every endpoint asked for, until SIGINT or SIGTERM.
+
+Endpoints start in order; if one fails (busy port, missing device, bad
+address) the ones already started are closed before the error is reported,
+so nothing is left half-started. When all are up, one ready line lists every
+endpoint, and ``--ready-file`` gets the same as JSON with the real addresses
+(port 0 is resolved), for scripts and CI to read.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Protocol
+
+from .bus import FrameRecord
+from .errors import C20SimError
+from .simulator import Simulator
+from .transport.pty import PtyPort
+from .transport.serial import SerialPort
+from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
+
+__all__ = ["Endpoints", "ServeOptions", "Server", "run_server"]
+
+
+class Endpoint(Protocol):
+    @property
+    def name(self) -> str: ...
+
+    async def start(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class ServeOptions:
+    """The endpoint options of ``serve`` and ``dashboard``."""
+
+    pty: bool = False
+    link: str | None = None
+    serial: str | None = None
+    baud: int = 19200
+    parity: str = "N"
+    stopbits: int = 1
+    tcp: str | None = None
+    modbus_tcp: str | None = None
+    line_timing: bool = False
+    log_frames: str | None = None
+    ready_file: str | None = None
+    extra_ready: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def any_endpoint(self) -> bool:
+        return bool(self.pty or self.link or self.serial or self.tcp or self.modbus_tcp)
+
+
+@dataclass
+class Endpoints:
+    pty: PtyPort | None = None
+    serial: SerialPort | None = None
+    tcp: RtuOverTcpServer | None = None
+    modbus_tcp: ModbusTcpServer | None = None
+
+    def all(self) -> list[Endpoint]:
+        return [e for e in (self.pty, self.serial, self.tcp, self.modbus_tcp) if e is not None]
+
+    def addresses(self) -> dict[str, str]:
+        """The ready file's keys: ``tcp``/``modbus_tcp`` as HOST:PORT, ``pty``/``serial`` as paths."""
+        out: dict[str, str] = {}
+        if self.pty is not None:
+            out["pty"] = self.pty.name
+        if self.serial is not None:
+            out["serial"] = self.serial.name
+        if self.tcp is not None:
+            out["tcp"] = self.tcp.name
+        if self.modbus_tcp is not None:
+            out["modbus_tcp"] = self.modbus_tcp.name
+        return out
+
+
+class Server:
+    """A simulator behind the endpoints of ``options``; start, then close."""
+
+    def __init__(self, sim: Simulator, options: ServeOptions) -> None:
+        self.sim = sim
+        self.options = options
+        self.line = asyncio.Lock()
+        self.endpoints = Endpoints()
+        self._log_file: IO[str] | None = None
+        self._unsubscribe: list[Callable[[], None]] = []
+
+    async def start(self) -> None:
+        """Start every endpoint, or none: on error, close what started and raise C20SimError."""
+        opts, sim, line = self.options, self.sim, self.line
+        try:
+            if opts.log_frames:
+                self._open_frame_log(opts.log_frames)
+            if opts.pty or opts.link:
+                self.endpoints.pty = PtyPort(sim, line, link=opts.link, line_timing=opts.line_timing)
+                await self.endpoints.pty.start()
+            if opts.serial:
+                self.endpoints.serial = SerialPort(
+                    sim,
+                    line,
+                    opts.serial,
+                    baud=opts.baud,
+                    parity=opts.parity,
+                    stopbits=opts.stopbits,
+                    line_timing=opts.line_timing,
+                )
+                await self.endpoints.serial.start()
+            if opts.tcp:
+                host, port = parse_host_port(opts.tcp, "--tcp")
+                self.endpoints.tcp = RtuOverTcpServer(sim, line, host, port)
+                await self.endpoints.tcp.start()
+            if opts.modbus_tcp:
+                host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
+                self.endpoints.modbus_tcp = ModbusTcpServer(sim, line, host, port)
+                await self.endpoints.modbus_tcp.start()
+            if opts.ready_file:
+                self.write_ready_file(opts.ready_file)
+        except BaseException:
+            self.close()
+            raise
+
+    def ready_line(self) -> str:
+        parts = [f"{key} {value}" for key, value in {**self.endpoints.addresses(), **self.options.extra_ready}.items()]
+        drives = ",".join(map(str, self.sim.drives))
+        clock = "virtual" if self.sim.virtual else "realtime"
+        return f"c20sim ready: {self.sim.profile.name}, drives {drives}, {clock} clock; " + "; ".join(parts)
+
+    def write_ready_file(self, path: str) -> None:
+        data = {**self.endpoints.addresses(), **self.options.extra_ready}
+        target = Path(path)
+        tmp = target.with_name(f".{target.name}.tmp")
+        try:
+            tmp.write_text(json.dumps(data, indent=2) + "\n")
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
+
+    def _open_frame_log(self, path: str) -> None:
+        try:
+            self._log_file = open(path, "a", encoding="utf-8", buffering=1)  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise C20SimError(f"--log-frames {path}: cannot open: {exc.strerror}") from None
+        log_file = self._log_file
+
+        def write(record: FrameRecord) -> None:
+            log_file.write(json.dumps(record.as_dict()) + "\n")
+
+        self._unsubscribe.append(self.sim.bus.subscribe(write))
+
+    async def aclose(self) -> None:
+        """Close, and wait until every TCP connection has ended."""
+        self.close()
+        for server in (self.endpoints.tcp, self.endpoints.modbus_tcp):
+            if server is not None:
+                await server.wait_closed()
+
+    def close(self) -> None:
+        for endpoint in self.endpoints.all():
+            endpoint.close()
+        for unsubscribe in self._unsubscribe:
+            unsubscribe()
+        self._unsubscribe.clear()
+        if self._log_file is not None:
+            self._log_file.close()
+            self._log_file = None
+
+
+async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:
+    """Serve until SIGINT or SIGTERM."""
+    server = Server(sim, options)
+    await server.start()
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        print(server.ready_line(), file=out, flush=True)
+        await stop.wait()
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+        await server.aclose()

@@ -1,0 +1,111 @@
+"""A real serial port, such as a USB-RS485 adapter, through pyserial.
+
+The port is opened exclusively, so a second simulator (or a terminal program)
+cannot share it by mistake. A baud change through 2009H is applied to the
+port after its reply has left the wire, as the drive does.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+
+import serial
+
+from ..errors import C20SimError
+from ..protocol import RtuFramer
+from ..simulator import Simulator
+from .endpoint import RtuEndpoint
+
+__all__ = ["SerialPort"]
+
+PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+
+
+class SerialPort:
+    """A serial device in front of a simulator's bus."""
+
+    def __init__(
+        self,
+        sim: Simulator,
+        line: asyncio.Lock,
+        device: str,
+        *,
+        baud: int = 19200,
+        parity: str = "N",
+        stopbits: int = 1,
+        line_timing: bool = False,
+    ) -> None:
+        self.sim = sim
+        self.line = line
+        self.device = device
+        self.baud = baud
+        self.parity = parity
+        self.stopbits = stopbits
+        self.line_timing = line_timing
+        self._port: serial.Serial | None = None
+        self._endpoint: RtuEndpoint | None = None
+
+    @property
+    def name(self) -> str:
+        return self.device
+
+    async def start(self) -> None:
+        try:
+            self._port = serial.Serial(
+                self.device,
+                self.baud,
+                bytesize=serial.EIGHTBITS,
+                parity=PARITIES[self.parity],
+                stopbits=serial.STOPBITS_TWO if self.stopbits == 2 else serial.STOPBITS_ONE,
+                timeout=0,
+                exclusive=True,
+            )
+        except serial.SerialException as exc:
+            raise C20SimError(_explain(self.device, exc)) from None
+        framer = RtuFramer(self.baud, complete_on_length=not self.line_timing, check_gaps=self.line_timing)
+        self._endpoint = RtuEndpoint(
+            self.sim, framer, self._send, self.line, on_baud=self._set_baud, name=f"serial {self.device}"
+        )
+        asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
+
+    def _readable(self) -> None:
+        assert self._port is not None and self._endpoint is not None
+        try:
+            data = self._port.read(4096)
+        except serial.SerialException:
+            return
+        if data:
+            self._endpoint.feed(data)
+
+    async def _send(self, data: bytes) -> None:
+        assert self._port is not None
+        self._port.write(data)
+        await asyncio.to_thread(self._port.flush)  # the reply is on the wire before any baud change
+
+    def _set_baud(self, baud: int) -> None:
+        assert self._port is not None
+        self._port.baudrate = baud
+        self.baud = baud
+
+    def close(self) -> None:
+        if self._endpoint is not None:
+            self._endpoint.close()
+        if self._port is not None:
+            with contextlib.suppress(RuntimeError, ValueError):
+                asyncio.get_running_loop().remove_reader(self._port.fileno())
+            self._port.close()
+            self._port = None
+
+
+def _explain(device: str, exc: serial.SerialException) -> str:
+    code = exc.errno if isinstance(exc.errno, int) else getattr(exc.__context__, "errno", None)
+    text = str(exc)
+    if code == errno.ENOENT or "No such file" in text:
+        return f"--serial {device}: no such device; check the adapter is plugged in (ls /dev/ttyUSB* /dev/ttyACM*)"
+    if code == errno.EACCES or "Permission denied" in text:
+        return f"--serial {device}: permission denied; add yourself to the dialout group or run with access to the port"
+    if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "lock" in text.lower() or "busy" in text.lower():
+        return f"--serial {device}: the port is busy (another program has it open); close that program or choose another port"
+    return f"--serial {device}: cannot open: {text}"
