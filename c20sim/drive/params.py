@@ -2,23 +2,56 @@
 
 Holds every function code of the profile at its default, and answers for the
 20xxH registers that mirror one. Restoring defaults (200FH) is done here.
+
+With a state file the store is an EEPROM: every change is on disk before
+:meth:`ParameterStore.set` returns, written atomically (a temporary file in
+the same directory, fsync, ``os.replace``, fsync of the directory), so a kill
+at any moment leaves the old file or the new one, never a broken one. A file
+that cannot be read or makes no sense raises :class:`StateFileError` naming
+it; nothing is silently reset.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
+import os
+import tempfile
 from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
 
+from ..errors import C20SimError
 from ..profile import Profile
+from ..registers import format_fcode, parse_fcode
 
-__all__ = ["ParameterStore"]
+__all__ = ["STATE_FORMAT", "ParameterStore", "StateFileError"]
+
+#: Marks a c20sim state file; bumped if the layout changes.
+STATE_FORMAT = "c20sim-eeprom/1"
+
+
+class StateFileError(C20SimError):
+    """A state file that cannot be read, written or understood: names the file."""
+
+    def __init__(self, path: str | Path, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
 
 
 class ParameterStore:
-    """The function-code values of one drive."""
+    """The function-code values of one drive, optionally persisted to ``path``."""
 
-    def __init__(self, profile: Profile) -> None:
+    def __init__(self, profile: Profile, path: str | Path | None = None) -> None:
         self.profile = profile
+        self.path = Path(path) if path is not None else None
         self._values: dict[int, int] = dict(profile.defaults)
+        if self.path is not None:
+            if self.path.exists():
+                self._values.update(self._read(self.path))
+            else:
+                self.save()
 
     def __contains__(self, address: object) -> bool:
         return address in self._values
@@ -28,10 +61,17 @@ class ParameterStore:
         return self._values[self.profile.registers.canonical(address)]
 
     def set(self, address: int, value: int) -> None:
-        self._values[self.profile.registers.canonical(address)] = value & 0xFFFF
+        """Store a value (persisted before returning when there is a state file)."""
+        cell = self.profile.registers.canonical(address)
+        value &= 0xFFFF
+        if self._values.get(cell) == value:
+            return
+        self._values[cell] = value
+        self.save()
 
     def restore_defaults(self) -> None:
         self._values = dict(self.profile.defaults)
+        self.save()
 
     def snapshot(self) -> dict[int, int]:
         """A copy of every value, by function-code address."""
@@ -42,3 +82,87 @@ class ParameterStore:
         for address, value in values.items():
             if address in self._values:
                 self._values[address] = value & 0xFFFF
+        self.save()
+
+    # --- The state file.
+
+    def save(self) -> None:
+        """Write the state file atomically (no-op without one)."""
+        if self.path is None:
+            return
+        document = {
+            "format": STATE_FORMAT,
+            "profile": self.profile.name,
+            "parameters": {format_fcode(a): v for a, v in sorted(self._values.items())},
+        }
+        data = (json.dumps(document, indent=1) + "\n").encode()
+        directory = self.path.parent
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=directory)
+        except OSError as exc:
+            raise StateFileError(self.path, f"cannot write: {exc.strerror}") from None
+        try:
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.replace(tmp, self.path)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise StateFileError(self.path, f"cannot write: {exc.strerror}") from None
+        _fsync_directory(directory)
+
+    def _read(self, path: Path) -> dict[int, int]:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise StateFileError(path, f"cannot read: {exc.strerror}") from None
+        except UnicodeDecodeError:
+            raise StateFileError(path, "not a c20sim state file (not UTF-8 text)") from None
+        try:
+            document: Any = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise StateFileError(path, f"corrupt state file (not valid JSON: {exc.msg}, line {exc.lineno})") from None
+        if not isinstance(document, dict) or document.get("format") != STATE_FORMAT:
+            raise StateFileError(path, f"not a c20sim state file (expected format {STATE_FORMAT!r})")
+        if document.get("profile") != self.profile.name:
+            raise StateFileError(
+                path,
+                f"written for profile {document.get('profile')!r}, not {self.profile.name!r}; "
+                "use another state file or delete this one",
+            )
+        raw = document.get("parameters")
+        if not isinstance(raw, dict):
+            raise StateFileError(path, "corrupt state file: 'parameters' must be a table")
+        values: dict[int, int] = {}
+        for code, value in raw.items():
+            try:
+                address = parse_fcode(code)
+            except ValueError as exc:
+                raise StateFileError(path, f"corrupt state file: {exc}") from None
+            spec = self.profile.registers.get(address)
+            if spec is None:
+                continue  # a function code this profile does not have: ignore, as a newer EEPROM layout would
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
+                raise StateFileError(path, f"corrupt state file: {code} = {value!r} is not a 16-bit value")
+            if not spec.accepts(value):
+                raise StateFileError(
+                    path, f"{code} = {value} is out of range; allowed {spec.minimum} to {spec.maximum}"
+                )
+            values[address] = value
+        return values
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make the rename itself durable (not possible on every platform: best effort)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

@@ -1,0 +1,787 @@
+"""The behavioural C20: state machine, ramps, motor, DC bus, heat and faults, in virtual time.
+
+The model never reads a clock. :meth:`Drive.advance_to` integrates in fixed
+steps of :data:`STEP` from the last step to ``t``, so the state at a time does
+not depend on how often anyone looks; reads never change it. When every input
+is constant and the drive has settled (stopped, or running at its set speed
+without the current limit), it enters a :class:`~c20sim.drive.physics.Segment`
+whose closed forms give the state at any later step directly: an idle or
+steady drive skips ahead at no cost, and bit for bit as if it had stepped.
+
+Faults are causes: each protection watches a physical condition, trips by a
+transition of the state table with the profile's code, and the latch is
+released by fault reset only once the cause is gone. Conditions are set by
+the injection methods (``set_supply_voltage``, ``set_load_torque``, ...), at
+the drive's current time: call :meth:`Drive.advance_to` first.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ModbusError
+from ..profile import FaultCause, Profile
+from ..protocol import ExceptionCode
+from ..registers import FIXED_REGISTERS, Reg, fcode_address
+from . import physics
+from .params import ParameterStore
+from .physics import ACCEL, CONSTANT, DECEL, RPM, Segment
+from .statemachine import DRIVEN, STATUS_WORD, Event, State, next_state
+from .terminals import Input, Output, multi_speed_index
+
+__all__ = ["STEP", "Drive", "HallFault", "Telemetry"]
+
+#: The fixed internal step, seconds.
+STEP = 0.001
+
+#: Registers held in RAM (not function codes): they read back what was written; a power cycle clears them.
+RAM_REGISTERS = (Reg.COMMAND, Reg.SPEED_SETPOINT, Reg.VIRTUAL_INPUTS, Reg.VIRTUAL_OUTPUTS, Reg.WRITE_ENABLE)
+
+DRIVE_ID = 0x0020
+STATUS2_BUS = 0x0001
+STATUS2_OVERLOAD = 0x0010
+
+# Function codes the model reads beyond the mirrored ones (absent in a profile: the [motor] value is used).
+F_MAX_SPEED = fcode_address(0, 3)
+F_KEYPAD_SPEED = fcode_address(0, 10)
+F_JOG_SPEED = fcode_address(0, 13)
+F_COMM_TIMEOUT = fcode_address(8, 2)
+F_MULTI_SPEED = fcode_address(5, 0)
+
+CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = 0, 1, 2
+RUN_COMMANDS = frozenset({Event.FORWARD, Event.REVERSE, Event.JOG_FORWARD, Event.JOG_REVERSE})
+RUNNING = frozenset({State.FORWARD, State.REVERSE, State.JOG_FORWARD, State.JOG_REVERSE})
+#: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
+TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
+#: I^2 t budget: the overload time is given at 150 % of rated current.
+OVERLOAD_RATIO = 1.5
+
+_BY_PHASE = {
+    "overcurrent": {
+        ACCEL: FaultCause.OVERCURRENT_ACCEL,
+        DECEL: FaultCause.OVERCURRENT_DECEL,
+        CONSTANT: FaultCause.OVERCURRENT_CONSTANT,
+    },
+    "overvoltage": {
+        ACCEL: FaultCause.OVERVOLTAGE_ACCEL,
+        DECEL: FaultCause.OVERVOLTAGE_DECEL,
+        CONSTANT: FaultCause.OVERVOLTAGE_CONSTANT,
+    },
+}
+
+
+class HallFault(enum.Enum):
+    """A broken Hall sensor, as injected."""
+
+    STUCK0 = "stuck0"  #: all three sensors read 0
+    STUCK7 = "stuck7"  #: all three sensors read 1
+    SEQUENCE = "sequence"  #: codes come out of order (a bad sensor or wiring)
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """What the drive is doing, in engineering units, for a dashboard."""
+
+    t: float
+    state: str
+    status: int  #: 2100H
+    fault_code: int  #: 2102H
+    fault_name: str
+    speed_rpm: float  #: signed: negative is reverse
+    set_speed_rpm: float
+    ramp_rpm: float
+    current_a: float  #: signed torque-producing current
+    output_voltage_v: float
+    output_power_w: float
+    bus_v: float
+    supply_v: float
+    temperature_c: float
+    ambient_c: float
+    hall: int
+    motor_overload: float  #: fraction of the motor's I^2 t budget used
+    drive_overload: float  #: fraction of the drive's I^2 t budget used
+    load_torque_nm: float
+    load_inertia_kg_m2: float
+    input_terminals: int  #: 300DH
+    output_terminals: int  #: 300EH
+    run_channel: int
+    speed_source: int
+    steady: bool  #: skipping ahead in closed form
+
+
+@dataclass(frozen=True, slots=True)
+class _Config:
+    """Everything the step needs that only changes when an input changes."""
+
+    pole_pairs: int
+    max_rpm: float
+    up: float  #: rpm per step while accelerating
+    down: float  #: rpm per step while decelerating
+    reference_rpm: float
+    jog_rpm: float
+    channel: int
+    source: int
+    comm_timeout: float
+    inertia: float
+    hold: float  #: Coulomb friction plus load torque, N m
+    viscous: float  #: N m per rpm
+    inputs: int  #: effective input terminals
+
+
+def _u16(value: float) -> int:
+    return min(max(round(value), 0), 0xFFFF)
+
+
+class Drive:
+    """A ZBLD.C20 brushless drive in virtual time; a :class:`~c20sim.drive.base.DrivePort`."""
+
+    state: State
+    _ram: dict[int, int]
+    _cfg: _Config
+    _cause: FaultCause | None
+    _last_comm: float | None
+    _segment: Segment | None
+
+    def __init__(self, profile: Profile, *, t0: float = 0.0, state_path: str | Path | None = None) -> None:
+        self.profile = profile
+        self.parameters = ParameterStore(profile, state_path)
+        self.t0 = float(t0)
+        self.t = self.t0
+        self._k = 0
+        s, p, th = profile.supply, profile.protection, profile.thermal
+        self._codes: Mapping[FaultCause, int] = {
+            spec.cause: spec.code for spec in profile.faults.values() if spec.cause is not None
+        }
+        # Constants of the step.
+        self._capacitance = s.bus_capacitance_uf * 1e-6
+        self._inv_source = 1.0 / max(s.source_resistance_ohm, 1e-3)
+        self._inv_bleed = self._capacitance / s.bleed_time_constant_s
+        self._inv_brake = 1.0 / s.brake_resistor_ohm
+        self._temp_rate = STEP / th.time_constant_s
+        self._temp_decay = math.exp(-self._temp_rate)
+        self._motor_budget = (OVERLOAD_RATIO**2 - 1.0) * p.overload_time_s
+        self._drive_budget = self._motor_budget
+        self._stall_steps_limit = max(1, round(p.stall_time_s / STEP))
+        self._brake_steps_limit = round(p.brake_hold_s / STEP)
+        # Conditions set by injection.
+        self._supply = s.voltage_v
+        self._load = 0.0
+        self._load_inertia = 0.0
+        self._ambient = th.ambient_c
+        self._hall_fault: HallFault | None = None
+        self._ai = [0.0, 0.0, 0.0]
+        self._physical_inputs = 0
+        self._temp = self._ambient
+        self._power_up()
+
+    # --- DrivePort.
+
+    def advance_to(self, t: float) -> None:
+        """Integrate to time ``t`` (seconds); earlier times are ignored."""
+        if t <= self.t:
+            return
+        self.t = t
+        target = int((t - self.t0) / STEP + 1e-6)
+        while self._k < target:
+            if self._segment is not None:
+                self._advance_segment(target)
+            else:
+                self._step()
+
+    def communicated(self, t: float) -> None:
+        self._last_comm = t
+
+    @property
+    def running(self) -> bool:
+        """True while the inverter drives the motor (W/R* registers are locked)."""
+        return self.state in DRIVEN
+
+    def read(self, address: int) -> int:
+        if address in self._ram:
+            return self._ram[address]
+        if address in self.parameters:
+            return self.parameters.get(address)
+        reader = _READERS.get(address)
+        if reader is not None:
+            return reader(self)
+        if address in FIXED_REGISTERS:
+            return 0  # 200FH reads 0
+        raise KeyError(address)
+
+    def check_write(self, address: int, value: int) -> None:
+        if address == Reg.COMMAND and value in {e.value for e in RUN_COMMANDS}:
+            channel = self._cfg.channel
+            if channel != CHANNEL_COMM:
+                names = {CHANNEL_KEYPAD: "keypad", CHANNEL_TERMINAL: "terminals"}
+                raise ModbusError(
+                    ExceptionCode.OPERATION_FAILED,
+                    f"run commands come from the {names.get(channel, 'dial switch')} (F00.01 = {channel})",
+                )
+
+    def write(self, address: int, value: int) -> None:
+        self._segment = None
+        if address == Reg.COMMAND:
+            self._ram[address] = value
+            self._apply(Event(value))
+        elif address == Reg.VIRTUAL_INPUTS:
+            before = self._cfg.inputs
+            self._ram[address] = value
+            self._reconfigure()
+            self._inputs_changed(before)
+        elif address in self._ram:
+            self._ram[address] = value
+        elif address == Reg.RESTORE_DEFAULTS:
+            if value == 1:
+                self.parameters.restore_defaults()
+        else:
+            self.parameters.set(address, value)
+        self._reconfigure()
+
+    # --- Local controls and injection.
+
+    def keypad(self, command: int) -> bool:
+        """Press a keypad key (a 2000H command value). False if refused.
+
+        Run and jog keys work only with the keypad run channel (F00.01 = 0);
+        stop, free stop and fault reset work from any channel (assumed). A
+        reset is refused while the fault's cause persists.
+        """
+        event = Event(command)
+        if event in RUN_COMMANDS and self._cfg.channel != CHANNEL_KEYPAD:
+            return False
+        self._segment = None
+        if event is Event.RESET:
+            return self._reset()
+        self._apply(event)
+        return True
+
+    def set_supply_voltage(self, volts: float) -> None:
+        """The supply behind the DC bus (0 = switched off)."""
+        self._supply = max(0.0, float(volts))
+        self._changed()
+
+    def set_load_torque(self, nm: float) -> None:
+        """Load torque on the shaft, opposing motion (N m)."""
+        self._load = max(0.0, float(nm))
+        self._changed()
+
+    def set_load_inertia(self, kg_m2: float) -> None:
+        """Inertia coupled to the shaft, added to the profile's (kg m^2)."""
+        self._load_inertia = max(0.0, float(kg_m2))
+        self._changed()
+
+    def set_ambient(self, celsius: float) -> None:
+        self._ambient = float(celsius)
+        self._changed()
+
+    def set_hall_fault(self, fault: HallFault | str | None) -> None:
+        """Break the Hall sensor ('stuck0', 'stuck7', 'sequence') or mend it (None)."""
+        self._hall_fault = None if fault is None else HallFault(fault)
+        self._changed()
+
+    def set_ai(self, channel: int, volts: float) -> None:
+        """Analog input 1, 2 or 3 (0-10 V; AI1 is the knob)."""
+        if channel not in (1, 2, 3):
+            raise ValueError(f"analog input must be 1, 2 or 3, not {channel}")
+        self._ai[channel - 1] = min(max(float(volts), 0.0), 10.0)
+        self._changed()
+
+    def set_terminal_inputs(self, bits: int) -> None:
+        """The physical input terminals (bits of :class:`~c20sim.drive.terminals.Input`)."""
+        before = self._cfg.inputs
+        self._physical_inputs = int(bits) & 0x1FF
+        self._changed()
+        self._inputs_changed(before)
+
+    def force_fault(self, code: int, *, persistent: bool = False) -> None:
+        """Latch fault ``code`` now; with ``persistent`` a reset fails until :meth:`release_fault`."""
+        if not 1 <= code <= 0xFF:
+            raise ValueError(f"fault code must be 1-255, not {code}")
+        self._segment = None
+        self._forced_hold = persistent
+        if self.state is State.FAULT:
+            self._fault, self._cause = code, None
+        else:
+            self._trip(code, None)
+
+    def release_fault(self) -> None:
+        """The cause of a persistent forced fault is gone (a reset is still needed)."""
+        self._forced_hold = False
+
+    def power_cycle(self) -> None:
+        """Switch the drive off and on: RAM registers and faults clear, the EEPROM stays."""
+        self._power_up()
+
+    def telemetry(self) -> Telemetry:
+        m = self.profile.motor
+        speed, current = self._speed, self._current
+        volts = m.kt_nm_per_a * speed * RPM + current * m.resistance_ohm
+        return Telemetry(
+            t=self.t,
+            state=self.state.value,
+            status=self._status1(),
+            fault_code=self._fault_reported(),
+            fault_name=self.profile.fault_name(self._fault_reported()) if self._fault_reported() else "",
+            speed_rpm=speed,
+            set_speed_rpm=self._set_rpm(),
+            ramp_rpm=self._ramp,
+            current_a=current,
+            output_voltage_v=abs(volts),
+            output_power_w=max(0.0, volts * current),
+            bus_v=self._bus,
+            supply_v=self._supply,
+            temperature_c=self._temp,
+            ambient_c=self._ambient,
+            hall=self._hall(),
+            motor_overload=self._motor_i2t / self._motor_budget,
+            drive_overload=self._drive_i2t / self._drive_budget,
+            load_torque_nm=self._load,
+            load_inertia_kg_m2=self._load_inertia,
+            input_terminals=self._cfg.inputs,
+            output_terminals=self._outputs(),
+            run_channel=self._cfg.channel,
+            speed_source=self._cfg.source,
+            steady=self._segment is not None,
+        )
+
+    # --- State changes.
+
+    def _power_up(self) -> None:
+        self._ram = dict.fromkeys(RAM_REGISTERS, 0)
+        self._reconfigure()
+        self._speed = self._speed_before = self._ramp = self._current = 0.0
+        self._power = self._loss = 0.0
+        self._bus = self._bus_rest(self._supply)
+        self._bus_settled = True
+        self._limited = False
+        self._phase = CONSTANT
+        self._motor_i2t = self._drive_i2t = 0.0
+        self._theta = 0.0
+        self._hall_before = self._hall()
+        self._hall_glitch = False
+        self._stall_steps = self._brake_steps = 0
+        self._fault = 0
+        self._cause = None
+        self._forced_hold = False
+        self._last_comm = None
+        self.state = State.STOPPED if self._bus >= self.profile.supply.undervoltage_v else State.OFF
+        self._segment = None
+        self._try_segment()
+
+    def _changed(self) -> None:
+        self._segment = None
+        self._reconfigure()
+
+    def _apply(self, event: Event) -> None:
+        """Feed one event to the state table."""
+        if event is Event.RESET:
+            self._reset()
+            return
+        new = next_state(self.state, event)
+        if new is not self.state:
+            self._enter(new)
+
+    def _enter(self, new: State) -> None:
+        if new in DRIVEN and self.state not in DRIVEN:
+            self._ramp = self._speed  # catch a turning rotor where it is
+        if new not in DRIVEN:
+            self._ramp = self._current = self._power = self._loss = 0.0
+        self._brake_steps = 0
+        self._stall_steps = 0
+        self._segment = None
+        self.state = new
+
+    def _trip(self, code: int, cause: FaultCause | None) -> None:
+        if self.state is State.FAULT:
+            return
+        self._fault, self._cause = code, cause
+        if cause is FaultCause.COMMUNICATION:
+            self._last_comm = None  # re-armed by the next request
+        self._enter(next_state(self.state, Event.TRIP))
+
+    def _trip_on(self, cause: FaultCause) -> bool:
+        code = self._codes.get(cause)
+        if code is None:
+            return False  # the profile has no code for it: this drive lacks the protection
+        self._trip(code, cause)
+        return True
+
+    def _reset(self) -> bool:
+        if self.state is not State.FAULT or self._cause_persists():
+            return False
+        self._fault, self._cause = 0, None
+        self._enter(next_state(self.state, Event.RESET))
+        return True
+
+    def _cause_persists(self) -> bool:
+        cause, s, p = self._cause, self.profile.supply, self.profile.protection
+        if cause is None:
+            return self._forced_hold
+        if cause is FaultCause.UNDERVOLTAGE:
+            return self._bus < s.undervoltage_v
+        if cause in _BY_PHASE["overvoltage"].values():
+            return self._bus > s.overvoltage_v
+        if cause in _BY_PHASE["overcurrent"].values():
+            return self._cfg.hold / self.profile.motor.kt_nm_per_a > p.overcurrent_a
+        if cause is FaultCause.MOTOR_OVERLOAD:
+            return self._motor_i2t > p.overload_warning * self._motor_budget
+        if cause is FaultCause.DRIVE_OVERLOAD:
+            return self._drive_i2t > p.overload_warning * self._drive_budget
+        if cause is FaultCause.OVERHEAT:
+            return self._temp > self.profile.thermal.overheat_c - self.profile.thermal.overheat_reset_k
+        if cause is FaultCause.EXTERNAL:
+            return bool(self._cfg.inputs & Input.EF)
+        if cause is FaultCause.HALL:
+            return self._hall_fault is not None
+        return False  # stall, communication: the reset itself is the retry
+
+    def _inputs_changed(self, before: int) -> None:
+        after = self._cfg.inputs
+        if after & ~before & Input.CLR:
+            self._reset()
+        run_bits = Input.FWD | Input.REV | Input.JOGF | Input.JOGR
+        if self._cfg.channel != CHANNEL_TERMINAL or not (before ^ after) & run_bits:
+            return
+        fwd, rev = bool(after & Input.FWD), bool(after & Input.REV)
+        jogf, jogr = bool(after & Input.JOGF), bool(after & Input.JOGR)
+        if fwd != rev:
+            self._apply(Event.FORWARD if fwd else Event.REVERSE)
+        elif not fwd and jogf != jogr:
+            self._apply(Event.JOG_FORWARD if jogf else Event.JOG_REVERSE)
+        else:
+            self._apply(Event.STOP)
+
+    # --- Settings derived from parameters and conditions.
+
+    def _reconfigure(self) -> None:
+        m, P, regs = self.profile.motor, self.parameters, self.profile.registers
+        max_rpm = float(P.get(F_MAX_SPEED)) if F_MAX_SPEED in P else m.rated_speed_rpm
+        accel = max(P.get(Reg.ACCEL_TIME), 1) * 0.1
+        decel = max(P.get(Reg.DECEL_TIME), 1) * 0.1
+        pole_pairs = max(P.get(Reg.POLE_PAIRS), 1)
+        inputs = (self._physical_inputs | self._ram[Reg.VIRTUAL_INPUTS]) & 0x1FF
+        source = P.get(Reg.SPEED_SOURCE)
+        reference = 0.0
+        if source == 0 and F_KEYPAD_SPEED in P:
+            reference = P.get(F_KEYPAD_SPEED) * regs[F_KEYPAD_SPEED].scale * 60.0 / pole_pairs
+        elif source in (1, 2):
+            reference = self._ai[source - 1] / 10.0 * max_rpm
+        elif source == 3:
+            reference = float(self._ram[Reg.SPEED_SETPOINT])
+        elif source == 4:
+            segment = F_MULTI_SPEED + multi_speed_index(inputs)
+            reference = float(P.get(segment)) if segment in P else 0.0
+        jog = float(P.get(F_JOG_SPEED)) if F_JOG_SPEED in P else m.jog_speed_rpm
+        timeout = P.get(F_COMM_TIMEOUT) * regs[F_COMM_TIMEOUT].scale if F_COMM_TIMEOUT in P else 0.0
+        self._cfg = _Config(
+            pole_pairs=pole_pairs,
+            max_rpm=max_rpm,
+            up=max_rpm / accel * STEP,
+            down=max_rpm / decel * STEP,
+            reference_rpm=min(max(reference, 0.0), max_rpm),
+            jog_rpm=min(max(jog, 0.0), max_rpm),
+            channel=P.get(Reg.RUN_CHANNEL),
+            source=source,
+            comm_timeout=timeout,
+            inertia=m.inertia_kg_m2 + self._load_inertia,
+            hold=m.friction_nm + self._load,
+            viscous=m.viscous_nm_per_krpm / 1000.0,
+            inputs=inputs,
+        )
+
+    def _target(self) -> float:
+        s, cfg = self.state, self._cfg
+        if s is State.FORWARD:
+            return cfg.reference_rpm
+        if s is State.REVERSE:
+            return -cfg.reference_rpm
+        if s is State.JOG_FORWARD:
+            return cfg.jog_rpm
+        if s is State.JOG_REVERSE:
+            return -cfg.jog_rpm
+        return 0.0
+
+    def _bus_rest(self, supply: float) -> float:
+        """The bus of a stopped drive: the supply divided by the source and bleed resistances."""
+        if supply <= 0.0:
+            return 0.0
+        return supply * self._inv_source / (self._inv_source + self._inv_bleed)
+
+    # --- The step.
+
+    def _step(self) -> None:
+        self._k += 1
+        cfg, m, prot = self._cfg, self.profile.motor, self.profile.protection
+        kt, resistance = m.kt_nm_per_a, m.resistance_ohm
+        speed = self._speed
+        state = self.state
+        limited = False
+        if state in DRIVEN:
+            target = self._target()
+            ramp, phase = physics.ramp_toward(self._ramp, target, cfg.up, cfg.down)
+            moving = ramp if ramp != 0.0 else speed
+            sign = (moving > 0.0) - (moving < 0.0)
+            torque = cfg.inertia * (ramp - speed) * RPM / STEP + sign * cfg.hold + cfg.viscous * ramp
+            wanted = torque / kt
+            emf = kt * ramp * RPM
+            high = min(prot.current_limit_a, (self._bus - emf) / resistance)
+            low = max(-prot.current_limit_a, (-self._bus - emf) / resistance)
+            if low <= wanted <= high:
+                new_speed, current = ramp, wanted
+            else:
+                limited = True
+                current = high if wanted > high else low
+                new_speed = physics.free_motion(speed, kt * current, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+                ramp = new_speed  # the current limit holds the ramp back
+        else:
+            target, ramp, phase, current = 0.0, 0.0, CONSTANT, 0.0
+            new_speed = physics.free_motion(speed, 0.0, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        volts = kt * new_speed * RPM + current * resistance
+        power = volts * current
+        loss = self.profile.thermal.switching_loss_fraction * abs(power)
+        bus = physics.bus_step(
+            self._bus,
+            self._supply,
+            (power + loss) / max(self._bus, 1.0),
+            inv_source=self._inv_source,
+            inv_bleed=self._inv_bleed,
+            inv_brake=self._inv_brake,
+            chopper_v=self.profile.supply.brake_chopper_v,
+            capacitance=self._capacitance,
+            dt=STEP,
+        )
+        chopper = 0.0 < self.profile.supply.brake_chopper_v < bus
+        self._bus_settled = abs(bus - self._bus) <= 1e-9 and not chopper
+        temp_ss = self._ambient + loss * self.profile.thermal.resistance_k_per_w
+        self._temp = temp_ss + (self._temp - temp_ss) * self._temp_decay
+        self._motor_i2t = max(0.0, self._motor_i2t + STEP * ((current / m.rated_current_a) ** 2 - 1.0))
+        self._drive_i2t = max(0.0, self._drive_i2t + STEP * ((current / prot.drive_rated_current_a) ** 2 - 1.0))
+        self._theta = (self._theta + new_speed * RPM * cfg.pole_pairs * STEP) % physics.TWO_PI
+        hall = self._hall()
+        # Healthy codes step through the sequence; an out-of-order sensor shows itself at its first edge.
+        self._hall_glitch = hall in (0, 7) or (self._hall_fault is HallFault.SEQUENCE and hall != self._hall_before)
+        self._hall_before = hall
+        if state in RUNNING and abs(target) > prot.stall_speed_rpm and abs(new_speed) < prot.stall_speed_rpm:
+            self._stall_steps += 1
+        else:
+            self._stall_steps = 0
+        if state is State.BRAKING:
+            self._brake_steps += 1
+        self._speed_before, self._speed, self._ramp, self._current = speed, new_speed, ramp, current
+        self._power, self._loss, self._bus, self._phase, self._limited = power, loss, bus, phase, limited
+        self._protect()
+        self._auto_events()
+        if self.state is state:
+            self._try_segment()
+
+    def _protect(self) -> None:
+        """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
+        state = self.state
+        if state is State.FAULT:
+            return
+        supply, prot = self.profile.supply, self.profile.protection
+        if self._bus < supply.undervoltage_v:
+            if state in TRIPS_ON_UNDERVOLTAGE:
+                self._trip_on(FaultCause.UNDERVOLTAGE)
+            elif state is not State.OFF:
+                self._apply(Event.POWER_LOST)
+            return
+        if state is State.OFF:
+            self._apply(Event.POWER_BACK)
+            return
+        driven = state in DRIVEN
+        if self._bus > supply.overvoltage_v and self._trip_on(_BY_PHASE["overvoltage"][self._phase]):
+            return
+        if (
+            driven
+            and self._cfg.hold / self.profile.motor.kt_nm_per_a > prot.overcurrent_a
+            and self._trip_on(_BY_PHASE["overcurrent"][self._phase])
+        ):
+            return
+        if driven and self._hall_glitch and self._trip_on(FaultCause.HALL):
+            return
+        if self._stall_steps >= self._stall_steps_limit and self._trip_on(FaultCause.STALL):
+            return
+        if self._motor_i2t >= self._motor_budget and self._trip_on(FaultCause.MOTOR_OVERLOAD):
+            return
+        if self._drive_i2t >= self._drive_budget and self._trip_on(FaultCause.DRIVE_OVERLOAD):
+            return
+        if self._temp >= self.profile.thermal.overheat_c and self._trip_on(FaultCause.OVERHEAT):
+            return
+        if self._cfg.inputs & Input.EF and self._trip_on(FaultCause.EXTERNAL):
+            return
+        if self._comm_expired(self._k):
+            self._trip_on(FaultCause.COMMUNICATION)
+
+    def _comm_expired(self, k: int) -> bool:
+        cfg = self._cfg
+        return (
+            cfg.comm_timeout > 0.0
+            and cfg.channel == CHANNEL_COMM
+            and self._last_comm is not None
+            and self.state not in (State.FAULT, State.OFF)
+            and self.t0 + k * STEP - self._last_comm > cfg.comm_timeout
+        )
+
+    def _auto_events(self) -> None:
+        state = self.state
+        if state is State.DECELERATING and self._speed == 0.0 and self._ramp == 0.0:
+            self._apply(Event.AT_ZERO)
+        elif state is State.BRAKING and self._brake_steps >= self._brake_steps_limit:
+            self._apply(Event.HOLD_DONE)
+        elif state is State.COASTING and self._speed == 0.0:
+            self._apply(Event.AT_ZERO)
+
+    # --- Steady segments: skipping ahead exactly.
+
+    def _try_segment(self) -> None:
+        state = self.state
+        if state in (State.DECELERATING, State.BRAKING, State.COASTING) or not self._bus_settled:
+            return
+        if self._speed != self._speed_before:
+            return
+        if state in DRIVEN:
+            if self._limited or self._stall_steps or self._hall_fault is not None:
+                return
+            if self._ramp != self._target() or self._speed != self._ramp:
+                return
+        elif self._speed != 0.0:
+            return
+        m, prot = self.profile.motor, self.profile.protection
+        watch = state not in (State.FAULT, State.OFF)
+        temp_ss = self._ambient + self._loss * self.profile.thermal.resistance_k_per_w
+        motor_rate = STEP * ((self._current / m.rated_current_a) ** 2 - 1.0)
+        drive_rate = STEP * ((self._current / prot.drive_rated_current_a) ** 2 - 1.0)
+        self._segment = Segment(
+            k0=self._k,
+            temp0=self._temp,
+            temp_ss=temp_ss,
+            temp_rate=self._temp_rate,
+            motor_i2t0=self._motor_i2t,
+            motor_rate=motor_rate,
+            drive_i2t0=self._drive_i2t,
+            drive_rate=drive_rate,
+            theta0=self._theta,
+            theta_rate=self._speed * RPM * self._cfg.pole_pairs * STEP,
+            watch_heat=watch and temp_ss > self.profile.thermal.overheat_c,
+            watch_overload=watch and (motor_rate > 0.0 or drive_rate > 0.0),
+        )
+
+    def _segment_event(self, seg: Segment, n: int) -> bool:
+        """True if a protection trips at step ``n`` of the segment (monotone in ``n``)."""
+        if seg.watch_heat and seg.temp(n) >= self.profile.thermal.overheat_c:
+            return True
+        if seg.watch_overload and (seg.motor_i2t(n) >= self._motor_budget or seg.drive_i2t(n) >= self._drive_budget):
+            return True
+        return self._comm_expired(seg.k0 + n)
+
+    def _advance_segment(self, target: int) -> None:
+        seg = self._segment
+        assert seg is not None
+        first, last = self._k + 1 - seg.k0, target - seg.k0
+        event = self._segment_event(seg, last)
+        n = last
+        if event:  # find the first step that trips: the same step a 1 ms poll would find
+            low, high = first, last
+            while low < high:
+                mid = (low + high) // 2
+                if self._segment_event(seg, mid):
+                    high = mid
+                else:
+                    low = mid + 1
+            n = low
+        self._k = seg.k0 + n
+        self._temp = seg.temp(n)
+        self._motor_i2t = seg.motor_i2t(n)
+        self._drive_i2t = seg.drive_i2t(n)
+        self._theta = seg.theta(n)
+        self._hall_before = self._hall()
+        if event:
+            self._protect()
+            self._segment = None
+
+    # --- Register values.
+
+    def _status1(self) -> int:
+        if self.state is State.DECELERATING:
+            return 1 if self._speed >= 0.0 else 2
+        return STATUS_WORD[self.state]
+
+    def _status2(self) -> int:
+        p = self.profile.protection
+        word = (self._cfg.channel & 0b11) << 5
+        if self._bus >= self.profile.supply.undervoltage_v:
+            word |= STATUS2_BUS
+        if (
+            self._motor_i2t > p.overload_warning * self._motor_budget
+            or self._drive_i2t > p.overload_warning * self._drive_budget
+        ):
+            word |= STATUS2_OVERLOAD
+        return word
+
+    def _fault_reported(self) -> int:
+        """2102H/300BH: the latched fault; while off, undervoltage (as the sheet's example pair reads)."""
+        if self.state is State.FAULT:
+            return self._fault
+        if self.state is State.OFF:
+            return self._codes.get(FaultCause.UNDERVOLTAGE, 0)
+        return 0
+
+    def _set_rpm(self) -> float:
+        if self.state in (State.JOG_FORWARD, State.JOG_REVERSE):
+            return self._cfg.jog_rpm
+        return self._cfg.reference_rpm
+
+    def _hz100(self, rpm: float) -> int:
+        return _u16(abs(rpm) * self._cfg.pole_pairs * 100.0 / 60.0)
+
+    def _hall(self) -> int:
+        fault = self._hall_fault
+        if fault is HallFault.STUCK0:
+            return 0
+        if fault is HallFault.STUCK7:
+            return 7
+        if fault is HallFault.SEQUENCE:  # every other code: each change flips two bits
+            theta = (2.0 * self._theta) % physics.TWO_PI
+            return physics.hall_code(theta)
+        return physics.hall_code(self._theta)
+
+    def _outputs(self) -> int:
+        own = Output.RUN if self.state in DRIVEN else 0
+        if self.state is State.FAULT:
+            own |= Output.FAULT
+        return (int(own) | self._ram[Reg.VIRTUAL_OUTPUTS]) & 0x0F
+
+    def _output_volts(self) -> float:
+        m = self.profile.motor
+        return abs(m.kt_nm_per_a * self._speed * RPM + self._current * m.resistance_ohm)
+
+
+_READERS: dict[int, Callable[[Drive], int]] = {
+    Reg.STATUS1: Drive._status1,
+    Reg.STATUS2: Drive._status2,
+    Reg.FAULT_CODE: Drive._fault_reported,
+    Reg.DRIVE_ID: lambda d: DRIVE_ID,
+    Reg.SET_FREQUENCY: lambda d: d._hz100(d._set_rpm()),
+    Reg.OUTPUT_FREQUENCY: lambda d: d._hz100(d._speed),
+    Reg.RAMP_FREQUENCY: lambda d: d._hz100(d._ramp),
+    Reg.OUTPUT_VOLTAGE: lambda d: _u16(d._output_volts() * 10.0),
+    Reg.OUTPUT_CURRENT: lambda d: _u16(abs(d._current) * 100.0),
+    Reg.SET_SPEED: lambda d: _u16(d._set_rpm()),
+    Reg.MOTOR_SPEED: lambda d: _u16(abs(d._speed)),
+    Reg.OUTPUT_POWER: lambda d: _u16(max(0.0, d._power)),
+    Reg.BUS_VOLTAGE: lambda d: _u16(d._bus * 10.0),
+    Reg.HALL: Drive._hall,
+    Reg.SOFTWARE_VERSION: lambda d: d.profile.software_version,
+    Reg.CURRENT_FAULT: Drive._fault_reported,
+    Reg.TEMPERATURE: lambda d: round(d._temp * 10.0) & 0xFFFF,
+    Reg.INPUT_TERMINALS: lambda d: d._cfg.inputs,
+    Reg.OUTPUT_TERMINALS: Drive._outputs,
+    Reg.AI1_VOLTAGE: lambda d: _u16(d._ai[0] * 100.0),
+    Reg.AI2_VOLTAGE: lambda d: _u16(d._ai[1] * 100.0),
+    Reg.AI3_VOLTAGE: lambda d: _u16(d._ai[2] * 100.0),
+}

@@ -1,0 +1,140 @@
+"""The physics of one internal step, as pure functions, and the steady segment.
+
+Each function advances one quantity by one fixed step and is written so the
+same inputs give the same floats: the model's determinism rests on it. Fast
+quantities (the DC bus, whose RC constant is below a millisecond) use the
+exact solution of their linear ODE over the step, so the fixed step stays
+stable. :class:`Segment` is the closed form of a drive whose every input is
+constant: only temperature, the I^2 t budgets and the rotor angle move, each
+as an explicit function of the step count, so a segment is evaluated at any
+step directly and skipping ahead costs nothing and changes nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = [
+    "HALL_SEQUENCE",
+    "RPM",
+    "TWO_PI",
+    "Segment",
+    "bus_step",
+    "free_motion",
+    "hall_code",
+    "ramp_toward",
+]
+
+#: rad/s per rpm.
+RPM = 2.0 * math.pi / 60.0
+TWO_PI = 2.0 * math.pi
+SECTOR = math.pi / 3.0
+
+#: 120-degree Hall codes through one electrical revolution, forward (each step flips one bit).
+HALL_SEQUENCE = (1, 3, 2, 6, 4, 5)
+
+ACCEL, DECEL, CONSTANT = "accel", "decel", "constant"
+
+
+def ramp_toward(ref: float, target: float, up: float, down: float) -> tuple[float, str]:
+    """Move the ramp output one step toward ``target`` (rpm, signed).
+
+    Away from zero it moves by ``up``, toward zero by ``down``; a change of
+    sign goes through zero at the deceleration rate first. Returns the new
+    value and the phase (accel, decel or constant) for the fault codes.
+    """
+    if ref == target:
+        return ref, CONSTANT
+    if ref * target < 0.0 or abs(target) < abs(ref):
+        floor = target if ref * target > 0.0 else 0.0
+        return (max(ref - down, floor) if ref > 0.0 else min(ref + down, floor)), DECEL
+    return (min(ref + up, target) if target > ref else max(ref - up, target)), ACCEL
+
+
+def free_motion(speed: float, drive_torque: float, hold: float, viscous: float, inertia: float, dt: float) -> float:
+    """Speed (rpm) after ``dt`` under a drive torque against friction and load.
+
+    ``hold`` (Coulomb friction plus load torque, N m) opposes motion and can
+    stop the rotor but never turn it backwards; ``viscous`` is N m per rpm.
+    """
+    if speed == 0.0:
+        if abs(drive_torque) <= hold:
+            return 0.0
+        net = drive_torque - math.copysign(hold, drive_torque)
+    else:
+        net = drive_torque - math.copysign(hold, speed) - viscous * speed
+    new = speed + net / inertia * dt / RPM
+    if speed != 0.0 and new * speed <= 0.0 and not (drive_torque * new > 0.0 and abs(drive_torque) > hold):
+        return 0.0
+    return new
+
+
+def bus_step(
+    v: float,
+    supply: float,
+    load_a: float,
+    *,
+    inv_source: float,
+    inv_bleed: float,
+    inv_brake: float,
+    chopper_v: float,
+    capacitance: float,
+    dt: float,
+) -> float:
+    """DC bus voltage after ``dt``: the capacitor between supply, load, bleed and brake resistor.
+
+    The supply feeds through its source resistance and a rectifier (it can
+    only charge the bus); the load draws ``load_a`` (negative when the motor
+    regenerates); the brake resistor is switched in above ``chopper_v``. The
+    ODE is linear over one step, solved exactly.
+    """
+    b = inv_bleed
+    a = -load_a
+    if chopper_v > 0.0 and v > chopper_v:
+        b += inv_brake
+    if v < supply:
+        a += supply * inv_source
+        b += inv_source
+    v_inf = a / b
+    new = v_inf + (v - v_inf) * math.exp(-dt * b / capacitance)
+    if new < 0.0 or (supply == 0.0 and new < 0.05):
+        return 0.0  # a dead bus settles at exactly zero, so an unpowered drive idles
+    return new
+
+
+def hall_code(theta: float) -> int:
+    """The Hall code of a healthy sensor at electrical angle ``theta`` (0 to 2 pi)."""
+    return HALL_SEQUENCE[min(int(theta / SECTOR), 5)]
+
+
+@dataclass(frozen=True, slots=True)
+class Segment:
+    """A steady stretch from step ``k0``: the closed forms of what still moves."""
+
+    k0: int
+    temp0: float
+    temp_ss: float
+    temp_rate: float  #: step / thermal time constant
+    motor_i2t0: float
+    motor_rate: float  #: I^2 t budget used per step (negative: recovering)
+    drive_i2t0: float
+    drive_rate: float
+    theta0: float
+    theta_rate: float  #: electrical radians per step
+    watch_heat: bool
+    watch_overload: bool
+
+    def temp(self, n: int) -> float:
+        if self.temp0 == self.temp_ss:
+            return self.temp_ss
+        return self.temp_ss + (self.temp0 - self.temp_ss) * math.exp(-n * self.temp_rate)
+
+    def motor_i2t(self, n: int) -> float:
+        return max(0.0, self.motor_i2t0 + n * self.motor_rate)
+
+    def drive_i2t(self, n: int) -> float:
+        return max(0.0, self.drive_i2t0 + n * self.drive_rate)
+
+    def theta(self, n: int) -> float:
+        return (self.theta0 + n * self.theta_rate) % TWO_PI
