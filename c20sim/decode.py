@@ -51,7 +51,8 @@ def _value(address: int, raw: int, registers: RegisterMap | None) -> str:
     if address == Reg.STATUS2:
         words = f": {status2_words(raw)}"
     else:
-        words = f": {spec.describe(raw)}" if spec else ""
+        # a hex register reads the same in words as its raw value: say it once
+        words = f": {spec.describe(raw)}" if spec and (raw in spec.values or not spec.hex_display) else ""
     return f"{label} = {raw:04X}{words}"
 
 

@@ -1,0 +1,87 @@
+"""A simulator served on real ports in the test's event loop, and pymodbus masters for it."""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import dataclass
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+
+from c20sim.clock import VirtualClock
+from c20sim.profile import Profile, load_profile
+from c20sim.serve import ServeOptions, Server
+from c20sim.simulator import Simulator
+
+
+@dataclass
+class Served:
+    sim: Simulator
+    server: Server
+
+    @property
+    def pty(self) -> str:
+        assert self.server.endpoints.pty is not None
+        return self.server.endpoints.pty.path
+
+    @property
+    def tcp_port(self) -> int:
+        assert self.server.endpoints.tcp is not None
+        return self.server.endpoints.tcp.port
+
+    @property
+    def modbus_tcp_port(self) -> int:
+        assert self.server.endpoints.modbus_tcp is not None
+        return self.server.endpoints.modbus_tcp.port
+
+    async def serial_client(self, timeout: float = 1.0, **kwargs: object) -> AsyncModbusSerialClient:
+        client = AsyncModbusSerialClient(self.pty, framer=FramerType.RTU, timeout=timeout, retries=0, **kwargs)  # type: ignore[arg-type]
+        assert await client.connect()
+        return client
+
+    async def rtu_tcp_client(self, timeout: float = 1.0, **kwargs: object) -> AsyncModbusTcpClient:
+        client = AsyncModbusTcpClient(
+            "127.0.0.1",
+            port=self.tcp_port,
+            framer=FramerType.RTU,
+            timeout=timeout,
+            retries=0,
+            **kwargs,  # type: ignore[arg-type]
+        )
+        assert await client.connect()
+        return client
+
+
+ServeFactory = Callable[..., Awaitable[Served]]
+
+
+@pytest.fixture
+async def serve() -> AsyncIterator[ServeFactory]:
+    """Start a simulator on a pty, RTU-over-TCP and Modbus TCP (port 0); closed after the test."""
+    started: list[Server] = []
+
+    async def start(
+        addresses: tuple[int, ...] = (1,), profile: Profile | None = None, seed: int = 1, **options: object
+    ) -> Served:
+        sim = Simulator(profile or load_profile(), addresses, clock=VirtualClock(), seed=seed)
+        settings: dict[str, object] = {"pty": True, "tcp": "127.0.0.1:0", "modbus_tcp": "127.0.0.1:0", **options}
+        opts = ServeOptions(**settings)  # type: ignore[arg-type]
+        server = Server(sim, opts)
+        await server.start()
+        started.append(server)
+        return Served(sim, server)
+
+    yield start
+    for server in started:
+        await server.aclose()
+    await asyncio.sleep(0)
+
+
+def need(tool: str) -> str:
+    path = shutil.which(tool)
+    if path is None:
+        pytest.skip(f"{tool} is not installed (apt-get install {tool}); .ci/run installs it")
+    return path
