@@ -1,0 +1,280 @@
+"""Faults are causes: each trips with the profile's code, and resets only once its cause is gone."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from c20sim.drive.model import STEP, Drive
+from c20sim.drive.terminals import Input, Output
+from c20sim.profile import FaultCause, Profile, load_profile
+from c20sim.registers import Reg
+
+
+@pytest.fixture(scope="module")
+def profile() -> Profile:
+    return load_profile("c20-400hr")
+
+
+def cell(profile: Profile, register: int) -> int:
+    return profile.registers.canonical(register)
+
+
+def running(profile: Profile, rpm: int = 3000, until: float = 3.0) -> Drive:
+    drive = Drive(profile)
+    drive.write(Reg.SPEED_SETPOINT, rpm)
+    drive.write(Reg.COMMAND, 1)
+    drive.advance_to(until)
+    assert drive.read(Reg.MOTOR_SPEED) == rpm
+    return drive
+
+
+def first_time(drive: Drive, condition: Callable[[Drive], bool], until: float, step: float = STEP) -> float | None:
+    """Poll from the drive's time until ``condition`` holds; the time it first did."""
+    start, i = drive.t, 0
+    while True:
+        i += 1
+        t = start + i * step
+        if t > until + 1e-9:
+            return None
+        drive.advance_to(t)
+        if condition(drive):
+            return t
+
+
+def faulted(drive: Drive) -> bool:
+    return drive.read(Reg.STATUS1) == 4
+
+
+def reset(drive: Drive) -> None:
+    drive.write(Reg.COMMAND, 7)
+    drive.advance_to(drive.t + 0.01)
+
+
+def test_supply_drop_while_running_trips_undervoltage(profile: Profile) -> None:
+    drive = running(profile)
+    drive.set_supply_voltage(30.0)
+    assert first_time(drive, faulted, 4.0) is not None
+    assert drive.read(Reg.FAULT_CODE) == 0x0A
+    assert drive.read(Reg.CURRENT_FAULT) == 0x0A
+    assert drive.read(Reg.STATUS2) & 0x01 == 0
+    assert drive.read(Reg.OUTPUT_TERMINALS) == Output.FAULT
+    reset(drive)
+    assert faulted(drive)  # the supply is still low
+    drive.set_supply_voltage(48.0)
+    drive.advance_to(drive.t + 0.1)
+    assert faulted(drive)  # latched until reset
+    reset(drive)
+    assert drive.read(Reg.FAULT_CODE) == 0
+    assert drive.read(Reg.STATUS1) == 3  # coasting down from where the trip left it
+    drive.advance_to(drive.t + 60.0)
+    assert drive.read(Reg.STATUS1) == 3
+
+
+def test_supply_drop_while_stopped_powers_off(profile: Profile) -> None:
+    drive = Drive(profile)
+    drive.set_supply_voltage(30.0)
+    assert first_time(drive, lambda d: d.read(Reg.STATUS1) == 5, 5.0) is not None
+    assert drive.read(Reg.STATUS2) == 0x0040  # bit 0: bus not established
+    assert drive.read(Reg.FAULT_CODE) == 0x0A  # as the sheet's example pair reads (status 5, fault 0x0A)
+    drive.write(Reg.COMMAND, 1)
+    drive.advance_to(drive.t + 0.5)
+    assert drive.read(Reg.STATUS1) == 5  # no bus, no run
+    drive.set_supply_voltage(48.0)
+    assert first_time(drive, lambda d: d.read(Reg.STATUS1) == 3, drive.t + 1.0) is not None
+    assert drive.read(Reg.STATUS2) == 0x0041
+    assert drive.read(Reg.FAULT_CODE) == 0
+
+
+def test_supply_switched_off_drains_the_bus(profile: Profile) -> None:
+    drive = Drive(profile)
+    drive.set_supply_voltage(0.0)
+    drive.advance_to(120.0)
+    assert drive.read(Reg.BUS_VOLTAGE) == 0
+    assert drive.read(Reg.STATUS1) == 5
+    assert drive.telemetry().steady
+
+
+def decelerate(profile: Profile, decel_raw: int) -> Drive:
+    drive = Drive(profile)
+    drive.set_load_inertia(0.01)
+    drive.write(Reg.SPEED_SETPOINT, 3000)
+    drive.write(Reg.COMMAND, 1)
+    drive.advance_to(10.0)
+    assert drive.read(Reg.MOTOR_SPEED) == 3000
+    drive.write(cell(profile, Reg.DECEL_TIME), decel_raw)
+    drive.write(Reg.COMMAND, 5)
+    return drive
+
+
+def test_fast_deceleration_of_a_heavy_load_trips_overvoltage(profile: Profile) -> None:
+    drive = decelerate(profile, 5)  # 0.5 s
+    assert first_time(drive, faulted, 12.0) is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERVOLTAGE_DECEL)
+    assert drive.telemetry().bus_v > profile.supply.overvoltage_v
+
+
+def test_slow_deceleration_of_the_same_load_does_not(profile: Profile) -> None:
+    drive = decelerate(profile, 100)  # 10 s
+    peak = 0.0
+
+    def stopped(d: Drive) -> bool:
+        nonlocal peak
+        peak = max(peak, d.telemetry().bus_v)
+        return d.read(Reg.STATUS1) in (3, 4)
+
+    assert first_time(drive, stopped, 25.0) is not None
+    assert drive.read(Reg.STATUS1) == 3
+    assert profile.supply.voltage_v < peak < profile.supply.overvoltage_v  # it regenerated, the chopper held
+
+
+def trip_times(profile: Profile, load: float) -> tuple[float, float]:
+    drive = running(profile, 1500)
+    drive.set_load_torque(load)
+    start = drive.t
+    warned = first_time(drive, lambda d: bool(d.read(Reg.STATUS2) & 0x10), 400.0, 0.1)
+    tripped = first_time(drive, faulted, 400.0, 0.1)
+    assert warned is not None and tripped is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.MOTOR_OVERLOAD)
+    return warned - start, tripped - start
+
+
+def test_smaller_overload_trips_later(profile: Profile) -> None:
+    m = profile.motor
+    heavy, light = 15.0, 13.0  # amps, against 10 A rated
+    friction = m.friction_nm + m.viscous_nm_per_krpm * 1.5
+    heavy_warn, heavy_trip = trip_times(profile, heavy * m.kt_nm_per_a - friction)
+    light_warn, light_trip = trip_times(profile, light * m.kt_nm_per_a - friction)
+    assert heavy_warn < heavy_trip < light_trip
+    assert light_warn < light_trip
+    budget = (1.5**2 - 1) * profile.protection.overload_time_s
+    assert heavy_trip == pytest.approx(budget / ((heavy / 10) ** 2 - 1), abs=0.15)  # 60 s at 150 %
+    assert light_trip == pytest.approx(budget / ((light / 10) ** 2 - 1), abs=0.15)
+
+
+def test_overload_resets_only_after_cooling_down(profile: Profile) -> None:
+    drive = running(profile, 1500)
+    drive.set_load_torque(15 * profile.motor.kt_nm_per_a)
+    assert first_time(drive, faulted, 200.0, 0.5) is not None
+    drive.set_load_torque(0.0)
+    reset(drive)
+    assert faulted(drive)
+    drive.advance_to(drive.t + 30.0)
+    reset(drive)
+    assert drive.read(Reg.STATUS1) == 3
+
+
+def test_fault_reset_fails_while_the_cause_persists(profile: Profile) -> None:
+    drive = running(profile)
+    drive.set_terminal_inputs(Input.EF)
+    drive.advance_to(drive.t + STEP)
+    assert faulted(drive)
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.EXTERNAL)
+    reset(drive)
+    assert faulted(drive)
+    drive.set_terminal_inputs(0)
+    reset(drive)
+    assert not faulted(drive)
+    assert drive.read(Reg.FAULT_CODE) == 0
+
+
+def test_fault_stops_the_motor_by_coasting(profile: Profile) -> None:
+    drive = running(profile)
+    drive.force_fault(0x10)
+    assert faulted(drive)
+    assert not drive.running
+    drive.advance_to(drive.t + 0.1)
+    assert drive.read(Reg.OUTPUT_CURRENT) == 0
+    assert 0 < drive.read(Reg.MOTOR_SPEED) < 3000
+    drive.write(Reg.COMMAND, 1)  # a run command does not restart a faulted drive
+    drive.advance_to(drive.t + 60.0)
+    assert drive.read(Reg.MOTOR_SPEED) == 0
+    assert faulted(drive)
+
+
+def test_forced_persistent_fault_waits_for_release(profile: Profile) -> None:
+    drive = Drive(profile)
+    drive.force_fault(0x13, persistent=True)
+    assert drive.read(Reg.FAULT_CODE) == 0x13
+    assert drive.keypad(7) is False
+    drive.release_fault()
+    assert drive.keypad(7) is True
+    drive.advance_to(0.01)
+    assert drive.read(Reg.STATUS1) == 3
+    with pytest.raises(ValueError):
+        drive.force_fault(0)
+
+
+def test_load_step_trips_overcurrent(profile: Profile) -> None:
+    drive = running(profile)
+    drive.set_load_torque(6.0)  # 47 A to hold against a 40 A trip
+    drive.advance_to(drive.t + STEP)
+    assert faulted(drive)
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERCURRENT_CONSTANT)
+
+
+def test_locked_rotor_trips_stall(profile: Profile) -> None:
+    drive = running(profile)
+    drive.set_load_torque(3.0)  # more than the current limit can hold, less than the overcurrent trip
+    start = drive.t
+    tripped = first_time(drive, faulted, 10.0)
+    assert tripped is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.STALL)
+    assert profile.protection.stall_time_s < tripped - start < profile.protection.stall_time_s + 0.5
+
+
+def test_overheat_trips_and_resets_when_cool(profile: Profile) -> None:
+    drive = running(profile)
+    drive.set_ambient(75.0)
+    drive.set_load_torque(1.0)
+    assert first_time(drive, faulted, 3000.0, 1.0) is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERHEAT)
+    assert drive.read(Reg.TEMPERATURE) >= 850
+    reset(drive)
+    assert faulted(drive)
+    drive.advance_to(drive.t + 600.0)
+    reset(drive)
+    assert not faulted(drive)
+
+
+@pytest.mark.parametrize("kind", ["stuck0", "stuck7", "sequence"])
+def test_hall_sensor_faults(profile: Profile, kind: str) -> None:
+    drive = Drive(profile)
+    drive.set_hall_fault(kind)
+    drive.advance_to(1.0)
+    assert drive.read(Reg.STATUS1) == 3  # noticed only when commutating
+    drive.write(Reg.SPEED_SETPOINT, 1000)
+    drive.write(Reg.COMMAND, 1)
+    assert first_time(drive, faulted, 2.0) is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.HALL)
+    reset(drive)
+    assert faulted(drive)
+    drive.set_hall_fault(None)
+    reset(drive)
+    assert not faulted(drive)
+
+
+def test_communication_timeout(profile: Profile) -> None:
+    drive = Drive(profile)
+    drive.write(0x0802, 10)  # F08.02 = 1.0 s
+    drive.advance_to(5.0)
+    assert not faulted(drive)  # not armed before the first request
+    drive.communicated(5.0)
+    drive.advance_to(6.0)
+    drive.communicated(6.0)
+    assert first_time(drive, faulted, 10.0) == pytest.approx(7.001)
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.COMMUNICATION)
+    reset(drive)
+    assert not faulted(drive)
+
+
+def test_communication_timeout_off_or_not_under_communication(profile: Profile) -> None:
+    drive = Drive(profile)
+    drive.communicated(0.0)
+    drive.advance_to(100.0)
+    assert not faulted(drive)
+    drive.write(0x0802, 10)
+    drive.write(cell(profile, Reg.RUN_CHANNEL), 1)
+    drive.advance_to(200.0)
+    assert not faulted(drive)
