@@ -1,0 +1,109 @@
+"""Observing the drive never changes it: the same timeline polled often or rarely gives identical state.
+
+The comparison is exact (registers and the telemetry's floats), at the times
+both polling patterns share. The timelines cross ramps, load steps, trips,
+resets and long steady stretches that the model skips in closed form.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from c20sim.drive.model import Drive, Telemetry
+from c20sim.drive.terminals import Input
+from c20sim.profile import Profile, load_profile
+from c20sim.registers import FIXED_REGISTERS, Reg
+
+Action = Callable[[Drive], None]
+
+
+@pytest.fixture(scope="module")
+def profile() -> Profile:
+    return load_profile("c20-400hr")
+
+
+def snapshot(drive: Drive, profile: Profile) -> tuple[tuple[int, ...], Telemetry]:
+    cells = [profile.registers.canonical(a) for a in FIXED_REGISTERS] + sorted(profile.defaults)
+    return tuple(drive.read(c) for c in cells), drive.telemetry()
+
+
+def simulate(
+    profile: Profile, events: dict[int, list[Action]], end_ms: int, poll_ms: int, compare_ms: int
+) -> dict[int, tuple[tuple[int, ...], Telemetry]]:
+    """Run a timeline (times in ms), polling every ``poll_ms``; snapshots at multiples of ``compare_ms``."""
+    drive = Drive(profile)
+    times = sorted(set(range(poll_ms, end_ms + 1, poll_ms)) | set(events))
+    seen: dict[int, tuple[tuple[int, ...], Telemetry]] = {}
+    for ms in times:
+        drive.advance_to(ms / 1000)
+        for action in events.get(ms, []):
+            action(drive)
+        drive.read(Reg.MOTOR_SPEED)  # every poll looks
+        if ms and ms % compare_ms == 0 and ms % poll_ms == 0:
+            seen[ms] = snapshot(drive, profile)
+    return seen
+
+
+def write(register: int, value: int) -> Action:
+    return lambda d: d.write(d.profile.registers.canonical(register), value)
+
+
+def busy_timeline() -> dict[int, list[Action]]:
+    return {
+        0: [write(Reg.SPEED_SETPOINT, 3000), write(Reg.COMMAND, 1)],
+        2250: [lambda d: d.set_load_torque(0.8)],
+        4500: [lambda d: d.set_supply_voltage(40.0)],
+        6123: [lambda d: d.set_supply_voltage(30.0)],  # undervoltage trip while running
+        7500: [lambda d: d.set_supply_voltage(48.0)],
+        8000: [write(Reg.COMMAND, 7)],
+        8300: [write(Reg.SPEED_SETPOINT, 2000), write(Reg.COMMAND, 2)],
+        12700: [lambda d: d.set_load_torque(3.0)],  # stall
+        20000: [lambda d: d.set_load_torque(0.0), write(Reg.COMMAND, 7), lambda d: d.set_ambient(40.0)],
+        20500: [lambda d: d.set_load_inertia(0.01), write(Reg.SPEED_SETPOINT, 3000), write(Reg.COMMAND, 1)],
+        30250: [write(Reg.DECEL_TIME, 5), write(Reg.COMMAND, 5)],  # overvoltage
+        31500: [lambda d: d.set_load_inertia(0.0)],
+        33000: [write(Reg.COMMAND, 7), write(0x0802, 20), lambda d: d.communicated(33.0)],
+        33100: [write(Reg.COMMAND, 3), lambda d: d.communicated(33.1)],
+        34400: [lambda d: d.set_terminal_inputs(Input.EF)],
+        35000: [lambda d: d.set_terminal_inputs(0), write(Reg.COMMAND, 7)],
+        35500: [write(Reg.COMMAND, 4), lambda d: d.communicated(35.5)],  # then silence: timeout at 37.5
+    }
+
+
+def test_polling_every_ms_or_every_second_gives_identical_state(profile: Profile) -> None:
+    events = busy_timeline()
+    fine = simulate(profile, events, 40_000, 1, 1000)
+    coarse = simulate(profile, events, 40_000, 1000, 1000)
+    assert fine.keys() == coarse.keys() == set(range(1000, 40_001, 1000))
+    for ms in fine:
+        assert fine[ms] == coarse[ms], f"differs at {ms / 1000} s"
+    statuses = [fine[ms][1].status for ms in sorted(fine)]
+    assert {1, 2, 3, 4} <= set(statuses)  # the timeline really ran, tripped and recovered
+    codes = {fine[ms][1].fault_code for ms in fine}
+    assert {0x0A, 0x1B, 0x08, 0x12} <= codes  # undervoltage, stall, overvoltage, communication
+
+
+def overload_timeline() -> dict[int, list[Action]]:
+    return {
+        0: [write(Reg.SPEED_SETPOINT, 1500), write(Reg.COMMAND, 1)],
+        3000: [lambda d: d.set_load_torque(1.6), lambda d: d.set_ambient(30.0)],  # trips OL1 after ~104 s
+        200_000: [write(Reg.COMMAND, 7), lambda d: d.set_load_torque(0.5)],
+        200_500: [write(Reg.COMMAND, 1)],
+    }
+
+
+def test_trips_inside_skipped_stretches_land_on_the_same_step(profile: Profile) -> None:
+    events = overload_timeline()
+    fine = simulate(profile, events, 400_000, 10, 1000)
+    coarse = simulate(profile, events, 400_000, 1000, 1000)
+    rare = simulate(profile, events, 400_000, 100_000, 100_000)
+    assert fine.keys() == coarse.keys()
+    for ms in fine:
+        assert fine[ms] == coarse[ms], f"differs at {ms / 1000} s"
+    for ms in rare:
+        assert rare[ms] == fine[ms], f"differs at {ms / 1000} s"
+    assert fine[100_000][1].status == 1
+    assert fine[110_000][1].fault_code == 0x0B
+    assert fine[400_000][1].status == 1
