@@ -1,8 +1,9 @@
 """The sheet's command table (spec/NOTES.md, corrected frames), byte for byte.
 
-Each row is sent as a master would send it, to a drive built from the default
-profile; where a row needs a state (write enable for a function-code write,
-a fault for the fault-code read), the test reaches it through the public API.
+Each row is sent as a master would send it, to the behavioural model built
+from the default profile; where a row needs a state (write enable for a
+function-code write, the supply switched off, an undervoltage trip), the test
+reaches it through the public API: Modbus writes and the injection methods.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from c20sim.bus import Bus
-from c20sim.drive.store import RegisterStoreDrive
+from c20sim.drive.model import Drive
 from c20sim.profile import Profile
 from c20sim.slave import Slave
 from tests.conftest import Line
@@ -33,8 +34,13 @@ STATELESS_ROWS = [
 
 
 @pytest.fixture
-def line(profile: Profile) -> Line:
-    return Line(Bus([Slave(profile, RegisterStoreDrive(profile))]))
+def drive(profile: Profile) -> Drive:
+    return Drive(profile)
+
+
+@pytest.fixture
+def line(profile: Profile, drive: Drive) -> Line:
+    return Line(Bus([Slave(profile, drive)]))
 
 
 @pytest.mark.parametrize(
@@ -50,3 +56,20 @@ def test_write_f00_10_needs_write_enable_as_the_sheet_implies(line: Line) -> Non
     assert line.hex("01 06 20 0E 00 01 22 09") == "01 06 20 0E 00 01 22 09"
     assert line.hex("01 06 00 0A 09 C4 AE 0B") == "01 06 00 0A 09 C4 AE 0B"
     assert line.hex("01 03 00 0A 00 01 A4 08") == "01 03 02 09 C4 BF 87"
+
+
+def test_read_status_word_1_with_the_supply_off(line: Line, drive: Drive) -> None:
+    # The sheet's row reads 0005h: drive off, bus voltage not established once the bus capacitor has bled down.
+    drive.advance_to(line.t)
+    drive.set_supply_voltage(0.0)
+    assert line.hex("01 03 21 00 00 01 8E 36", dt=2.0) == "01 03 02 00 05 78 47"
+
+
+def test_read_fault_code_after_an_undervoltage_trip(line: Line, drive: Drive) -> None:
+    # The sheet's row reads 0x0A: undervoltage fault. Run the motor, then sag the supply.
+    assert line.hex("01 06 20 01 0B B8 D4 88") == "01 06 20 01 0B B8 D4 88"
+    assert line.hex("01 06 20 00 00 01 43 CA") == "01 06 20 00 00 01 43 CA"
+    line.send("01 03 21 00 00 01 8E 36", dt=1.0)
+    drive.set_supply_voltage(24.0)
+    assert line.hex("01 03 21 02 00 01 2F F6", dt=0.5) == "01 03 02 00 0A 38 43"
+    assert line.hex("01 03 21 00 00 01 8E 36") == "01 03 02 00 04 B9 87"  # status word 1: fault
