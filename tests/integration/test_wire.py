@@ -347,3 +347,16 @@ async def test_mbpoll_reads_the_drive_id_through_the_pty(serve: ServeFactory) ->
     text = out.decode()
     assert proc.returncode == 0, text
     assert f"[{0x2103}]: \t0x0020" in text, text
+
+
+async def test_line_timing_pty_serves_a_master(serve: ServeFactory) -> None:
+    # Replies paced at 19200 baud, frames held to t1.5/t3.5: an ordinary master still works.
+    served = await serve(line_timing=True)
+    client = await served.serial_client()
+    try:
+        assert await read(client, 0x2103) == 0x20
+        assert not (await client.write_registers(0x2003, [40, 60], device_id=1)).isError()
+        assert await read(client, 0x2004) == 60
+        assert served.server.endpoints.pty is not None and served.server.endpoints.pty.line_timing
+    finally:
+        client.close()
