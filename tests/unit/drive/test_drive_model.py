@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 
 import pytest
 
@@ -196,7 +197,7 @@ def test_hall_steps_through_the_six_codes(profile: Profile) -> None:
     drive.write(cell(profile, Reg.POLE_PAIRS), 1)
     drive.write(Reg.COMMAND, 3)  # jog 300 rpm x 1 pole pair = 5 Hz: a sector every 33 ms
     drive.advance_to(1.0)
-    seen = []
+    seen: list[int] = []
     for i in range(1, 250):
         drive.advance_to(1.0 + i * STEP)
         code = drive.read(Reg.HALL)
@@ -258,10 +259,10 @@ def test_keypad_runs_only_on_the_keypad_channel(profile: Profile) -> None:
         (4, lambda d: d.set_terminal_inputs(Input.S1 | Input.S2), 1500),  # F05.03
     ],
 )
-def test_speed_sources(profile: Profile, source: int, setup: object, rpm: int) -> None:
+def test_speed_sources(profile: Profile, source: int, setup: Callable[[Drive], None], rpm: int) -> None:
     drive = Drive(profile)
     drive.write(cell(profile, Reg.SPEED_SOURCE), source)
-    setup(drive)  # type: ignore[operator]
+    setup(drive)
     drive.write(Reg.COMMAND, 1)
     drive.advance_to(3.0)
     assert drive.read(Reg.MOTOR_SPEED) == rpm
