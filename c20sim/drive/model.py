@@ -554,8 +554,7 @@ class Drive:
             capacitance=self._capacitance,
             dt=STEP,
         )
-        chopper = 0.0 < self.profile.supply.brake_chopper_v < bus
-        self._bus_settled = abs(bus - self._bus) <= 1e-9 and not chopper
+        self._bus_settled = abs(bus - self._bus) <= 1e-9  # a chopper at its threshold never settles
         temp_ss = self._ambient + loss * self.profile.thermal.resistance_k_per_w
         self._temp = temp_ss + (self._temp - temp_ss) * self._temp_decay
         self._motor_i2t = max(0.0, self._motor_i2t + STEP * ((current / m.rated_current_a) ** 2 - 1.0))
