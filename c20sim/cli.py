@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from .control import add_ctl_command
 from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
@@ -81,6 +82,9 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--tcp", metavar="HOST:PORT", help="raw RTU frames over TCP, as a serial device server")
     where.add_argument("--modbus-tcp", metavar="HOST:PORT", help="Modbus TCP (MBAP), as an Ethernet gateway")
     where.add_argument("--line-timing", action="store_true", help="pace replies at the baud and enforce t1.5/t3.5")
+    where.add_argument(
+        "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
+    )
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
@@ -122,6 +126,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         line_timing=args.line_timing,
         log_frames=args.log_frames,
         ready_file=args.ready_file,
+        control=args.control,
     )
     if not options.any_endpoint:
         options.pty = True
@@ -193,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     serve = sub.add_parser("serve", help="run the simulator headless until SIGINT or SIGTERM")
     add_endpoint_options(serve)
     serve.set_defaults(func=cmd_serve)
+
+    add_ctl_command(sub)
     return parser
 
 

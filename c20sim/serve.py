@@ -17,7 +17,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Protocol
+from typing import IO, TYPE_CHECKING, Protocol
 
 from .bus import FrameRecord
 from .errors import C20SimError
@@ -25,6 +25,9 @@ from .simulator import Simulator
 from .transport.pty import PtyPort
 from .transport.serial import SerialPort
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
+
+if TYPE_CHECKING:
+    from .control import ControlApi
 
 __all__ = ["Endpoints", "ServeOptions", "Server", "run_server"]
 
@@ -53,6 +56,8 @@ class ServeOptions:
     line_timing: bool = False
     log_frames: str | None = None
     ready_file: str | None = None
+    #: HOST:PORT of the HTTP control API (c20sim.control), or None
+    control: str | None = None
     extra_ready: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -94,6 +99,7 @@ class Server:
         self.endpoints = Endpoints()
         self._log_file: IO[str] | None = None
         self._unsubscribe: list[Callable[[], None]] = []
+        self.control: ControlApi | None = None
 
     async def start(self) -> None:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
@@ -123,20 +129,37 @@ class Server:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
                 self.endpoints.modbus_tcp = ModbusTcpServer(sim, line, host, port)
                 await self.endpoints.modbus_tcp.start()
+            if opts.control:
+                from .control import ControlApi  # imports aiohttp: only when asked for
+
+                host, port = parse_host_port(opts.control, "--control")
+                self.control = ControlApi(sim)
+                await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
         except BaseException:
             self.close()
+            await self._close_control()
             raise
 
+    def addresses(self) -> dict[str, str]:
+        """The ready file's keys: the endpoints, ``control`` as http://HOST:PORT, and ``extra_ready``."""
+        control = {"control": self.control.url} if self.control is not None and self.control.url else {}
+        return {**self.endpoints.addresses(), **control, **self.options.extra_ready}
+
+    async def _close_control(self) -> None:
+        if self.control is not None:
+            await self.control.close()
+            self.control = None
+
     def ready_line(self) -> str:
-        parts = [f"{key} {value}" for key, value in {**self.endpoints.addresses(), **self.options.extra_ready}.items()]
+        parts = [f"{key} {value}" for key, value in self.addresses().items()]
         drives = ",".join(map(str, self.sim.drives))
         clock = "virtual" if self.sim.virtual else "realtime"
         return f"c20sim ready: {self.sim.profile.name}, drives {drives}, {clock} clock; " + "; ".join(parts)
 
     def write_ready_file(self, path: str) -> None:
-        data = {**self.endpoints.addresses(), **self.options.extra_ready}
+        data = self.addresses()
         target = Path(path)
         tmp = target.with_name(f".{target.name}.tmp")
         try:
@@ -160,6 +183,7 @@ class Server:
     async def aclose(self) -> None:
         """Close, and wait until every TCP connection has ended."""
         self.close()
+        await self._close_control()
         for server in (self.endpoints.tcp, self.endpoints.modbus_tcp):
             if server is not None:
                 await server.wait_closed()
