@@ -1,0 +1,146 @@
+"""The control API in process: every route's answer, and the 4xx that says what was wrong."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any
+
+import pytest
+from aiohttp.test_utils import TestClient, TestServer
+
+from c20sim.clock import RealtimeClock, VirtualClock
+from c20sim.control import ControlApi, make_app
+from c20sim.profile import load_profile
+from c20sim.simulator import Simulator
+
+Api = Callable[..., Awaitable[tuple[int, Any]]]
+
+
+@pytest.fixture
+async def client() -> AsyncIterator[Callable[[Simulator], Awaitable[Api]]]:
+    clients: list[TestClient[Any, Any]] = []
+
+    async def start(sim: Simulator) -> Api:
+        test_client: TestClient[Any, Any] = TestClient(TestServer(make_app(ControlApi(sim))))
+        await test_client.start_server()
+        clients.append(test_client)
+
+        async def api(method: str, path: str, body: Any = None, *, raw: str | None = None) -> tuple[int, Any]:
+            kwargs: dict[str, Any] = {"data": raw} if raw is not None else {"json": body} if body is not None else {}
+            response = await test_client.request(method, path, **kwargs)
+            return response.status, await response.json()
+
+        return api
+
+    yield start
+    for each in clients:
+        await each.close()
+
+
+def virtual(*addresses: int) -> Simulator:
+    return Simulator(load_profile(), addresses or (1,), clock=VirtualClock(), seed=1)
+
+
+async def test_advancing_a_realtime_clock_is_a_conflict(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    api = await client(Simulator(load_profile(), (1,), clock=RealtimeClock()))
+    assert await api("POST", "/time/advance", {"seconds": 1}) == (
+        409,
+        {"error": "time runs on the wall clock; start the server with --clock virtual to advance it"},
+    )
+
+
+async def test_bad_bodies_and_fields(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    api = await client(virtual(1, 2))
+    status, data = await api("POST", "/time/advance", raw="{seconds: 1}")
+    assert status == 400 and data["error"].startswith("the body is not JSON: Expecting property name")
+    assert await api("POST", "/time/advance", [1]) == (400, {"error": "the body must be a JSON object, not list"})
+    assert await api("POST", "/time/advance", {"secs": 1}) == (
+        400,
+        {"error": "unknown field 'secs'; did you mean 'seconds'? (known: seconds)"},
+    )
+    assert await api("POST", "/time/advance", {"seconds": -1}) == (
+        400,
+        {"error": "seconds: -1 is outside 0-3.1536e+08"},
+    )
+    assert await api("GET", "/drives/3") == (404, {"error": "no drive at address 3; drives: 1, 2"})
+    assert await api("GET", "/drives/x") == (404, {"error": "drive address 'x' is not a number"})
+    assert await api("GET", "/nowhere") == (404, {"error": "GET /nowhere: Not Found; see GET / for the routes"})
+    assert await api("POST", "/drives/1/fault", {"code": 300}) == (400, {"error": "code: 300 is outside 1-255"})
+    assert await api("POST", "/drives/1/fault", {"code": 16, "persistent": 1}) == (
+        400,
+        {"error": "persistent: expected true or false, got 1"},
+    )
+    assert await api("GET", "/drives/1/registers/F00.50") == (
+        400,
+        {"error": "register 'F00.50': the profile c20-400hr has no register 0032H"},
+    )
+    assert await api("PATCH", "/link", {"forced_exception": 9}) == (
+        400,
+        {
+            "error": "forced_exception: 9 is not an exception code; use one of ILLEGAL_FUNCTION (1), "
+            "ILLEGAL_ADDRESS (2), ILLEGAL_VALUE (3), OPERATION_FAILED (4), PASSWORD_ERROR (5), "
+            "FRAME_ERROR (6), READ_ONLY (7), NOT_WHILE_RUNNING (8)"
+        },
+    )
+    # nothing is half-applied: the good key before the bad one did not take
+    status, _ = await api("PUT", "/drives/1/conditions", {"supply_v": 30, "ambient_c": "hot"})
+    assert status == 400
+    assert (await api("GET", "/drives/1"))[1]["supply_v"] == 48.0
+
+
+async def test_faults_keypad_power_cycle_and_registers(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    sim = virtual()
+    api = await client(sim)
+    status, state = await api("POST", "/drives/1/fault", {"code": 17, "persistent": True})
+    assert (status, state["state"], state["fault_code"]) == (200, "fault", 17)
+    status, state = await api("POST", "/drives/1/keypad", {"key": "reset"})
+    assert (state["accepted"], state["state"]) == (False, "fault")  # persistent: the cause is still there
+    status, state = await api("DELETE", "/drives/1/fault")
+    assert (state["reset"], state["fault_code"]) == (True, 0)
+    assert (await api("GET", "/drives/1/registers/status1"))[1] == {
+        "register": "2100H",
+        "address": 0x2100,
+        "name": "status word 1",
+        "raw": 3,
+        "value": 3.0,
+        "unit": "",
+        "text": "stopped",
+    }
+    assert (await api("GET", "/drives/1/registers/F00.10"))[1]["text"] == "50.00 Hz"
+    assert (await api("GET", "/drives/1/registers/0x3008"))[1]["raw"] == 480
+    sim.drive(1).write(0x2001, 1000)  # RAM: a power cycle clears it
+    status, state = await api("POST", "/drives/1/power-cycle")
+    assert status == 200 and sim.drive(1).read(0x2001) == 0
+
+
+async def test_link_faults_and_frames(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    sim = virtual(1, 2)
+    api = await client(sim)
+    status, link = await api("PATCH", "/drives/2/link", {"drop_next": 2, "garbage_after": "ff 00"})
+    assert (status, link["active"], link["garbage_after"]) == (200, ["drop_next", "garbage_after"], "FF 00")
+    assert sim.link_faults(2).garbage_after == b"\xff\x00" and sim.link_faults(1).active == []
+    assert (await api("PATCH", "/link", {"offline": True}))[1]["active"] == ["offline"]
+    assert sim.bus.link.offline
+    assert (await api("DELETE", "/link"))[1]["active"] == []
+    assert (await api("DELETE", "/drives/2/link"))[1]["active"] == []
+
+    from tests.conftest import Line
+
+    line = Line(sim.bus)
+    line.send("01 03 21 03 00 01 7E 36")
+    line.send("02 03 21 03 00 01 7E 05")
+    status, log = await api("GET", "/frames?slave=2")
+    assert [(r["seq"], r["dir"], r["hex"]) for r in log["frames"]] == [
+        (2, "rx", "02 03 21 03 00 01 7E 05"),
+        (3, "tx", "02 03 02 00 20 FD 9C"),
+    ]
+    assert log["next"] == 4
+    assert (await api("DELETE", "/frames"))[1] == {"frames": [], "next": 4}
+    line.send("02 03 21 03 00 01 7E 05")
+    status, log = await api("GET", "/frames?since=5")
+    assert [r["seq"] for r in log["frames"]] == [5]
+    assert await api("GET", "/frames?last=x") == (400, {"error": "last='x' is not a number"})
+    assert await api("GET", "/frames?limit=3") == (
+        400,
+        {"error": "unknown query parameter 'limit' (known: last, slave, since)"},
+    )
