@@ -1,0 +1,309 @@
+"""Shared pieces of the benchmarks: a lean RTU-over-TCP client, servers in child processes, CPU and RSS.
+
+The benchmarks measure servers, so the servers run in processes of their own
+(multiprocessing, spawn) and the clients in others: a client never competes
+with the server it measures for the same interpreter lock. A server child
+reports its CPU time and RSS when told to stop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import multiprocessing as mp
+import os
+import platform
+import random
+import resource
+import socket
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from c20sim.protocol import crc_ok, expected_length  # noqa: E402
+
+CTX = mp.get_context("spawn")
+
+
+# --- measuring a process
+
+
+def rss_kib(pid: int | str = "self") -> int:
+    """Resident set size in KiB, from /proc (psutil is not installed)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def machine() -> str:
+    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
+
+
+def percentile(sorted_values: Sequence[float], p: float) -> float:
+    if not sorted_values:
+        return float("nan")
+    k = min(len(sorted_values) - 1, max(0, round(p / 100 * (len(sorted_values) - 1))))
+    return sorted_values[k]
+
+
+# --- a lean RTU-over-TCP client
+
+
+class ReplyError(Exception):
+    """A reply that is not a good frame: bad CRC, cut short, or garbage."""
+
+
+class RawRtuClient:
+    """Blocking RTU-over-TCP master: one request, then its reply read by its length."""
+
+    def __init__(self, host: str, port: int, timeout: float = 1.0) -> None:
+        self.host, self.port, self.timeout = host, port, timeout
+        self.sock = self._connect()
+
+    def _connect(self) -> socket.socket:
+        sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return sock
+
+    def reconnect(self) -> None:
+        """A fresh connection: whatever the old one still carries is left behind."""
+        with contextlib.suppress(OSError):
+            self.sock.close()
+        self.sock = self._connect()
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def transact(self, frame: bytes) -> bytes:
+        """Send ``frame``; return the reply frame. Raises TimeoutError or ReplyError."""
+        self.sock.sendall(frame)
+        buf = b""
+        want: int | None = None
+        while want is None or len(buf) < want:
+            chunk = self.sock.recv(512)
+            if not chunk:
+                raise ConnectionError("server closed the connection")
+            buf += chunk
+            if want is None and len(buf) >= 3:
+                want = expected_length(buf, "response")
+                if want is None:
+                    raise ReplyError(f"not a C20 reply: {buf.hex(' ')}")
+        if len(buf) != want or not crc_ok(buf):
+            raise ReplyError(f"bad reply: {buf.hex(' ')}")
+        return buf
+
+
+# --- servers in child processes
+
+
+@dataclass
+class ServerSpec:
+    """What to serve in the child: ``kind`` is "c20sim" or "pymodbus"."""
+
+    kind: str = "c20sim"
+    addresses: tuple[int, ...] = (1,)
+    turnaround_ms: float | None = 0.0  #: None keeps the profile's default
+    seed: int = 1
+    buses: int = 1  #: c20sim: this many simulators, each on its own port
+    faults: str | None = None  #: c20sim: "random" flips link faults from a timer
+    fault_period: float = 0.5
+    log_size: int = 2000
+
+
+@dataclass
+class ServerReport:
+    cpu_s: float
+    rss_start_kib: int
+    rss_end_kib: int
+    faults_switched: int = 0
+    errors_logged: int = 0  #: log records at ERROR or above: a bug in serving
+
+
+class ChildServer:
+    """A server in a child process; ``ports`` once started, :meth:`stop` returns its report."""
+
+    def __init__(self, spec: ServerSpec) -> None:
+        self.spec = spec
+        parent, child = CTX.Pipe()
+        self._conn = parent
+        self.process = CTX.Process(target=_server_main, args=(spec, child), daemon=True)
+        self.process.start()
+        message = parent.recv()
+        if message[0] != "ready":
+            raise RuntimeError(f"server child failed: {message}")
+        self.ports: list[int] = message[1]
+
+    @property
+    def port(self) -> int:
+        return self.ports[0]
+
+    def measure_idle(self, seconds: float) -> tuple[float, float]:
+        """CPU seconds the server spends over ``seconds`` of wall time with no traffic."""
+        self._conn.send(("idle", seconds))
+        cpu, wall = self._conn.recv()
+        return float(cpu), float(wall)
+
+    def cpu_rss(self) -> tuple[float, int]:
+        """(CPU seconds, RSS KiB) of the server so far."""
+        self._conn.send(("cpu",))
+        cpu, rss = self._conn.recv()
+        return float(cpu), int(rss)
+
+    def stop(self) -> ServerReport:
+        self._conn.send(("stop",))
+        report: ServerReport = self._conn.recv()
+        self.process.join(10)
+        return report
+
+
+def _server_main(spec: ServerSpec, conn: Connection) -> None:
+    try:
+        asyncio.run(_serve(spec, conn))
+    except BaseException as exc:  # report, so that the parent does not hang
+        conn.send(("error", repr(exc)))
+        raise
+
+
+def _profile(turnaround_ms: float | None) -> Any:
+    from c20sim.profile import load_profile
+
+    profile = load_profile()
+    if turnaround_ms is not None:
+        profile = dataclasses.replace(
+            profile, protocol=dataclasses.replace(profile.protocol, turnaround_ms=turnaround_ms)
+        )
+    return profile
+
+
+class _ErrorCounter(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.count = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.count += 1
+        sys.stderr.write(self.format(record) + "\n")
+
+
+async def _serve(spec: ServerSpec, conn: Connection) -> None:
+    loop = asyncio.get_running_loop()
+    errors = _ErrorCounter()
+    logging.getLogger().addHandler(errors)
+    rss_start = rss_kib()
+    closers: list[Callable[[], Any]] = []
+    switched = 0
+    if spec.kind == "c20sim":
+        from c20sim.clock import RealtimeClock
+        from c20sim.serve import ServeOptions, Server
+        from c20sim.simulator import Simulator
+
+        profile = _profile(spec.turnaround_ms)
+        sims = []
+        ports = []
+        for i in range(spec.buses):
+            sim = Simulator(profile, spec.addresses, clock=RealtimeClock(), seed=spec.seed + i, log_size=spec.log_size)
+            server = Server(sim, ServeOptions(tcp="127.0.0.1:0"))
+            await server.start()
+            assert server.endpoints.tcp is not None
+            ports.append(server.endpoints.tcp.port)
+            sims.append(sim)
+            closers.append(server.aclose)
+        if spec.faults == "random":
+            rng = random.Random(spec.seed)
+
+            def flip() -> None:
+                nonlocal switched
+                for sim in sims:
+                    _random_faults(sim.link_faults(), rng)
+                switched += 1
+                loop.call_later(spec.fault_period, flip)
+
+            loop.call_later(spec.fault_period, flip)
+    elif spec.kind == "pymodbus":
+        from pymodbus import FramerType
+        from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
+        from pymodbus.server import ModbusTcpServer
+
+        port = free_port()
+        # The registers the benchmarks touch (2000H-2110H) and more, whatever pymodbus's address offset.
+        devices = {a: ModbusDeviceContext(hr=ModbusSequentialDataBlock(0x1F00, [3] * 0x400)) for a in spec.addresses}
+        context = ModbusServerContext(devices=devices, single=False)
+        pyserver = ModbusTcpServer(context, framer=FramerType.RTU, address=("127.0.0.1", port))
+        task = asyncio.create_task(pyserver.serve_forever())
+        for _ in range(200):  # until it listens
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                break
+            await asyncio.sleep(0.02)
+        ports = [port]
+        closers.append(pyserver.shutdown)
+        closers.append(lambda: task)
+    else:
+        raise ValueError(spec.kind)
+    conn.send(("ready", ports))
+    while True:
+        message = await loop.run_in_executor(None, conn.recv)
+        if message[0] == "cpu":
+            conn.send((cpu_seconds(), rss_kib()))
+        elif message[0] == "idle":
+            wall0, cpu0 = time.monotonic(), _main_thread_cpu()
+            await asyncio.sleep(message[1])
+            conn.send((_main_thread_cpu() - cpu0, time.monotonic() - wall0))
+        else:
+            break
+    report = ServerReport(cpu_seconds(), rss_start, rss_kib(), switched, errors.count)
+    for close in closers:
+        with contextlib.suppress(Exception):
+            result = close()
+            if asyncio.iscoroutine(result) or isinstance(result, asyncio.Future):
+                await asyncio.wait_for(result, 5)
+    conn.send(report)
+
+
+def _main_thread_cpu() -> float:
+    """CPU time of the whole process (the executor thread waiting on the pipe sleeps in recv)."""
+    return cpu_seconds()
+
+
+def _random_faults(link: Any, rng: random.Random) -> None:
+    """One random link-fault setting: half the time none, else one of the reply faults."""
+    link.clear()
+    choice = rng.choice(["none"] * 5 + ["drop", "corrupt", "delay", "truncate", "garbage", "drop_next"])
+    if choice == "drop":
+        link.drop_percent = rng.choice([1.0, 5.0, 20.0])
+    elif choice == "corrupt":
+        link.corrupt_crc = True
+    elif choice == "delay":
+        link.delay = 0.001
+        link.delay_jitter = 0.01
+    elif choice == "truncate":
+        link.truncate = True
+    elif choice == "garbage":
+        # starts with 00 00: function 0x00 is no reply's, so it can never pass for a good frame
+        link.garbage_before = b"\x00\x00" + bytes(rng.randrange(256) for _ in range(rng.randint(0, 3)))
+    elif choice == "drop_next":
+        link.drop_next = rng.randint(1, 3)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
