@@ -141,6 +141,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_dashboard(args: argparse.Namespace) -> int:
+    from .tui import Dashboard  # textual loads only for the dashboard
+
+    options = serve_options(args)
+    app = Dashboard(build_simulator(args), options)
+    app.run()
+    if app.error is not None:
+        raise app.error
+    return app.return_code or 0
+
+
 def render_profile(profile: Profile) -> str:
     """A profile as a SCADA developer wants to read it: quirks, physics, faults, function codes."""
     lines = [f"{profile.name}: {profile.description}", f"  file: {profile.path}", ""]
@@ -199,6 +210,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_endpoint_options(serve)
     serve.set_defaults(func=cmd_serve)
 
+    dashboard = sub.add_parser("dashboard", help="the simulator with its terminal dashboard (the default command)")
+    add_endpoint_options(dashboard)
+    dashboard.set_defaults(func=cmd_dashboard)
+
     add_ctl_command(sub)
     return parser
 
@@ -207,8 +222,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_help()
-        return 0
+        args = parser.parse_args(["dashboard"])
     try:
         result: int = args.func(args)
         return result

@@ -1,0 +1,426 @@
+"""``c20sim dashboard``: the drive on the bench, in a terminal: see it, work it, break it.
+
+The app owns a :class:`~c20sim.simulator.Simulator` and a
+:class:`~c20sim.serve.Server` started in the app's own asyncio loop, so the
+endpoints, the bus and the model run beside the UI and never wait for it. A
+timer brings the drives to the clock's time a few times a second and posts
+one merged :class:`TelemetryUpdated`; frames reach the log through a bus
+listener and one merged :class:`FramesLogged`. Everything done to a drive goes
+through the :class:`~c20sim.tui.workbench.Workbench`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import ClassVar, cast
+
+from rich.text import Text
+from textual import on
+from textual.app import App, ComposeResult, SystemCommand
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical
+from textual.reactive import reactive
+from textual.screen import ModalScreen, Screen
+from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
+from textual.widgets.option_list import Option
+
+from ..bus import FrameRecord
+from ..errors import C20SimError
+from ..serve import ServeOptions, Server
+from ..simulator import Simulator
+from .messages import ConditionsChanged, TelemetryUpdated
+from .widgets import (
+    STATUS_STYLES,
+    ConditionsPanel,
+    DeviceFaultsPanel,
+    DriveStatus,
+    FrameLog,
+    LinkFaultsPanel,
+    TrendPlot,
+)
+from .workbench import DEVICE_SWITCHES, LINK_SWITCHES, DriveView, Workbench
+
+__all__ = ["Dashboard"]
+
+TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5"}
+
+HELP = """\
+# c20sim dashboard
+
+A virtual ZBLD.C20 drive on the bench. Point any Modbus RTU master at the
+endpoints in the top line; the drive answers there while you watch it here.
+
+## Keypad (works as on the drive)
+
+| key | |
+|---|---|
+| `f` / `r` | RUN forward / reverse (only with the keypad run channel, F00.01 = 0) |
+| `j` / `J` | JOG forward / reverse; press again to release |
+| `s` | STOP (from any channel) |
+| `x` | RESET a fault (refused while its cause is still there) |
+| `m` | run channel: keypad -> terminals -> communication (F00.01) |
+| `P` | power cycle |
+| `D` | restore default parameters (200FH = 1; only while stopped) |
+
+## Views
+
+| key | |
+|---|---|
+| `F2` | frame log: `space` pause, `a` drive, `n` function, `e` errors only, `w` save, `Del` clear |
+| `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
+| `F4` | device faults: one key each, the cause switched on or off; `z` clears all |
+| `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
+| `[` / `]` | previous / next drive |
+| `t` / `T` | virtual clock only: time +1 s / +10 s |
+| `ctrl+p` | the command palette: every action by name |
+| `?` | this help; `q` quits |
+"""
+
+
+class HelpScreen(ModalScreen[None]):
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="help"):
+            yield Markdown(HELP)
+
+    def action_dismiss(self, result: None = None) -> None:  # type: ignore[override]
+        self.dismiss(result)
+
+
+class SaveLogScreen(ModalScreen[str | None]):
+    """Ask where to save the frame log."""
+
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, default: str) -> None:
+        super().__init__()
+        self.default = default
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="save"):
+            yield Label("Save the frames shown (with their filter) to:")
+            yield Input(self.default, id="save-path")
+            yield Label("Enter saves, Escape cancels", classes="hint")
+
+    @on(Input.Submitted)
+    def _submit(self, event: Input.Submitted) -> None:
+        event.stop()
+        self.dismiss(event.value.strip() or None)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class MainScreen(Screen[None]):
+    """The drive, its trends, and the bench panels."""
+
+    def __init__(self, bench: Workbench) -> None:
+        super().__init__()
+        self.bench = bench
+
+    def compose(self) -> ComposeResult:
+        bench = self.bench
+        s, p, m = bench.profile.supply, bench.profile.protection, bench.profile.motor
+        yield Static(id="title")
+        with Horizontal(id="top"):
+            drives = OptionList(*[Option(str(a), id=str(a)) for a in bench.drives], id="drives")
+            drives.display = len(bench.drives) > 1
+            yield drives
+            yield DriveStatus(id="status")
+            with Vertical(id="plots"):
+                yield TrendPlot("speed", "rpm", m.rated_speed_rpm, id="plot-speed")
+                yield TrendPlot("current", "A", p.current_limit_a, digits=2, id="plot-current")
+                yield TrendPlot("bus", "V", s.overvoltage_v, digits=1, id="plot-bus")
+        with TabbedContent(id="tabs", initial="frames"):
+            with TabPane("Frames F2", id="frames"):
+                yield FrameLog(bench.sim.bus, list(bench.drives), id="framelog")
+            with TabPane("Conditions F3", id="conditions"):
+                yield ConditionsPanel(id="conditions-panel")
+            with TabPane("Device faults F4", id="faults"):
+                yield DeviceFaultsPanel(bench, id="faults-panel")
+            with TabPane("Link faults F5", id="link"):
+                yield LinkFaultsPanel(bench, id="link-panel")
+        yield Footer()
+
+    async def on_mount(self) -> None:
+        await cast("Dashboard", self.app).start_serving(self)
+
+
+class Dashboard(App[int]):
+    """The c20sim dashboard around ``sim``, serving it on the endpoints of ``options``."""
+
+    CSS_PATH = "dashboard.tcss"
+    TITLE = "c20sim"
+    ENABLE_COMMAND_PALETTE = True
+
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("f", "keypad('fwd')", "Fwd"),
+        Binding("r", "keypad('rev')", "Rev"),
+        Binding("s", "keypad('stop')", "Stop"),
+        Binding("j", "keypad('jog')", "Jog"),
+        Binding("J", "keypad('jogrev')", "Jog rev", show=False),
+        Binding("x", "keypad('reset')", "Reset"),
+        Binding("m", "channel", "Channel", show=False),
+        Binding("P", "power_cycle", "Power cycle", show=False),
+        Binding("D", "restore_defaults", "Defaults", show=False),
+        Binding("t", "advance(1)", "+1s"),
+        Binding("T", "advance(10)", "+10s", show=False),
+        Binding("left_square_bracket", "drive(-1)", "Prev drive", show=False),
+        Binding("right_square_bracket", "drive(1)", "Next drive", show=False),
+        *[Binding(key, f"tab('{tab}')", tab.capitalize(), show=False) for tab, key in TABS.items()],
+        Binding("question_mark", "help", "Help"),
+        Binding("q", "quit", "Quit"),
+    ]
+
+    selected = reactive(0)
+
+    def __init__(
+        self,
+        sim: Simulator,
+        options: ServeOptions | None = None,
+        *,
+        refresh_hz: float = 10.0,
+    ) -> None:
+        super().__init__()
+        self.sim = sim
+        self.bench = Workbench(sim)
+        self.options = options if options is not None else ServeOptions()
+        self.server = Server(sim, self.options)
+        self.refresh_hz = refresh_hz
+        self.error: C20SimError | None = None
+        self.views: dict[int, DriveView] = {}
+        self.set_reactive(Dashboard.selected, next(iter(self.bench.drives)))
+        self._unsubscribe: list[object] = []
+        self._started = False
+
+    # --- life cycle
+
+    def get_default_screen(self) -> Screen[None]:
+        return MainScreen(self.bench)
+
+    async def start_serving(self, screen: MainScreen) -> None:
+        """Start the endpoints (from the main screen's mount, once its widgets exist)."""
+        try:
+            await self.server.start()
+        except C20SimError as exc:
+            self.error = exc
+            self.exit(2)
+            return
+        self._started = True
+        framelog = screen.query_one(FrameLog)
+        self._unsubscribe.append(self.sim.bus.subscribe(framelog.add))
+        screen.query_one("#title", Static).update(self._title())
+        self.set_interval(1.0 / self.refresh_hz, self.refresh_views)
+        framelog.focus()
+        self.refresh_views()
+
+    async def on_unmount(self) -> None:
+        await self.close_server()
+
+    async def close_server(self) -> None:
+        for unsubscribe in self._unsubscribe:
+            if callable(unsubscribe):
+                unsubscribe()
+        self._unsubscribe.clear()
+        if self._started:
+            self._started = False
+            await self.server.aclose()
+
+    def _title(self) -> Text:
+        sim = self.sim
+        text = Text(" c20sim ", style="bold reverse")
+        text.append(f" {sim.profile.name} · {'virtual' if sim.virtual else 'realtime'} clock │ ")
+        text.append_text(self.connect_text())
+        text.no_wrap = True
+        text.overflow = "ellipsis"
+        return text
+
+    def connect_text(self) -> Text:
+        """Where a master connects: every endpoint, as the ready line gives it."""
+        where = self.server.endpoints
+        parts = []
+        if where.pty is not None:
+            parts.append(f"pty {where.pty.name}")
+        if where.serial is not None:
+            parts.append(f"serial {where.serial.name}")
+        if where.tcp is not None:
+            parts.append(f"RTU/TCP {where.tcp.name}")
+        if where.modbus_tcp is not None:
+            parts.append(f"Modbus TCP {where.modbus_tcp.name}")
+        text = Text("connect: ", style="bold")
+        text.append(" · ".join(parts) if parts else "no endpoint (not serving)")
+        return text
+
+    # --- refreshing
+
+    def refresh_views(self) -> None:
+        """Bring the drives to the clock's time and post their views (merged if the UI is behind)."""
+        self.post_message(TelemetryUpdated(self.bench.sample()))
+
+    def on_telemetry_updated(self, message: TelemetryUpdated) -> None:
+        self.views = message.views
+        self._show()
+
+    def on_conditions_changed(self, message: ConditionsChanged) -> None:
+        if message.note:
+            self.notify(message.note, timeout=3)
+        self.refresh_views()
+
+    def _show(self) -> None:
+        screen = self.screen if isinstance(self.screen, MainScreen) else None
+        if screen is None:
+            try:
+                screen = self.get_screen_main()
+            except LookupError:
+                return
+        view = self.views.get(self.selected)
+        if view is None:
+            return
+        screen.query_one(DriveStatus).view = view
+        screen.query_one(DriveStatus).border_title = f"drive {self.selected} · t {view.telemetry.t:.1f} s"
+        history = self.bench.history[self.selected]
+        screen.query_one("#plot-speed", TrendPlot).values = tuple(history.speed)
+        screen.query_one("#plot-current", TrendPlot).values = tuple(history.current)
+        screen.query_one("#plot-bus", TrendPlot).values = tuple(history.bus)
+        drives = screen.query_one("#drives", OptionList)
+        if drives.display:
+            for index, (address, each) in enumerate(self.views.items()):
+                status = each.telemetry.status
+                label = Text(f"{address:>3} ", style="bold")
+                label.append(f" {each.telemetry.state[:8]:<8} ", style=STATUS_STYLES.get(status, ""))
+                drives.replace_option_prompt_at_index(index, label)
+        screen.query_one(ConditionsPanel).show(self.bench, self.selected)
+        screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
+        screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
+
+    def get_screen_main(self) -> MainScreen:
+        for screen in self.screen_stack:
+            if isinstance(screen, MainScreen):
+                return screen
+        raise LookupError("no main screen")
+
+    # --- actions
+
+    def action_keypad(self, key: str) -> None:
+        refused = self.bench.keypad(self.selected, key)
+        if refused:
+            self.notify(refused, severity="warning", timeout=4)
+        self.refresh_views()
+
+    def action_channel(self) -> None:
+        channel = self.bench.cycle_channel(self.selected)
+        names = {0: "keypad", 1: "terminals", 2: "communication"}
+        self.notify(f"drive {self.selected}: run channel {names[channel]} (F00.01 = {channel})", timeout=3)
+        self.refresh_views()
+
+    def action_power_cycle(self) -> None:
+        self.bench.power_cycle(self.selected)
+        self.notify(f"drive {self.selected}: power cycled", timeout=3)
+        self.refresh_views()
+
+    def action_restore_defaults(self) -> None:
+        refused = self.bench.restore_defaults(self.selected)
+        if refused:
+            self.notify(refused, severity="warning", timeout=4)
+        else:
+            self.notify(f"drive {self.selected}: default parameters restored", timeout=3)
+        self.refresh_views()
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action == "advance" and not self.sim.virtual:
+            return None
+        if action == "drive" and len(self.bench.drives) < 2:
+            return None
+        return True
+
+    def action_advance(self, seconds: float) -> None:
+        self.bench.advance(float(seconds))
+        self.refresh_views()
+
+    def action_drive(self, step: int) -> None:
+        addresses = list(self.bench.drives)
+        self.selected = addresses[(addresses.index(self.selected) + step) % len(addresses)]
+        self.get_screen_main().query_one("#drives", OptionList).highlighted = addresses.index(self.selected)
+
+    @on(OptionList.OptionHighlighted, "#drives")
+    def _drive_chosen(self, event: OptionList.OptionHighlighted) -> None:
+        if event.option.id is not None:
+            self.selected = int(event.option.id)
+
+    def watch_selected(self) -> None:
+        if self.views:
+            self._show()
+
+    def action_tab(self, tab: str) -> None:
+        screen = self.get_screen_main()
+        screen.query_one(TabbedContent).active = tab
+        self._focus_tab(tab)
+
+    @on(TabbedContent.TabActivated)
+    def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
+        if event.pane.id is not None:
+            self._focus_tab(event.pane.id)
+
+    def _focus_tab(self, tab: str) -> None:
+        screen = self.get_screen_main()
+        target = {
+            "frames": FrameLog,
+            "conditions": "#cond-supply",
+            "faults": DeviceFaultsPanel,
+            "link": LinkFaultsPanel,
+        }[tab]
+        screen.query_one(target).focus()  # type: ignore[call-overload]
+
+    def action_help(self) -> None:
+        self.push_screen(HelpScreen())
+
+    def action_save_log(self) -> None:
+        def save(path: str | None) -> None:
+            if path is None:
+                return
+            try:
+                count = self.get_screen_main().query_one(FrameLog).save(Path(path))
+            except OSError as exc:
+                self.notify(f"cannot save to {path}: {exc.strerror}", severity="error")
+                return
+            self.notify(f"saved {count} frames to {path}", timeout=4)
+
+        self.push_screen(SaveLogScreen("c20sim-frames.log"), save)
+
+    def on_frame(self, record: FrameRecord) -> None:  # pragma: no cover - kept for listeners
+        self.get_screen_main().query_one(FrameLog).add(record)
+
+    # --- the command palette
+
+    def get_system_commands(self, screen: Screen[object]) -> Iterable[SystemCommand]:
+        yield from super().get_system_commands(screen)
+        for key, name in (
+            ("fwd", "RUN forward"),
+            ("rev", "RUN reverse"),
+            ("jog", "JOG"),
+            ("stop", "STOP"),
+            ("reset", "RESET"),
+        ):
+            yield SystemCommand(f"Keypad: {name}", "press the drive's keypad key", lambda k=key: self.action_keypad(k))
+        yield SystemCommand("Run channel: next", "F00.01 keypad/terminals/communication", self.action_channel)
+        yield SystemCommand("Power cycle", "switch the drive off and on", self.action_power_cycle)
+        yield SystemCommand("Restore defaults", "200FH = 1 (only while stopped)", self.action_restore_defaults)
+        yield SystemCommand("Save frame log", "write the frames shown to a file", self.action_save_log)
+        for switch in DEVICE_SWITCHES:
+            yield SystemCommand(f"Device fault: {switch.label}", switch.how, lambda k=switch.key: self._device_fault(k))
+        for key, (code, name) in self.bench.forced.items():
+            yield SystemCommand(
+                f"Device fault: {name} (0x{code:02X})", "latch the fault code", lambda k=key: self._device_fault(k)
+            )
+        for switch in LINK_SWITCHES:
+            yield SystemCommand(f"Link fault: {switch.label}", switch.how, lambda k=switch.key: self._link_fault(k))
+        if self.sim.virtual:
+            yield SystemCommand("Time +10 s", "advance the virtual clock", lambda: self.action_advance(10))
+
+    def _device_fault(self, key: str) -> None:
+        self.get_screen_main().query_one(DeviceFaultsPanel).toggle(key)
+
+    def _link_fault(self, key: str) -> None:
+        self.get_screen_main().query_one(LinkFaultsPanel).toggle(key)

@@ -1,0 +1,548 @@
+"""The dashboard's widgets: the drive's state, the trend plot, the frame log, the bench panels.
+
+Views hold what they show in reactive attributes and render from them; the
+panels act on the drives only through the app's :class:`Workbench`, and say
+so with a :class:`ConditionsChanged` message so the views refresh at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar, cast
+
+from rich.text import Text
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Grid, Horizontal, Vertical
+from textual.reactive import reactive
+from textual.widget import Widget
+from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
+
+from ..bus import Bus, FrameRecord
+from ..drive.terminals import Input as Terminal
+from ..drive.terminals import Output
+from ..registers import STATUS_WORDS
+from .messages import ConditionsChanged, FramesLogged
+from .workbench import CHANNEL_NAMES, DEVICE_SWITCHES, LINK_SWITCHES, SOURCE_NAMES, DriveView, Workbench
+
+if TYPE_CHECKING:
+    from .app import Dashboard
+
+__all__ = [
+    "ConditionsPanel",
+    "DeviceFaultsPanel",
+    "DriveStatus",
+    "FrameLog",
+    "LinkFaultsPanel",
+    "TrendPlot",
+    "format_record",
+    "record_matches",
+]
+
+#: Status word 1 -> the colour it is shown in.
+STATUS_STYLES = {
+    1: "bold black on green",
+    2: "bold black on green",
+    3: "bold white on dark_blue",
+    4: "bold white on red",
+    5: "bold black on yellow",
+    6: "bold white on magenta",
+}
+ERROR_KINDS = frozenset({"exception", "crc error", "length error", "noise", "dropped"})
+FUNCTIONS = {0x03: "read", 0x06: "write", 0x10: "write multiple"}
+BLOCKS = " ▁▂▃▄▅▆▇█"
+
+
+def _dashboard(widget: Widget) -> Dashboard:
+    return cast("Dashboard", widget.app)
+
+
+def _bits(value: int, names: Iterable[tuple[str, int]]) -> Text:
+    text = Text()
+    for name, bit in names:
+        if text:
+            text.append(" ")
+        text.append(name, style="bold black on bright_green" if value & bit else "dim")
+    return text
+
+
+class DriveStatus(Static):
+    """One drive's state, set point, telemetry, fault, status word 2 and terminals."""
+
+    view: reactive[DriveView | None] = reactive(None, layout=True)
+
+    def render(self) -> Text:
+        view = self.view
+        if view is None:
+            return Text("waiting for the drive")
+        tel = view.telemetry
+        status = tel.status
+        words = STATUS_WORDS.get(status, f"status {status}")
+        head = Text(f" {words.upper()} ", style=STATUS_STYLES.get(status, "bold"))
+        head.append(f" 2100H = {status}", style="dim")
+        if tel.state not in words:
+            head.append(f" ({tel.state})", style="dim")
+        if tel.fault_code:
+            fault = Text(f"0x{tel.fault_code:02X} {tel.fault_name}", style="bold red")
+        else:
+            fault = Text("none", style="green")
+        rows: list[tuple[str, Text | str]] = [
+            (
+                "channel",
+                f"{CHANNEL_NAMES.get(tel.run_channel, tel.run_channel)} · speed from "
+                f"{SOURCE_NAMES.get(tel.speed_source, tel.speed_source)}",
+            ),
+            ("speed", f"{tel.speed_rpm:.0f} rpm of {tel.set_speed_rpm:.0f} · ramp {tel.ramp_rpm:.0f}"),
+            ("freq", f"{view.output_hz:.2f} Hz of {view.set_hz:.2f} · {tel.output_voltage_v:.1f} V"),
+            ("current", f"{abs(tel.current_a):.2f} A · {tel.output_power_w:.0f} W · bus {tel.bus_v:.1f} V"),
+            ("temp", f"{tel.temperature_c:.1f} °C · Hall {tel.hall} · supply {tel.supply_v:g} V"),
+            ("fault", fault),
+            ("status 2", f"{view.status2:04X} {status2_short(view.status2)}"),
+            ("inputs", _bits(tel.input_terminals, ((t.name or "", t.value) for t in Terminal))),
+            ("outputs", _bits(tel.output_terminals, ((o.name or "", o.value) for o in Output))),
+        ]
+        out = head
+        for label, value in rows:
+            out.append("\n")
+            out.append(f"{label:<9}", style="bold")
+            out.append(value)
+        out.no_wrap = True
+        out.overflow = "ellipsis"
+        return out
+
+
+def status2_short(raw: int) -> str:
+    """Status word 2 in a few words: bus, overload, control source."""
+    words = ["bus ok" if raw & 0x01 else "no bus"]
+    if raw & 0x10:
+        words.append("OVERLOAD")
+    words.append({0: "keypad", 1: "terminal", 2: "comm"}.get((raw >> 5) & 0b11, "source 11") + " control")
+    return " · ".join(words)
+
+
+class TrendPlot(Widget):
+    """A bar plot of the last minute of one quantity, newest on the right, scaled from zero to ``top``."""
+
+    DEFAULT_CSS = """
+    TrendPlot { height: 3; }
+    """
+
+    values: reactive[tuple[float, ...]] = reactive(())
+
+    def __init__(self, label: str, unit: str, top: float, digits: int = 0, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.label = label
+        self.unit = unit
+        self.top = top
+        self.digits = digits
+
+    def render(self) -> Text:
+        width, rows = max(1, self.size.width), max(1, self.size.height - 1)
+        values = self.values
+        last = values[-1] if values else 0.0
+        head = Text(f"{self.label} ", style="bold")
+        head.append(f"{last:.{self.digits}f} {self.unit}")
+        head.append(f" (scale {self.top:g}, 1 min)", style="dim")
+        head.truncate(width, overflow="ellipsis")
+        columns = _resample([abs(v) for v in values], width)
+        levels = [min(rows * 8, round(v / self.top * rows * 8)) if self.top > 0 else 0 for v in columns]
+        lines = []
+        for row in range(rows - 1, -1, -1):
+            lines.append("".join(BLOCKS[min(8, max(0, level - row * 8))] for level in levels).rjust(width))
+        head.append("\n")
+        head.append("\n".join(lines), style="cyan")
+        head.no_wrap = True
+        head.overflow = "ellipsis"
+        return head
+
+
+def _resample(values: Sequence[float], width: int) -> list[float]:
+    """At most ``width`` columns: the maximum of each bin, newest last."""
+    if len(values) <= width:
+        return list(values)
+    out = []
+    n = len(values)
+    for i in range(width):
+        lo, hi = i * n // width, (i + 1) * n // width
+        out.append(max(values[lo:hi]))
+    return out
+
+
+def record_matches(record: FrameRecord, drive: int | None, function: int | None, errors_only: bool) -> bool:
+    """The frame log's filter: by drive (broadcasts shown for any), by function, or errors only."""
+    if drive is not None and record.slave not in (drive, 0):
+        return False
+    if function is not None and (len(record.data) < 2 or record.data[1] & 0x7F != function):
+        return False
+    return not errors_only or record.kind in ERROR_KINDS or bool(record.note)
+
+
+def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
+    """One frame log line: time, direction, drive, words (highlighted if wrong), hex."""
+    arrow = "→" if record.direction == "rx" else "←"
+    slave = "-" if record.slave is None else str(record.slave)
+    line = Text(f"{record.t:9.3f} {arrow} {slave:>3} ", style="dim")
+    style = ""
+    if record.kind == "exception":
+        style = "bold yellow"
+    elif record.kind in ERROR_KINDS:
+        style = "bold red"
+    if record.kind not in ("request", "reply"):
+        line.append(f"[{record.kind}] ", style=style or "bold")
+    line.append(record.text, style=style)
+    if record.note:
+        line.append(f"  ! {record.note}", style="bold red")
+    if hex_bytes and record.data:
+        line.append(f"  {record.data.hex(' ').upper()}", style="dim")
+    return line
+
+
+class FrameLog(Vertical, can_focus=True):
+    """Every frame on the line, live and in words; pause, filter and save."""
+
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("space", "pause", "Pause"),
+        Binding("a", "drive_filter", "Drive filter", show=False),
+        Binding("n", "function_filter", "Function filter", show=False),
+        Binding("e", "errors_only", "Errors only", show=False),
+        Binding("w", "save", "Save log", show=False),
+        Binding("delete", "clear", "Clear", show=False),
+    ]
+
+    paused = reactive(False)
+    drive_filter: reactive[int | None] = reactive(None)
+    function_filter: reactive[int | None] = reactive(None)
+    errors_only = reactive(False)
+
+    def __init__(self, bus: Bus, drives: Sequence[int], id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.bus = bus
+        self.drives = list(drives)
+        self._inbox: list[FrameRecord] = []
+        self._posted = False
+        self._held = 0
+        self._cleared_after: FrameRecord | None = None  #: the last record when the log was cleared
+
+    def compose(self) -> ComposeResult:
+        yield Static(id="log-status")
+        yield RichLog(max_lines=2000, id="log-lines", min_width=40)
+
+    def on_mount(self) -> None:
+        self.query_one(RichLog).can_focus = False
+        self._show_status()
+        self._rebuild()
+
+    def add(self, record: FrameRecord) -> None:
+        """A bus listener: queue the record and ask for one merged refresh."""
+        self._inbox.append(record)
+        if not self._posted:
+            self._posted = True
+            self.post_message(FramesLogged())
+
+    def on_frames_logged(self, message: FramesLogged) -> None:
+        message.stop()
+        self._posted = False
+        records, self._inbox = self._inbox, []
+        if self.paused:
+            self._held += len(records)
+            self._show_status()
+            return
+        log = self.query_one(RichLog)
+        for record in records:
+            if self._matches(record):
+                log.write(format_record(record))
+
+    def visible_records(self) -> list[FrameRecord]:
+        """The records the filter shows, oldest first (what is saved)."""
+        records = list(self.bus.records)
+        if self._cleared_after is not None:
+            for index in range(len(records) - 1, -1, -1):
+                if records[index] is self._cleared_after:
+                    records = records[index + 1 :]
+                    break
+        return [r for r in records if self._matches(r)]
+
+    def _matches(self, record: FrameRecord) -> bool:
+        return record_matches(record, self.drive_filter, self.function_filter, self.errors_only)
+
+    def _rebuild(self) -> None:
+        log = self.query_one(RichLog)
+        log.clear()
+        for record in self.visible_records():
+            log.write(format_record(record))
+
+    def _show_status(self) -> None:
+        parts = [
+            f"drive {self.drive_filter}" if self.drive_filter is not None else "all drives",
+            FUNCTIONS[self.function_filter] if self.function_filter is not None else "all functions",
+        ]
+        if self.errors_only:
+            parts.append("errors only")
+        text = Text("frames: " + ", ".join(parts), style="bold")
+        if self.paused:
+            text.append(f"  PAUSED ({self._held} new)", style="bold black on yellow")
+        text.append("   space pause · a drive · n function · e errors · w save", style="dim")
+        self.query_one("#log-status", Static).update(text)
+
+    def _filters_changed(self) -> None:
+        if self.is_mounted:
+            self._show_status()
+            if not self.paused:
+                self._rebuild()
+
+    def watch_drive_filter(self) -> None:
+        self._filters_changed()
+
+    def watch_function_filter(self) -> None:
+        self._filters_changed()
+
+    def watch_errors_only(self) -> None:
+        self._filters_changed()
+
+    def watch_paused(self, paused: bool) -> None:
+        if not self.is_mounted:
+            return
+        if not paused:
+            self._held = 0
+            self._rebuild()
+        self._show_status()
+
+    def action_pause(self) -> None:
+        self.paused = not self.paused
+
+    def action_drive_filter(self) -> None:
+        choices: list[int | None] = [None, *self.drives]
+        self.drive_filter = choices[(choices.index(self.drive_filter) + 1) % len(choices)]
+
+    def action_function_filter(self) -> None:
+        choices: list[int | None] = [None, *FUNCTIONS]
+        self.function_filter = choices[(choices.index(self.function_filter) + 1) % len(choices)]
+
+    def action_errors_only(self) -> None:
+        self.errors_only = not self.errors_only
+
+    def action_clear(self) -> None:
+        self._cleared_after = self.bus.records[-1] if self.bus.records else None
+        self._held = 0
+        self._rebuild()
+        self._show_status()
+
+    def action_save(self) -> None:
+        _dashboard(self).action_save_log()
+
+    def save(self, path: Path) -> int:
+        """Write the records the filter shows, one line each with hex; returns how many."""
+        records = self.visible_records()
+        with path.open("w", encoding="utf-8") as f:
+            for record in records:
+                f.write(format_record(record).plain + "\n")
+        return len(records)
+
+
+class NumberInput(Input):
+    """A number that Enter applies, and up/down step like a slider."""
+
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("up", "step(1)", "Up", show=False),
+        Binding("down", "step(-1)", "Down", show=False),
+    ]
+
+    def __init__(self, step: float, low: float, high: float, *, id: str | None = None) -> None:
+        super().__init__(type="number", compact=True, id=id)
+        self.step, self.low, self.high = step, low, high
+
+    def action_step(self, direction: int) -> None:
+        try:
+            value = float(self.value or 0)
+        except ValueError:
+            value = 0.0
+        value = min(max(value + direction * self.step, self.low), self.high)
+        self.value = f"{value:g}"
+        self.post_message(Input.Submitted(self, self.value))
+
+
+#: Conditions panel fields: id -> (label, unit, step, low, high).
+CONDITION_FIELDS = {
+    "supply": ("supply", "V", 1.0, 0.0, 1000.0),
+    "load": ("load", "N m", 0.1, 0.0, 100.0),
+    "ambient": ("ambient", "°C", 5.0, -40.0, 1000.0),
+    "ai1": ("AI1 knob", "V", 0.5, 0.0, 10.0),
+    "ai2": ("AI2", "V", 0.5, 0.0, 10.0),
+}
+
+
+class ConditionsPanel(Vertical):
+    """The physical conditions: supply, load, ambient, the analog inputs and the input terminals."""
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(classes="fields"):
+            for name, (label, unit, step, low, high) in CONDITION_FIELDS.items():
+                yield Label(f"{label} ({unit})")
+                yield NumberInput(step, low, high, id=f"cond-{name}")
+        with Horizontal(classes="terminals"):
+            yield Label("input terminals")
+            for terminal in Terminal:
+                yield Checkbox(terminal.name or "", id=f"term-{terminal.name}", compact=True)
+        yield Static("Enter applies a value; up/down step it. Terminals are the physical inputs.", classes="hint")
+
+    def show(self, bench: Workbench, address: int) -> None:
+        """Show the conditions of drive ``address`` (fields being edited are left alone)."""
+        cond = bench.conditions[address]
+        values = {
+            "supply": cond.supply_v,
+            "load": cond.load_torque_nm,
+            "ambient": cond.ambient_c,
+            "ai1": cond.ai1_v,
+            "ai2": cond.ai2_v,
+        }
+        for name, value in values.items():
+            field = self.query_one(f"#cond-{name}", NumberInput)
+            if not field.has_focus and field.value != f"{value:g}":
+                field.value = f"{value:g}"
+        for terminal in Terminal:
+            box = self.query_one(f"#term-{terminal.name}", Checkbox)
+            on_ = bool(cond.inputs & terminal)
+            if box.value != on_:
+                with box.prevent(Checkbox.Changed):
+                    box.value = on_
+
+    @on(Input.Submitted)
+    def _apply(self, event: Input.Submitted) -> None:
+        event.stop()
+        dash = _dashboard(self)
+        name = (event.input.id or "").removeprefix("cond-")
+        try:
+            value = float(event.value)
+        except ValueError:
+            self.notify(f"{name}: not a number: {event.value!r}", severity="error")
+            return
+        address, bench = dash.selected, dash.bench
+        setters = {
+            "supply": lambda: bench.set_supply(address, value),
+            "load": lambda: bench.set_load(address, value),
+            "ambient": lambda: bench.set_ambient(address, value),
+            "ai1": lambda: bench.set_ai(address, 1, value),
+            "ai2": lambda: bench.set_ai(address, 2, value),
+        }
+        setters[name]()
+        self.post_message(ConditionsChanged(f"drive {address}: {name} {value:g}"))
+
+    @on(Checkbox.Changed)
+    def _terminal(self, event: Checkbox.Changed) -> None:
+        event.stop()
+        dash = _dashboard(self)
+        bits = 0
+        for terminal in Terminal:
+            if self.query_one(f"#term-{terminal.name}", Checkbox).value:
+                bits |= terminal
+        dash.bench.set_inputs(dash.selected, bits)
+        self.post_message(ConditionsChanged())
+
+
+class _SwitchPanel(Vertical, can_focus=True):
+    """A grid of one-key fault switches."""
+
+    prefix = ""
+
+    def switches(self) -> list[tuple[str, str]]:
+        """(key, label) of each switch."""
+        raise NotImplementedError
+
+    def compose(self) -> ComposeResult:
+        yield Static(id=f"{self.prefix}-hint", classes="hint")
+        with Grid(classes="switches"):
+            for key, label in self.switches():
+                yield Button(f"{key} {label}", id=f"{self.prefix}-{key}", compact=True)
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        event.stop()
+        key = (event.button.id or "").removeprefix(f"{self.prefix}-")
+        self.toggle(key)
+
+    def action_switch(self, key: str) -> None:
+        self.toggle(key)
+
+    def toggle(self, key: str) -> None:
+        raise NotImplementedError
+
+    def mark(self, active: dict[str, bool]) -> None:
+        for key, on_ in active.items():
+            button = self.query_one(f"#{self.prefix}-{key}", Button)
+            button.set_class(on_, "-on")
+
+
+class DeviceFaultsPanel(_SwitchPanel):
+    """Every device fault of the model, each one key: causes where the model has one, latched otherwise."""
+
+    prefix = "dev"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding(key, f"switch('{key}')", show=False) for key in [s.key for s in DEVICE_SWITCHES] + [*"123456789z"]
+    ]
+
+    def __init__(self, bench: Workbench, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.bench = bench
+
+    def switches(self) -> list[tuple[str, str]]:
+        out = [(s.key, s.label) for s in DEVICE_SWITCHES]
+        out += [(key, f"{name} 0x{code:02X}") for key, (code, name) in self.bench.forced.items()]
+        out.append(("z", "clear all"))
+        return out
+
+    def on_mount(self) -> None:
+        self.query_one("#dev-hint", Static).update(
+            "A key switches a cause on or off, then RESET (x); digits latch faults without a cause."
+        )
+
+    def toggle(self, key: str) -> None:
+        if key.isdigit() and key not in self.bench.forced:
+            return
+        dash = _dashboard(self)
+        note = self.bench.toggle_device_fault(dash.selected, key)
+        self.post_message(ConditionsChanged(note))
+
+    def refresh_marks(self, address: int) -> None:
+        self.mark({key: self.bench.device_fault_active(address, key) for key, _ in self.switches() if key != "z"})
+
+
+class LinkFaultsPanel(_SwitchPanel):
+    """Every link fault of the wire, each one key, on the selected drive's link or the whole bus."""
+
+    prefix = "link"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding(key, f"switch('{key}')", show=False) for key in [s.key for s in LINK_SWITCHES] + ["z", "b"]
+    ]
+    on_bus = reactive(False)
+
+    def __init__(self, bench: Workbench, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.bench = bench
+
+    def switches(self) -> list[tuple[str, str]]:
+        return [(s.key, s.label) for s in LINK_SWITCHES] + [("z", "clear all"), ("b", "drive/bus")]
+
+    def scope(self) -> int | None:
+        return None if self.on_bus else _dashboard(self).selected
+
+    def toggle(self, key: str) -> None:
+        if key == "b":
+            self.on_bus = not self.on_bus
+            self.post_message(ConditionsChanged(f"link faults now act on {self._where()}"))
+            return
+        note = self.bench.toggle_link_fault(self.scope(), key)
+        self.post_message(ConditionsChanged(note))
+
+    def _where(self) -> str:
+        scope = self.scope()
+        return "the whole bus" if scope is None else f"drive {scope}'s link"
+
+    def refresh_marks(self, address: int) -> None:
+        scope = self.scope()
+        self.mark({s.key: self.bench.link_fault_active(scope, s.key) for s in LINK_SWITCHES})
+        self.query_one("#link-b", Button).set_class(self.on_bus, "-on")
+        active = self.bench.link(scope).active
+        self.query_one("#link-hint", Static).update(
+            f"On {self._where()} (b switches): " + (", ".join(active) if active else "no link fault")
+        )
