@@ -128,7 +128,7 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
     return state
 
 
-def parse_register(text: str | int, sim: Simulator) -> int:
+def parse_register(sim: Simulator, text: str | int) -> int:
     """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` or an int -> the register's address."""
     registers = sim.profile.registers
     if isinstance(text, bool):
@@ -163,7 +163,7 @@ def parse_register(text: str | int, sim: Simulator) -> int:
 def read_register(sim: Simulator, address: int, register: str | int) -> dict[str, Any]:
     """A register's value as a master would read it, without counting as communication."""
     drive = model(sim, address)
-    reg = parse_register(register, sim)
+    reg = parse_register(sim, register)
     spec = sim.profile.registers[reg]
     sim.sync()
     raw = drive.read(sim.profile.registers.canonical(reg))

@@ -90,9 +90,10 @@ def format_frames(records: Sequence[FrameRecord], limit: int = SHOWN_FRAMES) -> 
         f"frames on the line (last {len(shown)} of {len(records)}):" if len(records) > limit else "frames on the line:"
     )
     lines = [head]
+    t0 = shown[0].t  # frames carry the line's arrival times: show them from the first one shown
     for r in shown:
         note = f"  ({r.note})" if r.note else ""
-        lines.append(f"  {r.t:10.4f} s {r.direction} {r.data.hex(' ').upper():<26} {r.text}{note}")
+        lines.append(f"  +{r.t - t0:8.4f} s {r.direction} {r.data.hex(' ').upper():<26} {r.text}{note}")
     return "\n".join(lines)
 
 
@@ -208,6 +209,7 @@ class C20Sim:
 
     def assert_written(self, register: str | int, value: int, drive: int | None = None) -> None:
         """Fail unless a master wrote ``value`` to ``register`` of ``drive`` (0x06 or 0x10) and it was taken."""
+        __tracebackhide__ = True
         address = self._address(drive)
         reg = self._op(control.parse_register, register)
         records = self.frames()
@@ -235,6 +237,7 @@ class C20Sim:
 
     def assert_register(self, register: str | int, expected: int, drive: int | None = None, tolerance: int = 0) -> None:
         """Fail unless ``register`` of ``drive`` reads ``expected`` (within ``tolerance``) now."""
+        __tracebackhide__ = True
         address = self._address(drive)
         info = self._op(control.read_register, address, register)
         if abs(info["raw"] - expected) > tolerance:
@@ -246,6 +249,7 @@ class C20Sim:
 
     def assert_fault(self, code: int, drive: int | None = None) -> None:
         """Fail unless ``drive`` reports fault ``code`` (0 for none) in 2102H."""
+        __tracebackhide__ = True
         self.assert_register("2102H", code, drive)
 
 

@@ -1,0 +1,241 @@
+"""The c20sim pytest plugin as a user meets it: test files of their own, run by pytester."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest_plugins = ["pytester"]
+
+
+def run(pytester: pytest.Pytester, source: str, *args: str) -> pytest.RunResult:
+    pytester.makepyfile(test_user=source)
+    return pytester.runpytest(
+        "-p",
+        "no:cacheprovider",
+        "-p",
+        "no:textual-snapshot",
+        "-p",
+        "no:syrupy",
+        "-p",
+        "no:hypothesispytest",
+        "-o",
+        "asyncio_mode=auto",
+        "-o",
+        "asyncio_default_fixture_loop_scope=function",
+        *args,
+    )
+
+
+def test_plain_test_runs_a_drive_over_rtu_over_tcp(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+
+        def test_forward_run(c20sim):
+            assert c20sim.pty is None and c20sim.modbus_tcp_port is None
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert client.connect()
+            client.write_register(0x2001, 1500, device_id=1)
+            client.write_register(0x2000, 1, device_id=1)
+            assert c20sim.advance(2.0) == 2.0
+            assert client.read_holding_registers(0x3006, count=1, device_id=1).registers == [1500]
+            client.close()
+            c20sim.assert_written("2001H", 1500)
+            c20sim.assert_written(0x2000, 1)
+            c20sim.assert_register("status1", 1)
+            assert c20sim.state().speed_rpm == 1500.0
+        """,
+    )
+    result.assert_outcomes(passed=1)
+
+
+def test_async_test_with_an_async_client(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        from pymodbus import FramerType
+        from pymodbus.client import AsyncModbusTcpClient
+
+        async def test_trip(c20sim):
+            client = AsyncModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert await client.connect()
+            await client.write_register(0x2001, 1500, device_id=1)
+            await client.write_register(0x2000, 1, device_id=1)
+            c20sim.advance(1.0)
+            c20sim.set(supply_v=20)
+            c20sim.advance(0.1)
+            reply = await client.read_holding_registers(0x2102, count=1, device_id=1)
+            assert reply.registers == [0x0A]
+            client.close()
+            c20sim.assert_fault(0x0A)
+        """,
+    )
+    result.assert_outcomes(passed=1)
+
+
+def test_assert_written_shows_the_frames(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+
+        def test_wrong_speed(c20sim):
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert client.connect()
+            client.write_register(0x2001, 1400, device_id=1)
+            client.close()
+            c20sim.assert_written("2001H", 1500)
+        """,
+    )
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "E       AssertionError: drive 1: no accepted write of 1500 (0x05DC) to 2001H; writes to 2001H seen: 1400",
+            "E       frames on the line:",
+            "E         +  0.0000 s rx 01 06 20 01 05 78 D0 B8    write 2001H = 0578: 1400 rpm",
+            "E         +  0.00* s tx 01 06 20 01 05 78 D0 B8    write 2001H = 0578: 1400 rpm",
+        ]
+    )
+
+
+def test_a_refused_write_is_not_written(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+
+        def test_locked(c20sim):
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert client.connect()
+            assert client.write_register(0x000A, 2500, device_id=1).isError()  # function codes locked (200EH = 0)
+            client.close()
+            c20sim.assert_written("F00.10", 2500)
+        """,
+    )
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "E       AssertionError: drive 1: no accepted write of 2500 (0x09C4) to F00.10; writes to F00.10 seen: 2500, refused: *"
+        ]
+    )
+
+
+def test_assert_register_failure_says_what_it_read(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        def test_status(c20sim):
+            c20sim.assert_register("2100H", 1, tolerance=0)
+        """,
+    )
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "E       AssertionError: drive 1: 2100H (status word 1) reads 3 (stopped), expected 1; t = 0 s",
+            "E       no frames on the line",
+        ]
+    )
+
+
+def test_overridden_fixtures_and_the_marker(pytester: pytest.Pytester) -> None:
+    pytester.makeconftest(
+        """
+        import pytest
+
+        @pytest.fixture
+        def c20sim_drives():
+            return (3, 4)
+
+        @pytest.fixture
+        def c20sim_transport():
+            return ("tcp", "modbus-tcp")
+        """
+    )
+    result = run(
+        pytester,
+        """
+        import os
+        import pytest
+        from pymodbus.client import ModbusSerialClient
+
+        def test_fixtures(c20sim):
+            assert c20sim.addresses == (3, 4)
+            assert c20sim.port and c20sim.modbus_tcp_port and c20sim.pty is None
+            assert c20sim.read("address", drive=4) == 4
+            assert c20sim.profile.name == "c20-400hr"
+
+        @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(7,))
+        def test_marker(c20sim):
+            assert (c20sim.addresses, c20sim.profile.name, c20sim.port) == ((7,), "c20-2200hv", None)
+            assert os.path.exists(c20sim.pty)
+            client = ModbusSerialClient(c20sim.pty, timeout=2, retries=0)
+            assert client.connect()
+            assert client.read_holding_registers(0x2103, count=1, device_id=7).registers == [0x20]
+            client.close()
+            assert [r.direction for r in c20sim.frames(drive=7)] == ["rx", "tx"]
+
+        @pytest.mark.c20sim(clock="realtime")
+        def test_realtime(c20sim):
+            with pytest.raises(Exception, match="only be advanced with the virtual clock"):
+                c20sim.advance(1)
+        """,
+    )
+    result.assert_outcomes(passed=3)
+
+
+def test_faults_link_faults_and_drives(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        import pytest
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+        from pymodbus.exceptions import ModbusIOException
+        from c20sim import C20SimError
+
+        @pytest.mark.c20sim(drives=(1, 2))
+        def test_everything(c20sim):
+            one, two = c20sim.drives
+            two.inject_fault(17, persistent=True)
+            assert two.state().fault_code == 17 and one.state().fault_code == 0
+            assert two.press("reset") is False
+            assert two.clear_fault() is True
+            assert c20sim.drive(2).read("fault_code") == 0
+
+            one.link_faults(offline=True)
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=0.3, retries=0)
+            assert client.connect()
+            with pytest.raises(ModbusIOException):
+                client.read_holding_registers(0x2103, count=1, device_id=1)
+            assert client.read_holding_registers(0x2103, count=1, device_id=2).registers == [0x20]
+            c20sim.clear_link_faults(1)
+            assert client.read_holding_registers(0x2103, count=1, device_id=1).registers == [0x20]
+            client.close()
+            assert [r.note for r in c20sim.frames(drive=1)][0] == "drive offline (injected)"
+
+            with pytest.raises(C20SimError, match="unknown condition 'supply'; did you mean 'supply_v'"):
+                c20sim.set(supply=3)
+            with pytest.raises(C20SimError, match="no drive at address 5; drives: 1, 2"):
+                c20sim.drive(5)
+        """,
+    )
+    result.assert_outcomes(passed=1)
+
+
+def test_bad_marker_is_a_usage_error(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        import pytest
+
+        @pytest.mark.c20sim(transport="serial")
+        def test_bad(c20sim):
+            pass
+        """,
+    )
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines(["*c20sim: unknown transport 'serial'; use one or more of tcp, pty, modbus-tcp*"])
