@@ -11,6 +11,7 @@ through the :class:`~c20sim.tui.workbench.Workbench`.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import ClassVar, cast
@@ -20,6 +21,7 @@ from textual import on
 from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
+from textual.css.query import NoMatches
 from textual.reactive import reactive
 from textual.screen import ModalScreen, Screen
 from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
@@ -269,6 +271,10 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     def _show(self) -> None:
+        with contextlib.suppress(NoMatches):  # shutting down: the widgets are gone
+            self._show_views()
+
+    def _show_views(self) -> None:
         screen = self.screen if isinstance(self.screen, MainScreen) else None
         if screen is None:
             try:

@@ -347,11 +347,16 @@ class NumberInput(Input):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("up", "step(1)", "Up", show=False),
         Binding("down", "step(-1)", "Down", show=False),
+        Binding("escape", "leave", "Leave field", show=False),
     ]
 
     def __init__(self, step: float, low: float, high: float, *, id: str | None = None) -> None:
         super().__init__(type="number", compact=True, id=id)
         self.step, self.low, self.high = step, low, high
+
+    def action_leave(self) -> None:
+        """Give the keys back to the dashboard (the keypad, time, tabs)."""
+        self.screen.set_focus(None)
 
     def action_step(self, direction: int) -> None:
         try:

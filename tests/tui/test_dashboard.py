@@ -1,0 +1,192 @@
+"""The dashboard driven by keys and clicks, checked on the wire by a pymodbus master."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusIOException
+from textual.widgets import RichLog
+
+from c20sim.tui.app import HelpScreen, SaveLogScreen
+from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel
+from tests.tui.conftest import Bench, running
+
+STATUS1, STATUS2, FAULT, SPEED, INPUTS = 0x2100, 0x2101, 0x2102, 0x3006, 0x300D
+
+
+async def run_forward(bench: Bench, rpm: int = 1500) -> None:
+    await bench.write(0x2001, rpm)
+    await bench.write(0x2000, 1)
+    await bench.press("t")
+    assert await bench.read(SPEED) == rpm
+
+
+async def test_undervoltage_while_running_trips_0x0A(bench: Bench) -> None:
+    await run_forward(bench)
+    await bench.press("f4", "u")  # device faults, undervoltage: the supply drops
+    assert bench.app.bench.conditions[1].supply_v == 18.0
+    await bench.press("t")
+    assert await bench.read(FAULT) == 0x000A
+    assert await bench.read(STATUS1) == 4
+    assert "0x0A UV: bus undervoltage" in bench.screen_text()
+    await bench.press("x")  # reset refused: the supply is still low
+    assert await bench.read(FAULT) == 0x000A
+    await bench.press("u", "t", "x", "t", "t")  # supply back, reset, the rotor coasts to rest
+    assert await bench.read(FAULT) == 0
+    assert await bench.read(STATUS1) == 3
+
+
+async def test_keypad_runs_only_on_the_keypad_channel(bench: Bench) -> None:
+    await bench.write(0x2001, 1000)
+    await bench.press("f", "t")
+    assert await bench.read(STATUS1) == 3  # refused: communication channel (F00.01 = 2)
+    assert any("FWD refused" in str(n.message) for n in bench.app._notifications)
+    await bench.press("m")  # channel 2 -> 0: keypad
+    assert await bench.read(0x0001) == 0
+    assert await bench.read(STATUS2) == 0x0001  # bits 5-6 = 00: keypad control
+    await bench.press("f", "t")
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (1, 1000)
+    await bench.press("r", "t")
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (2, 1000)
+    await bench.press("s", "t", "t")
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (3, 0)
+    await bench.press("j", "t")  # jog forward at the jog speed, until released
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (1, 300)
+    await bench.press("j", "t", "t")
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (3, 0)
+    assert "keypad · speed from Modbus" in bench.screen_text()
+
+
+async def test_clicking_fault_buttons(bench: Bench) -> None:
+    await bench.press("f4")
+    await bench.pilot.click("#dev-e")  # external fault: the EF terminal
+    await bench.press("t")
+    assert await bench.read(FAULT) == 17
+    assert await bench.read(INPUTS) & 0x008
+    await bench.pilot.click("#dev-e")
+    await bench.press("x", "t")
+    assert await bench.read(FAULT) == 0
+    await bench.pilot.click("#dev-5")  # a latched fault with no physical cause: SPO
+    await bench.press("t")
+    assert await bench.read(FAULT) == 0x0E
+    await bench.press("x")
+    assert await bench.read(FAULT) == 0x0E  # persistent until switched off
+    await bench.pilot.click("#dev-5")
+    await bench.press("x")
+    assert await bench.read(FAULT) == 0
+
+
+async def test_link_faults_offline_and_forced_exception(bench: Bench) -> None:
+    await bench.press("f5", "o")
+    assert bench.app.sim.link_faults(1).offline
+    with pytest.raises(ModbusIOException):
+        await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
+    await bench.press("o", "x", "x")  # online; forced exception 0x01, then 0x02
+    response = await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
+    assert (response.function_code, response.exception_code) == (0x83, 0x02)
+    await bench.press("b", "c")  # the whole bus: bad CRC
+    assert bench.app.sim.link_faults(None).corrupt_crc
+    await bench.press("z", "b", "z")  # clear the bus, back to the drive, clear it
+    assert await bench.read(STATUS1) == 3
+
+
+async def test_conditions_supply_and_terminals(bench: Bench) -> None:
+    await bench.press("f3")
+    field = bench.app.get_screen_main().query_one("#cond-supply")
+    assert field.has_focus
+    await bench.press("home", "ctrl+k", "3", "0", "enter", "escape", "t", "t")
+    assert await bench.read(STATUS1) == 5  # bus below 36 V while stopped: off
+    assert await bench.read(0x3008) < 360
+    await bench.press("f3", *["up"] * 10, "escape", "t", "t")  # 40 V: the bus is back
+    assert await bench.read(STATUS1) == 3
+    await bench.pilot.click("#term-S1")
+    await bench.press("t")
+    assert await bench.read(INPUTS) == 0x010
+
+
+async def test_frame_log_shows_filters_pauses_and_saves(bench: Bench, tmp_path: Path) -> None:
+    log = bench.app.get_screen_main().query_one(FrameLog)
+    lines = log.query_one(RichLog)
+    assert await bench.read(STATUS1) == 3
+    response = await bench.client.read_holding_registers(0x0032, count=1, device_id=1)
+    assert response.exception_code == 0x02
+    await bench.pilot.pause()
+    text = "\n".join(line.text for line in lines.lines)
+    assert "read 2100H (status word 1)" in text
+    assert "exception 0x02 to read: illegal data address" in text
+    await bench.press("f2", "e")  # errors only
+    assert [r.kind for r in log.visible_records()] == ["exception"]
+    await bench.press("e", "space")  # all again; paused
+    before = len(lines.lines)
+    assert await bench.read(STATUS1) == 3
+    await bench.pilot.pause()
+    assert len(lines.lines) == before
+    assert "PAUSED (2 new)" in str(log.query_one("#log-status").render())
+    await bench.press("space")
+    assert len(lines.lines) == before + 2
+    path = tmp_path / "frames.log"
+    await bench.press("w")
+    assert isinstance(bench.app.screen, SaveLogScreen)
+    bench.app.screen.query_one("#save-path").value = str(path)  # type: ignore[attr-defined]
+    await bench.press("enter")
+    saved = path.read_text().splitlines()
+    assert len(saved) == 6
+    assert "exception 0x02 to read: illegal data address  01 83 02 C0 F1" in saved[3]
+
+
+async def test_power_cycle_and_restore_defaults(bench: Bench) -> None:
+    await bench.write(0x2001, 1234)  # RAM
+    await bench.write(0x2003, 20)  # F00.11, EEPROM
+    await bench.press("P")
+    assert (await bench.read(0x2001), await bench.read(0x2003)) == (0, 20)
+    await bench.press("D")
+    assert await bench.read(0x2003) == 5
+
+
+async def test_restore_defaults_refused_while_running(bench: Bench) -> None:
+    await bench.write(0x2003, 20)
+    await run_forward(bench)
+    await bench.press("D")
+    assert await bench.read(0x2003) == 20
+    assert any("stop the motor first" in str(n.message) for n in bench.app._notifications)
+
+
+async def test_several_drives_each_its_own() -> None:
+    async with running(drives=(1, 2)) as bench:
+        await bench.press("]", "f4", "e", "t")
+        assert bench.app.selected == 2
+        assert await bench.read(FAULT, device=2) == 17
+        assert await bench.read(FAULT, device=1) == 0
+        await bench.press("[")
+        assert bench.app.selected == 1
+        assert "fault    none" in bench.screen_text()
+
+
+async def test_help_screen_and_palette_commands(bench: Bench) -> None:
+    await bench.press("question_mark")
+    assert isinstance(bench.app.screen, HelpScreen)
+    await bench.press("escape")
+    assert not isinstance(bench.app.screen, HelpScreen)
+    titles = [c.title for c in bench.app.get_system_commands(bench.app.screen)]
+    assert "Device fault: undervoltage" in titles
+    assert "Link fault: offline" in titles
+    assert "Device fault: EEP (0x15)" in titles
+    assert "Keypad: STOP" in titles
+
+
+async def test_every_switch_has_a_key_and_a_button(bench: Bench) -> None:
+    screen = bench.app.get_screen_main()
+    for panel in (screen.query_one(DeviceFaultsPanel), screen.query_one(LinkFaultsPanel)):
+        keys = {b.key for b in panel.BINDINGS}  # type: ignore[union-attr]
+        for key, _ in panel.switches():
+            assert key in keys
+            assert panel.query_one(f"#{panel.prefix}-{key}")
+
+
+async def test_server_is_closed_on_exit() -> None:
+    async with running() as bench:
+        port = bench.app.server.endpoints.tcp.port  # type: ignore[union-attr]
+    client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=0.5, retries=0)
+    assert not await client.connect()
