@@ -328,7 +328,7 @@ def _exception_code(key: str, value: object) -> ExceptionCode | None:
         raise ControlError(f"{key}: {json.dumps(value)} is not an exception code; use one of {codes}") from None
 
 
-_LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
+LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
     "offline": _flag,
     "drop_next": lambda k, v: _integer(k, v, 0, 1_000_000),
     "drop_percent": lambda k, v: _number(k, v, 0, 100),
@@ -348,13 +348,13 @@ def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, ob
     link = _links(sim, address)
     if not isinstance(values, Mapping) or not values:
         raise ControlError(
-            f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(_LINK_CHECKS)}'
+            f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(LINK_CHECKS)}'
         )
     checked = {}
     for key, value in values.items():
-        check = _LINK_CHECKS.get(key)
+        check = LINK_CHECKS.get(key)
         if check is None:
-            raise _unknown("link fault", key, _LINK_CHECKS)
+            raise _unknown("link fault", key, LINK_CHECKS)
         checked[key] = check(key, value)
     for key, value in checked.items():
         setattr(link, key, value)

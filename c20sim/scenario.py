@@ -1,0 +1,481 @@
+"""Scenarios: a TOML timeline of conditions, faults, writes and expectations, checked once at load.
+
+A scenario says what happens to a drive and when, and what the registers
+must read then::
+
+    name = "undervoltage trip"
+    [[step]]
+    at = 0.0
+    write = { "2001H" = 1500, "2000H" = 1 }     # as a master: through the bus, access rules apply
+    [[step]]
+    at = 2.0
+    set = { supply_v = 24 }                      # conditions, as the control API names them
+    [[step]]
+    at = 2.1
+    expect = { status1 = 4, fault_code = 0x0A, bus_voltage = { value = 240, tolerance = 10 } }
+
+Within a step the actions run in a fixed order: ``set``, ``link``,
+``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
+``keypad``, then ``expect``. Expected values are raw register values, as a
+master reads them (3008H = 480 is 48.0 V). Loading raises
+:class:`ScenarioError` naming the file, the step and the key, like a profile.
+
+:func:`run` plays a scenario in virtual time, instantly, and returns a
+:class:`Report`; :func:`play` follows a served simulator's clock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import difflib
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from . import control
+from .errors import C20SimError
+from .protocol import FrameEvent, FrameKind, WriteSingleRequest, decode_response, encode
+from .registers import Reg, format_fcode, parse_fcode
+from .simulator import Simulator
+
+__all__ = ["Expect", "Outcome", "Report", "Scenario", "ScenarioError", "Step", "load_scenario", "play", "run"]
+
+
+class ScenarioError(C20SimError):
+    """A scenario that cannot be loaded or played: names the file, the step and the key."""
+
+    def __init__(self, path: str, where: str, message: str) -> None:
+        self.path = path
+        self.where = where
+        self.message = message
+        super().__init__(f"{path}: {where}: {message}" if where else f"{path}: {message}")
+
+
+@dataclass(frozen=True)
+class Expect:
+    """A register must read ``value`` (raw) within ``tolerance``."""
+
+    register: str  #: as written in the file
+    address: int
+    value: int
+    tolerance: int = 0
+
+
+@dataclass(frozen=True)
+class Step:
+    """What happens at time ``at`` (seconds from the start), to ``drive`` (None: the first drive)."""
+
+    index: int  #: 1-based, in file order
+    at: float
+    drive: int | None = None
+    note: str = ""
+    set: Mapping[str, object] = field(default_factory=dict)
+    link: Mapping[str, object] = field(default_factory=dict)
+    clear_link: bool = False
+    fault: tuple[int, bool] | None = None  #: (code, persistent)
+    clear_fault: bool = False
+    power_cycle: bool = False
+    write: tuple[tuple[str, int, int], ...] = ()  #: (register as written, address, value)
+    keypad: str | int | None = None
+    expect: tuple[Expect, ...] = ()
+
+    @property
+    def label(self) -> str:
+        return f"step {self.index} (at {self.at:g} s)"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    path: str
+    name: str
+    description: str = ""
+    profile: str | None = None
+    drives: tuple[int, ...] | None = None
+    steps: tuple[Step, ...] = ()
+
+
+STEP_KEYS = (
+    "at",
+    "drive",
+    "note",
+    "set",
+    "link",
+    "clear_link",
+    "fault",
+    "clear_fault",
+    "power_cycle",
+    "write",
+    "keypad",
+    "expect",
+)
+TOP_KEYS = ("name", "description", "profile", "drives", "step")
+
+
+def _did_you_mean(key: str, known: tuple[str, ...] | list[str]) -> str:
+    close = difflib.get_close_matches(key, list(known), n=1)
+    return f"; did you mean {close[0]!r}?" if close else f"; known keys: {', '.join(known)}"
+
+
+def parse_address(text: object) -> int:
+    """A register as a scenario names it: ``2100H``, ``0x2100``, ``F00.10`` or a name such as ``status1``."""
+    if isinstance(text, int) and not isinstance(text, bool):
+        return text
+    if not isinstance(text, str):
+        raise ValueError(f"{text!r} is not a register")
+    body = text.strip()
+    name = body.upper().replace("-", "_")
+    if name in Reg.__members__:
+        return int(Reg[name])
+    if body.upper().startswith("F") and "." in body:
+        return parse_fcode(body)
+    digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
+    try:
+        return int(digits, 16)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a register; give 2100H, 0x2100, F00.10 or a name such as status1") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and check a scenario file; raises ScenarioError naming the file, step and key."""
+    where = str(path)
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ScenarioError(where, "", f"cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(where, "", f"not valid TOML: {exc}") from None
+    return parse_scenario(data, where)
+
+
+def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenario:
+    for key in data:
+        if key not in TOP_KEYS:
+            raise ScenarioError(path, f"key {key!r}", "unknown key" + _did_you_mean(key, TOP_KEYS))
+    name = data.get("name", Path(path).stem)
+    if not isinstance(name, str):
+        raise ScenarioError(path, "key 'name'", "expected a string")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ScenarioError(path, "key 'description'", "expected a string")
+    profile = data.get("profile")
+    if profile is not None and not isinstance(profile, str):
+        raise ScenarioError(path, "key 'profile'", "expected a profile name or path")
+    drives = data.get("drives")
+    if drives is not None:
+        if (
+            not isinstance(drives, list)
+            or not drives
+            or not all(isinstance(d, int) and not isinstance(d, bool) and 1 <= d <= 247 for d in drives)
+        ):
+            raise ScenarioError(path, "key 'drives'", "expected a list of addresses 1-247, such as [1, 2]")
+        drives = tuple(drives)
+    raw_steps = data.get("step", [])
+    if not isinstance(raw_steps, list) or not raw_steps:
+        raise ScenarioError(path, "", "no steps; give [[step]] tables, each with at = seconds")
+    steps: list[Step] = []
+    for index, raw in enumerate(raw_steps, start=1):
+        step = _parse_step(raw, index, path)
+        if steps and step.at < steps[-1].at:
+            raise ScenarioError(
+                path, f"{step.label}, key 'at'", f"time runs backwards: step {index - 1} is at {steps[-1].at:g} s"
+            )
+        if drives is not None and step.drive is not None and step.drive not in drives:
+            raise ScenarioError(path, f"{step.label}, key 'drive'", f"{step.drive} is not in drives {list(drives)}")
+        steps.append(step)
+    return Scenario(path, name, description, profile, drives, tuple(steps))
+
+
+def _parse_step(raw: object, index: int, path: str) -> Step:
+    if not isinstance(raw, dict):
+        raise ScenarioError(path, f"step {index}", "expected a table ([[step]])")
+    at = raw.get("at")
+    if isinstance(at, bool) or not isinstance(at, int | float) or at < 0:
+        raise ScenarioError(path, f"step {index}, key 'at'", "give the step's time in seconds from the start, >= 0")
+    label = f"step {index} (at {at:g} s)"
+
+    def fail(key: str, message: str) -> ScenarioError:
+        return ScenarioError(path, f"{label}, key {key!r}", message)
+
+    for key in raw:
+        if key not in STEP_KEYS:
+            raise fail(key, "unknown key" + _did_you_mean(key, STEP_KEYS))
+
+    def table(key: str) -> dict[str, Any]:
+        value = raw.get(key, {})
+        if not isinstance(value, dict):
+            raise fail(key, "expected a table, such as { supply_v = 24 }")
+        return value
+
+    def flag(key: str) -> bool:
+        value = raw.get(key, False)
+        if not isinstance(value, bool):
+            raise fail(key, "expected true or false")
+        return value
+
+    def checked(key: str, fn: Callable[[], object]) -> None:
+        try:
+            fn()
+        except control.ControlError as exc:
+            raise fail(key, str(exc)) from None
+
+    drive = raw.get("drive")
+    if drive is not None and (isinstance(drive, bool) or not isinstance(drive, int) or not 1 <= drive <= 247):
+        raise fail("drive", "expected a drive address 1-247")
+    note = raw.get("note", "")
+    if not isinstance(note, str):
+        raise fail("note", "expected a string")
+
+    conditions = table("set")
+    for name, value in conditions.items():
+        check = control.CONDITIONS.get(name)
+        if check is None:
+            raise fail("set", f"unknown condition {name!r}" + _did_you_mean(name, list(control.CONDITIONS)))
+        checked("set", lambda check=check, name=name, value=value: check(name, value))  # type: ignore[misc]
+    link = table("link")
+    for name, value in link.items():
+        link_check = control.LINK_CHECKS.get(name)
+        if link_check is None:
+            raise fail("link", f"unknown link fault {name!r}" + _did_you_mean(name, list(control.LINK_CHECKS)))
+        checked("link", lambda c=link_check, name=name, value=value: c(name, value))  # type: ignore[misc]
+
+    fault_value = raw.get("fault")
+    fault: tuple[int, bool] | None = None
+    if fault_value is not None:
+        if isinstance(fault_value, dict):
+            extra = set(fault_value) - {"code", "persistent"}
+            if extra:
+                raise fail("fault", f"unknown key {sorted(extra)[0]!r}; give {{ code = 16, persistent = true }}")
+            code, persistent = fault_value.get("code"), fault_value.get("persistent", False)
+        else:
+            code, persistent = fault_value, False
+        if isinstance(code, bool) or not isinstance(code, int) or not 1 <= code <= 0xFF:
+            raise fail("fault", "expected a fault code 1-255, or { code = 16, persistent = true }")
+        if not isinstance(persistent, bool):
+            raise fail("fault", "persistent: expected true or false")
+        fault = (code, persistent)
+
+    writes: list[tuple[str, int, int]] = []
+    for register, value in table("write").items():
+        try:
+            address = parse_address(register)
+        except ValueError as exc:
+            raise fail("write", str(exc)) from None
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
+            raise fail("write", f"{register}: expected a raw value 0-65535, got {value!r}")
+        writes.append((register, address, value))
+
+    keypad = raw.get("keypad")
+    if keypad is not None and not (
+        (isinstance(keypad, str) and keypad in control.KEYPAD)
+        or (isinstance(keypad, int) and not isinstance(keypad, bool) and 1 <= keypad <= 8)
+    ):
+        raise fail("keypad", f"expected a key: {', '.join(control.KEYPAD)}, or a 2000H value 1-8")
+
+    expects: list[Expect] = []
+    for register, given in table("expect").items():
+        value = given
+        try:
+            address = parse_address(register)
+        except ValueError as exc:
+            raise fail("expect", str(exc)) from None
+        tolerance: object = 0
+        if isinstance(given, dict):
+            extra = set(given) - {"value", "tolerance"}
+            if extra:
+                raise fail(
+                    "expect", f"{register}: unknown key {sorted(extra)[0]!r}; give {{ value = N, tolerance = N }}"
+                )
+            value, tolerance = given.get("value"), given.get("tolerance", 0)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail("expect", f"{register}: expected a raw register value (an integer), got {value!r}")
+        if isinstance(tolerance, bool) or not isinstance(tolerance, int) or tolerance < 0:
+            raise fail("expect", f"{register}: tolerance must be a whole number >= 0, got {tolerance!r}")
+        expects.append(Expect(register, address, value, tolerance))
+
+    return Step(
+        index=index,
+        at=float(at),
+        drive=drive,
+        note=note,
+        set=conditions,
+        link=link,
+        clear_link=flag("clear_link"),
+        fault=fault,
+        clear_fault=flag("clear_fault"),
+        power_cycle=flag("power_cycle"),
+        write=tuple(writes),
+        keypad=keypad,
+        expect=tuple(expects),
+    )
+
+
+# --- Playing a scenario.
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One expectation or action of one step, and whether it held."""
+
+    step: Step
+    t: float
+    ok: bool
+    text: str
+
+
+@dataclass(frozen=True)
+class Report:
+    scenario: Scenario
+    outcomes: tuple[Outcome, ...]
+
+    @property
+    def ok(self) -> bool:
+        return all(o.ok for o in self.outcomes)
+
+    @property
+    def failures(self) -> list[Outcome]:
+        return [o for o in self.outcomes if not o.ok]
+
+    def render(self) -> str:
+        """The report as a reader wants it: every check, then the verdict."""
+        lines = [f"scenario {self.scenario.name} ({self.scenario.path})"]
+        for o in self.outcomes:
+            note = f" [{o.step.note}]" if o.step.note else ""
+            lines.append(f"  {'ok  ' if o.ok else 'FAIL'} {o.step.label}{note}: {o.text}")
+        checks = len(self.outcomes)
+        if self.ok:
+            lines.append(f"passed: {checks} check(s)")
+        else:
+            lines.append(f"FAILED: {len(self.failures)} of {checks} check(s)")
+        return "\n".join(lines) + "\n"
+
+
+def check(scenario: Scenario, sim: Simulator) -> None:
+    """Raise ScenarioError if a step names a drive or register the simulator lacks."""
+    registers = sim.profile.registers
+    for step in scenario.steps:
+        if step.drive is not None and step.drive not in sim.drives:
+            raise ScenarioError(
+                scenario.path,
+                f"{step.label}, key 'drive'",
+                f"no drive at address {step.drive}; drives: {', '.join(map(str, sim.drives))}",
+            )
+        for key, items in (
+            ("write", [w[:2] for w in step.write]),
+            ("expect", [(e.register, e.address) for e in step.expect]),
+        ):
+            for register, address in items:
+                if address not in registers:
+                    shown = format_fcode(address) if address < 0x2000 else f"{address:04X}H"
+                    raise ScenarioError(
+                        scenario.path,
+                        f"{step.label}, key {key!r}",
+                        f"{register}: the profile {sim.profile.name} has no register {shown}",
+                    )
+
+
+def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
+    """Apply ``step`` at the simulator's time; returns the outcomes of its writes and expectations."""
+    address = step.drive if step.drive is not None else next(iter(sim.drives))
+    t = sim.now()
+    out: list[Outcome] = []
+    if step.set:
+        control.set_conditions(sim, address, step.set)
+    if step.link:
+        control.set_link_faults(sim, address, step.link)
+    if step.clear_link:
+        control.clear_link_faults(sim, address)
+    if step.fault is not None:
+        control.inject_fault(sim, address, step.fault[0], step.fault[1])
+    if step.clear_fault:
+        control.clear_fault(sim, address, True)
+    if step.power_cycle:
+        control.power_cycle(sim, address)
+    for register, reg, value in step.write:
+        out.append(_write(sim, step, address, register, reg, value))
+    if step.keypad is not None:
+        taken = control.press_key(sim, address, step.keypad)
+        out.append(Outcome(step, t, True, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
+    for expect in step.expect:
+        info = control.read_register(sim, address, expect.address)
+        ok = abs(info["raw"] - expect.value) <= expect.tolerance
+        within = f" +/- {expect.tolerance}" if expect.tolerance else ""
+        spec = sim.profile.registers[expect.address]
+        wanted = spec.describe(expect.value & 0xFFFF)
+        text = f"{info['register']} ({info['name']}) = {info['raw']} ({info['text']})"
+        text += f", expected {expect.value}{within} ({wanted})" if not ok else f", expected {expect.value}{within}"
+        out.append(Outcome(step, t, ok, text))
+    return out
+
+
+def _write(sim: Simulator, step: Step, address: int, register: str, reg: int, value: int) -> Outcome:
+    """A master's write: the frame goes through the bus (frame log, link faults, access rules)."""
+    t = sim.now()
+    frame = encode(WriteSingleRequest(address, reg, value))
+    reply = sim.handle(FrameEvent(FrameKind.FRAME, frame, t))
+    label = f"write {register} = {value}"
+    if reply is None:
+        return Outcome(step, t, False, f"{label}: no reply")
+    response = decode_response(reply.data) if len(reply.data) >= 4 else None
+    if response is None or response.function & 0x80:
+        from .decode import decode_frame
+
+        return Outcome(step, t, False, f"{label}: {decode_frame(reply.data, sim.profile.registers).text}")
+    return Outcome(step, t, True, f"{label}: taken")
+
+
+def run(scenario: Scenario, sim: Simulator) -> Report:
+    """Play ``scenario`` on a simulator with a virtual clock, instantly."""
+    if not sim.virtual:
+        raise ScenarioError(scenario.path, "", "run needs a virtual clock; use play() to follow a realtime one")
+    check(scenario, sim)
+    outcomes: list[Outcome] = []
+    start = sim.now()
+    for step in scenario.steps:
+        target = start + step.at
+        if target > sim.now():
+            sim.advance(target - sim.now())
+        outcomes += _guarded(scenario, step, sim)
+    return Report(scenario, tuple(outcomes))
+
+
+def _guarded(scenario: Scenario, step: Step, sim: Simulator) -> list[Outcome]:
+    try:
+        return apply_step(step, sim)
+    except control.ControlError as exc:
+        raise ScenarioError(scenario.path, step.label, str(exc)) from None
+
+
+async def play(
+    scenario: Scenario, sim: Simulator, *, line: asyncio.Lock | None = None, out: IO[str] | None = None
+) -> Report:
+    """Play ``scenario`` on a served simulator: a virtual clock is advanced to each step, a realtime one
+    is waited for. Each step runs under the line's lock, between frames; each outcome is printed to ``out``."""
+    check(scenario, sim)
+    outcomes: list[Outcome] = []
+    start = sim.now()
+    lock = line if line is not None else asyncio.Lock()
+    for step in scenario.steps:
+        target = start + step.at
+        if not sim.virtual:
+            while sim.now() < target:
+                await asyncio.sleep(min(0.5, target - sim.now()))
+        async with lock:
+            if sim.virtual and target > sim.now():
+                sim.advance(target - sim.now())
+            results = _guarded(scenario, step, sim)
+        outcomes += results
+        if out is not None:
+            for o in results:
+                print(
+                    f"scenario {scenario.name}: {'ok  ' if o.ok else 'FAIL'} {step.label}: {o.text}",
+                    file=out,
+                    flush=True,
+                )
+        await asyncio.sleep(0)
+    report = Report(scenario, tuple(outcomes))
+    if out is not None:
+        verdict = "passed" if report.ok else f"FAILED ({len(report.failures)} of {len(outcomes)} checks)"
+        print(f"scenario {scenario.name}: {verdict}", file=out, flush=True)
+    return report
