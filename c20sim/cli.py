@@ -17,6 +17,7 @@ from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
+from .scenario import add_run_scenario_command
 from .serve import ServeOptions, run_server
 from .simulator import Simulator, make_clock, parse_addresses
 
@@ -127,6 +128,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         log_frames=args.log_frames,
         ready_file=args.ready_file,
         control=args.control,
+        scenario=getattr(args, "scenario", None),
     )
     if not options.any_endpoint:
         options.pty = True
@@ -208,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     serve = sub.add_parser("serve", help="run the simulator headless until SIGINT or SIGTERM")
     add_endpoint_options(serve)
+    serve.add_argument(
+        "--scenario", metavar="FILE", help="play a TOML scenario against the served drives once ready (c20sim.scenario)"
+    )
     serve.set_defaults(func=cmd_serve)
 
     dashboard = sub.add_parser("dashboard", help="the simulator with its terminal dashboard (the default command)")
@@ -215,6 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     dashboard.set_defaults(func=cmd_dashboard)
 
     add_ctl_command(sub)
+    add_run_scenario_command(sub)
     return parser
 
 

@@ -28,6 +28,7 @@ from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 
 if TYPE_CHECKING:
     from .control import ControlApi
+    from .scenario import Report
 
 __all__ = ["Endpoints", "ServeOptions", "Server", "run_server"]
 
@@ -58,6 +59,8 @@ class ServeOptions:
     ready_file: str | None = None
     #: HOST:PORT of the HTTP control API (c20sim.control), or None
     control: str | None = None
+    #: a scenario file (c20sim.scenario) to play against the served simulator once ready
+    scenario: str | None = None
     extra_ready: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -100,10 +103,17 @@ class Server:
         self._log_file: IO[str] | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self.control: ControlApi | None = None
+        self.scenario_task: asyncio.Task[Report] | None = None
 
     async def start(self) -> None:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
         opts, sim, line = self.options, self.sim, self.line
+        scenario = None
+        if opts.scenario:
+            from .scenario import check, load_scenario
+
+            scenario = load_scenario(opts.scenario)
+            check(scenario, sim)
         try:
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
@@ -137,6 +147,11 @@ class Server:
                 await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
+            if scenario is not None:
+                from .scenario import play
+
+                self.scenario_task = asyncio.create_task(play(scenario, sim, line=line, out=sys.stdout))
+                self.scenario_task.add_done_callback(_report_scenario_error)
         except BaseException:
             self.close()
             await self._close_control()
@@ -189,6 +204,8 @@ class Server:
                 await server.wait_closed()
 
     def close(self) -> None:
+        if self.scenario_task is not None:
+            self.scenario_task.cancel()
         for endpoint in self.endpoints.all():
             endpoint.close()
         for unsubscribe in self._unsubscribe:
@@ -197,6 +214,11 @@ class Server:
         if self._log_file is not None:
             self._log_file.close()
             self._log_file = None
+
+
+def _report_scenario_error(task: asyncio.Task[Report]) -> None:
+    if not task.cancelled() and task.exception() is not None:
+        print(f"c20sim: scenario stopped: {task.exception()}", file=sys.stderr, flush=True)
 
 
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:
