@@ -297,9 +297,12 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         if isinstance(given, dict):
             extra = set(given) - {"value", "tolerance"}
             if extra:
-                raise fail(
-                    "expect", f"{register}: unknown key {sorted(extra)[0]!r}; give {{ value = N, tolerance = N }}"
+                hint = (
+                    f'; quote a function code, as "{register}.{sorted(extra)[0]}" = N'
+                    if register.upper().startswith("F")
+                    else "; give { value = N, tolerance = N }"
                 )
+                raise fail("expect", f"{register}: unknown key {sorted(extra)[0]!r}{hint}")
             value, tolerance = given.get("value"), given.get("tolerance", 0)
         if isinstance(value, bool) or not isinstance(value, int):
             raise fail("expect", f"{register}: expected a raw register value (an integer), got {value!r}")
@@ -425,16 +428,19 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
 def _write(sim: Simulator, step: Step, address: int, register: str, reg: int, value: int) -> Outcome:
     """A master's write: the frame goes through the bus (frame log, link faults, access rules)."""
     t = sim.now()
-    frame = encode(WriteSingleRequest(address, reg, value))
-    reply = sim.handle(FrameEvent(FrameKind.FRAME, frame, t))
+    request = WriteSingleRequest(address, reg, value)
+    reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(request), t))
     label = f"write {register} = {value}"
     if reply is None:
         return Outcome(step, t, False, f"{label}: no reply")
-    response = decode_response(reply.data) if len(reply.data) >= 4 else None
-    if response is None or response.function & 0x80:
-        from .decode import decode_frame
+    try:
+        response = decode_response(reply.data)
+    except ValueError:
+        return Outcome(step, t, False, f"{label}: a broken reply {reply.data.hex(' ').upper()}")
+    if response.function & 0x80:
+        from .decode import describe
 
-        return Outcome(step, t, False, f"{label}: {decode_frame(reply.data, sim.profile.registers).text}")
+        return Outcome(step, t, False, f"{label}: {describe(response, sim.profile.registers, request)}")
     return Outcome(step, t, True, f"{label}: taken")
 
 

@@ -1,0 +1,172 @@
+"""Scenarios: the shipped examples pass, a wrong expectation fails readably, a bad file names its fault."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from c20sim.profile import load_profile
+from c20sim.scenario import ScenarioError, load_scenario, parse_scenario, run
+from c20sim.simulator import Simulator
+
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
+
+
+def c20sim(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "c20sim", *args], capture_output=True, text=True, timeout=30, check=False
+    )
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+@pytest.mark.parametrize("name", ["undervoltage", "overload", "comm_timeout"])
+def test_shipped_examples_pass(name: str) -> None:
+    scenario = load_scenario(SCENARIOS / f"{name}.toml")
+    report = run(scenario, Simulator(load_profile(scenario.profile), scenario.drives or (1,)))
+    assert report.failures == []
+    assert len(report.outcomes) > 5
+
+
+def test_undervoltage_report_from_the_command_line() -> None:
+    result = c20sim("run-scenario", str(SCENARIOS / "undervoltage.toml"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == f"scenario undervoltage trip and recovery ({SCENARIOS / 'undervoltage.toml'})"
+    assert "  ok   step 4 (at 2.1 s): 2102H (fault code) = 10 (0x000A), expected 10" in lines
+    assert lines[-1] == "passed: 16 check(s)"
+
+
+def test_a_wrong_expectation_fails_with_a_readable_report(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        """
+        name = "too fast"
+        [[step]]
+        at = 0
+        write = { "2001H" = 1500, "2000H" = 1 }
+        [[step]]
+        at = 0.2
+        note = "mid-ramp"
+        expect = { motor_speed = { value = 1500, tolerance = 5 }, status1 = 1 }
+        """,
+    )
+    result = c20sim("run-scenario", str(path))
+    assert result.returncode == 1
+    assert result.stdout == (
+        f"scenario too fast ({path})\n"
+        "  ok   step 1 (at 0 s): write 2001H = 1500: taken\n"
+        "  ok   step 1 (at 0 s): write 2000H = 1: taken\n"
+        "  FAIL step 2 (at 0.2 s) [mid-ramp]: 3006H (motor speed) = 1200 (1200 rpm), expected 1500 +/- 5 (1500 rpm)\n"
+        "  ok   step 2 (at 0.2 s) [mid-ramp]: 2100H (status word 1) = 1 (forward running), expected 1\n"
+        "FAILED: 1 of 4 check(s)\n"
+    )
+
+
+def test_a_refused_write_fails(tmp_path: Path) -> None:
+    scenario = parse_scenario({"step": [{"at": 0, "write": {"F00.10": 2500}}]}, "locked.toml")
+    report = run(scenario, Simulator(load_profile()))
+    assert [(o.ok, o.text) for o in report.outcomes] == [
+        (False, "write F00.10 = 2500: exception 0x04 to write: operation failed")
+    ]
+
+
+@pytest.mark.parametrize(
+    ("step", "message"),
+    [
+        ({"at": 1, "expct": {}}, "s.toml: step 1 (at 1 s), key 'expct': unknown key; did you mean 'expect'?"),
+        (
+            {"at": 1, "set": {"supply": 3}},
+            "s.toml: step 1 (at 1 s), key 'set': unknown condition 'supply'; did you mean 'supply_v'?",
+        ),
+        (
+            {"at": 1, "set": {"supply_v": "low"}},
+            "s.toml: step 1 (at 1 s), key 'set': supply_v: expected a number, got \"low\"",
+        ),
+        (
+            {"at": 1, "expect": {"2100": "four"}},
+            "s.toml: step 1 (at 1 s), key 'expect': 2100: expected a raw register value (an integer), got 'four'",
+        ),
+        (
+            {"at": 1, "expect": {"statu1": 4}},
+            "s.toml: step 1 (at 1 s), key 'expect': 'statu1' is not a register; give 2100H, 0x2100, F00.10 or a name such as status1",
+        ),
+        (
+            {"at": 1, "link": {"offline": "yes"}},
+            "s.toml: step 1 (at 1 s), key 'link': offline: expected true or false, got \"yes\"",
+        ),
+        (
+            {"at": 1, "keypad": "run"},
+            "s.toml: step 1 (at 1 s), key 'keypad': expected a key: forward, reverse, jog_forward, jog_reverse, stop, free_stop, reset, jog_stop, or a 2000H value 1-8",
+        ),
+        (
+            {"at": 1, "fault": 0},
+            "s.toml: step 1 (at 1 s), key 'fault': expected a fault code 1-255, or { code = 16, persistent = true }",
+        ),
+        (
+            {"at": 1, "expect": {"F00": {"10": 5000}}},  # TOML read F00.10 = 5000 unquoted as a table
+            "s.toml: step 1 (at 1 s), key 'expect': F00: unknown key '10'; quote a function code, as \"F00.10\" = N",
+        ),
+        ({"at": -1}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
+    ],
+)
+def test_bad_step_names_file_step_and_key(step: dict[str, object], message: str) -> None:
+    with pytest.raises(ScenarioError) as caught:
+        parse_scenario({"step": [step]}, "s.toml")
+    assert str(caught.value) == message
+
+
+def test_bad_files(tmp_path: Path) -> None:
+    with pytest.raises(
+        ScenarioError, match=r"s\.toml: step 2 \(at 1 s\), key 'at': time runs backwards: step 1 is at 2 s$"
+    ):
+        parse_scenario({"step": [{"at": 2}, {"at": 1}]}, "s.toml")
+    with pytest.raises(ScenarioError, match=r"^s\.toml: key 'steps': unknown key; did you mean 'step'\?$"):
+        parse_scenario({"steps": []}, "s.toml")
+    path = write(tmp_path, '[[step]]\nat = 0\nexpect = { "F09.99" = 1 }\n')
+    result = c20sim("run-scenario", str(path))
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == (
+        f"c20sim: {path}: step 1 (at 0 s), key 'expect': F09.99: the profile c20-400hr has no register F09.99\n"
+    )
+    result = c20sim("run-scenario", str(tmp_path / "absent.toml"))
+    assert result.stderr == f"c20sim: {tmp_path / 'absent.toml'}: cannot read: No such file or directory\n"
+
+
+def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
+    ready = tmp_path / "ready.json"
+    scenario = str(SCENARIOS / "comm_timeout.toml")
+    options = ["--clock", "virtual", "--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--ready-file", str(ready)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", "serve", *options, "--scenario", scenario],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        lines = [proc.stdout.readline() for _ in range(13)]  # the ready line, 11 checks, the verdict
+        assert lines[0].startswith("c20sim ready: c20-400hr, drives 1, virtual clock; tcp 127.0.0.1:")
+        assert lines[-1] == "scenario communication timeout: passed\n"
+        assert (
+            "scenario communication timeout: ok   step 4 (at 2.5 s): 2102H (fault code) = 18 (0x0012), expected 18\n"
+            in lines
+        )
+        from c20sim.control import call
+
+        state = call(json.loads(ready.read_text())["control"], "GET", "/drives/1")
+        assert (state["t"], state["fault_code"]) == (2.5, 0x12)  # the scenario drove the clock
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+    assert proc.returncode == 0
