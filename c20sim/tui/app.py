@@ -294,8 +294,9 @@ class Dashboard(App[int]):
         if drives.display:
             for index, (address, each) in enumerate(self.views.items()):
                 status = each.telemetry.status
-                label = Text(f"{address:>3} ", style="bold")
-                label.append(f" {each.telemetry.state[:8]:<8} ", style=STATUS_STYLES.get(status, ""))
+                label = Text(f"{address} ", style="bold")
+                label.append(f"{each.telemetry.state[:9]}", style=STATUS_STYLES.get(status, ""))
+                label.no_wrap = True
                 drives.replace_option_prompt_at_index(index, label)
         screen.query_one(ConditionsPanel).show(self.bench, self.selected)
         screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)

@@ -190,8 +190,9 @@ def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
     elif record.kind in ERROR_KINDS:
         style = "bold red"
     if record.kind not in ("request", "reply"):
-        line.append(f"[{record.kind}] ", style=style or "bold")
-    line.append(record.text, style=style)
+        line.append(f"[{record.kind}]", style=style or "bold")
+    if record.text != record.kind:
+        line.append(f" {record.text}" if record.kind not in ("request", "reply") else record.text, style=style)
     if record.note:
         line.append(f"  ! {record.note}", style="bold red")
     if hex_bytes and record.data:
@@ -284,6 +285,8 @@ class FrameLog(Vertical, can_focus=True):
         if self.paused:
             text.append(f"  PAUSED ({self._held} new)", style="bold black on yellow")
         text.append("   space pause · a drive · n function · e errors · w save", style="dim")
+        text.no_wrap = True
+        text.overflow = "ellipsis"
         self.query_one("#log-status", Static).update(text)
 
     def _filters_changed(self) -> None:
