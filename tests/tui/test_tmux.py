@@ -1,0 +1,100 @@
+"""The dashboard in a real terminal: tmux runs ``python -m c20sim dashboard``, keys go in, the screen and the wire are read."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+
+TMUX = shutil.which("tmux")
+pytestmark = pytest.mark.skipif(
+    TMUX is None, reason="tmux is not installed (apt-get install tmux); .ci/run installs it"
+)
+
+
+def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+class Terminal:
+    def __init__(self, session: str) -> None:
+        self.session = session
+
+    def screen(self) -> str:
+        result = subprocess.run(
+            [TMUX or "tmux", "capture-pane", "-p", "-t", self.session], capture_output=True, text=True, check=False
+        )
+        return result.stdout
+
+    def keys(self, *keys: str) -> None:
+        subprocess.run([TMUX or "tmux", "send-keys", "-t", self.session, *keys], check=True)
+
+    def wait_for_text(self, text: str) -> str:
+        wait_for(repr(text), lambda: text in self.screen())
+        return self.screen()
+
+
+@pytest.fixture
+def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
+    ready = tmp_path / "ready.json"
+    session = f"c20sim-{uuid.uuid4().hex[:8]}"
+    command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
+    subprocess.run(
+        [TMUX or "tmux", "new-session", "-d", "-s", session, "-x", "100", "-y", "30", command],
+        check=True,
+        cwd=Path(__file__).parents[2],
+    )
+    try:
+        terminal = Terminal(session)
+        wait_for("the ready file", ready.exists)
+        host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
+        client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
+        assert client.connect()
+        try:
+            yield terminal, client
+        finally:
+            client.close()
+    finally:
+        subprocess.run([TMUX or "tmux", "kill-session", "-t", session], check=False)
+
+
+def read(client: ModbusTcpClient, address: int) -> int:
+    response = client.read_holding_registers(address, count=1, device_id=1)
+    assert not response.isError(), response
+    return int(response.registers[0])
+
+
+def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
+    terminal, client = dashboard
+    terminal.wait_for_text("f Fwd")
+    screen = terminal.wait_for_text("STOPPED")
+    assert "connect: RTU/TCP 127.0.0.1:" in screen
+    # A master runs the drive; the dashboard shows it once time moves on (t: +1 s).
+    assert not client.write_register(0x2001, 1500, device_id=1).isError()
+    assert not client.write_register(0x2000, 1, device_id=1).isError()
+    terminal.keys("t")
+    screen = terminal.wait_for_text("FORWARD RUNNING")
+    assert "1500 rpm of 1500" in screen
+    # The bench breaks it: device faults, undervoltage, time.
+    terminal.keys("F4")
+    terminal.wait_for_text("u undervoltage")
+    terminal.keys("u")
+    terminal.wait_for_text("supply 18 V")
+    terminal.keys("t")
+    screen = terminal.wait_for_text("0x0A UV: bus undervoltage")
+    assert read(client, 0x2102) == 0x000A
+    assert read(client, 0x2100) == 4
+    terminal.keys("q")
+    wait_for("the dashboard to quit", lambda: "c20sim" not in terminal.screen())
