@@ -478,8 +478,9 @@ async def play(
     for step in scenario.steps:
         target = start + step.at
         if not sim.virtual:
+            speed = float(getattr(sim.clock, "speed", 1.0))  # model seconds per wall second
             while sim.now() < target:
-                await asyncio.sleep(min(0.5, target - sim.now()))
+                await asyncio.sleep(min(0.5, (target - sim.now()) / speed))
         async with lock:
             if sim.virtual and target > sim.now():
                 sim.advance(target - sim.now())

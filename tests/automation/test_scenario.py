@@ -170,3 +170,16 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=10)
     assert proc.returncode == 0
+
+
+async def test_play_follows_a_realtime_clock() -> None:
+    from c20sim.clock import RealtimeClock
+    from c20sim.scenario import play
+
+    sim = Simulator(load_profile(), (1,), clock=RealtimeClock(speed=20))
+    scenario = parse_scenario(
+        {"step": [{"at": 0, "write": {"2000H": 1}}, {"at": 1.0, "expect": {"status1": 1, "motor_speed": 0}}]}, "rt"
+    )
+    report = await play(scenario, sim)  # 1 s of model time is 50 ms of wall time at speed 20
+    assert [(o.step.index, o.ok) for o in report.outcomes] == [(1, True), (2, True), (2, True)]
+    assert report.outcomes[-1].t >= 1.0
