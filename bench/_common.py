@@ -244,7 +244,8 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
 
         port = free_port()
         # The registers the benchmarks touch (2000H-2110H) and more, whatever pymodbus's address offset.
-        devices = {a: ModbusDeviceContext(hr=ModbusSequentialDataBlock(0x1F00, [3] * 0x400)) for a in spec.addresses}
+        block: Any = ModbusSequentialDataBlock  # untyped in pymodbus
+        devices: dict[int, Any] = {a: ModbusDeviceContext(hr=block(0x1F00, [3] * 0x400)) for a in spec.addresses}
         context = ModbusServerContext(devices=devices, single=False)
         pyserver = ModbusTcpServer(context, framer=FramerType.RTU, address=("127.0.0.1", port))
         task = asyncio.create_task(pyserver.serve_forever())

@@ -35,7 +35,7 @@ SERVERS = {
 
 def run(client: RawRtuClient, count: int, first: int) -> list[float]:
     """``count`` sequential requests; their latencies in seconds."""
-    latencies = []
+    latencies: list[float] = []
     perf = time.perf_counter
     for i in range(count // 2):
         value = (first + i) % 3001

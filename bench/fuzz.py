@@ -14,6 +14,7 @@ import random
 import sys
 import time
 import traceback
+from collections.abc import Callable
 
 from _common import machine
 from hypothesis import HealthCheck, given, seed, settings
@@ -31,7 +32,7 @@ from tests.unit.test_fuzz import (
 )
 
 
-def properties(batch: int) -> dict[str, object]:
+def properties(batch: int) -> dict[str, Callable[[], None]]:
     s = settings(max_examples=batch, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
     @s
@@ -76,7 +77,7 @@ def main() -> int:
     while time.monotonic() - t0 < args.seconds and not failures:
         for name, test in tests.items():
             try:
-                seed(rng.getrandbits(64))(test)()  # type: ignore[operator]
+                seed(rng.getrandbits(64))(test)()
                 runs[name] += args.batch
             except Exception:
                 failures += 1
