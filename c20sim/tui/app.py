@@ -183,7 +183,7 @@ class Dashboard(App[int]):
         sim: Simulator,
         options: ServeOptions | None = None,
         *,
-        refresh_hz: float = 10.0,
+        refresh_hz: float = 5.0,
     ) -> None:
         super().__init__()
         self.sim = sim
@@ -193,6 +193,8 @@ class Dashboard(App[int]):
         self.refresh_hz = refresh_hz
         self.error: C20SimError | None = None
         self.views: dict[int, DriveView] = {}
+        self._plotted: tuple[int, int] | None = None
+        self._drive_labels: dict[int, str] = {}
         self.set_reactive(Dashboard.selected, next(iter(self.bench.drives)))
         self._unsubscribe: list[object] = []
         self._started = False
@@ -287,9 +289,12 @@ class Dashboard(App[int]):
         screen.query_one(DriveStatus).view = view
         screen.query_one(DriveStatus).border_title = f"drive {self.selected} · t {view.telemetry.t:.1f} s"
         history = self.bench.history[self.selected]
-        screen.query_one("#plot-speed", TrendPlot).values = tuple(history.speed)
-        screen.query_one("#plot-current", TrendPlot).values = tuple(history.current)
-        screen.query_one("#plot-bus", TrendPlot).values = tuple(history.bus)
+        plotted = (self.selected, history.samples)
+        if plotted != self._plotted:  # the plots move on with each sample (2 a second), not each refresh
+            self._plotted = plotted
+            screen.query_one("#plot-speed", TrendPlot).values = tuple(history.speed)
+            screen.query_one("#plot-current", TrendPlot).values = tuple(history.current)
+            screen.query_one("#plot-bus", TrendPlot).values = tuple(history.bus)
         drives = screen.query_one("#drives", OptionList)
         if drives.display:
             for index, (address, each) in enumerate(self.views.items()):
@@ -297,10 +302,16 @@ class Dashboard(App[int]):
                 label = Text(f"{address} ", style="bold")
                 label.append(f"{each.telemetry.state[:9]}", style=STATUS_STYLES.get(status, ""))
                 label.no_wrap = True
-                drives.replace_option_prompt_at_index(index, label)
-        screen.query_one(ConditionsPanel).show(self.bench, self.selected)
-        screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
-        screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
+                if self._drive_labels.get(address) != label.plain + str(status):
+                    self._drive_labels[address] = label.plain + str(status)
+                    drives.replace_option_prompt_at_index(index, label)
+        active = screen.query_one(TabbedContent).active  # only the panel on show is kept up to date
+        if active == "conditions":
+            screen.query_one(ConditionsPanel).show(self.bench, self.selected)
+        elif active == "faults":
+            screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
+        elif active == "link":
+            screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -369,6 +380,7 @@ class Dashboard(App[int]):
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
         if event.pane.id is not None:
             self._focus_tab(event.pane.id)
+            self._show()
 
     def _focus_tab(self, tab: str) -> None:
         screen = self.get_screen_main()

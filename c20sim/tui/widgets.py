@@ -71,7 +71,7 @@ def _bits(value: int, names: Iterable[tuple[str, int]]) -> Text:
 class DriveStatus(Static):
     """One drive's state, set point, telemetry, fault, status word 2 and terminals."""
 
-    view: reactive[DriveView | None] = reactive(None, layout=True)
+    view: reactive[DriveView | None] = reactive(None)
 
     def render(self) -> Text:
         view = self.view
@@ -478,7 +478,8 @@ class _SwitchPanel(Vertical, can_focus=True):
     def mark(self, active: dict[str, bool]) -> None:
         for key, on_ in active.items():
             button = self.query_one(f"#{self.prefix}-{key}", Button)
-            button.set_class(on_, "-on")
+            if button.has_class("-on") != on_:
+                button.set_class(on_, "-on")
 
 
 class DeviceFaultsPanel(_SwitchPanel):
@@ -527,6 +528,7 @@ class LinkFaultsPanel(_SwitchPanel):
     def __init__(self, bench: Workbench, id: str | None = None) -> None:
         super().__init__(id=id)
         self.bench = bench
+        self._hint = ""
 
     def switches(self) -> list[tuple[str, str]]:
         return [(s.key, s.label) for s in LINK_SWITCHES] + [("z", "clear all"), ("b", "drive/bus")]
@@ -551,6 +553,7 @@ class LinkFaultsPanel(_SwitchPanel):
         self.mark({s.key: self.bench.link_fault_active(scope, s.key) for s in LINK_SWITCHES})
         self.query_one("#link-b", Button).set_class(self.on_bus, "-on")
         active = self.bench.link(scope).active
-        self.query_one("#link-hint", Static).update(
-            f"On {self._where()} (b switches): " + (", ".join(active) if active else "no link fault")
-        )
+        hint = f"On {self._where()} (b switches): " + (", ".join(active) if active else "no link fault")
+        if hint != self._hint:
+            self._hint = hint
+            self.query_one("#link-hint", Static).update(hint)

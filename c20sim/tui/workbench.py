@@ -140,6 +140,7 @@ class History:
     current: deque[float] = field(default_factory=deque)
     bus: deque[float] = field(default_factory=deque)
     next_t: float | None = None
+    samples: int = 0  #: samples taken so far (a view redraws the plot only when this moves)
 
     def add(self, tel: Telemetry) -> bool:
         """Sample ``tel`` if a sample is due; True if one was taken."""
@@ -150,6 +151,7 @@ class History:
             series.append(value)
             while len(series) > size:
                 series.popleft()
+        self.samples += 1
         base = tel.t if self.next_t is None else self.next_t
         self.next_t = base + self.every * max(1, math.floor((tel.t - base) / self.every) + 1)
         return True
