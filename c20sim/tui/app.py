@@ -210,7 +210,7 @@ class Dashboard(App[int]):
             await self.server.start()
         except C20SimError as exc:
             self.error = exc
-            self.exit(2)
+            self.exit(return_code=2)
             return
         self._started = True
         framelog = screen.query_one(FrameLog)
