@@ -224,6 +224,7 @@ def check_recovery(garbage: bytes, request: Request, tcp: bool) -> None:
     """Property: after garbage and silence, a valid request gets exactly the reply of a clean bus."""
     sim, clean = new_sim(), new_sim()
     framer = new_framer(tcp)
+    valid_inside = 0
     t = 1.0
     framer.feed(garbage, t)
     framer.tick(t + silence(tcp))
@@ -232,6 +233,7 @@ def check_recovery(garbage: bytes, request: Request, tcp: bool) -> None:
         check_reply(event, sim.bus.handle(event, event.t), before)
         if event.kind is FrameKind.FRAME:
             clean.bus.handle(event, event.t)  # a valid frame inside the garbage acts on both buses
+            valid_inside += 1
     frame = encode(request)
     t += silence(tcp) + 0.01 + len(frame) * CHAR
     framer.feed(frame, t)
@@ -242,7 +244,8 @@ def check_recovery(garbage: bytes, request: Request, tcp: bool) -> None:
     reply = sim.bus.handle(events[0], t)
     expected = clean.bus.handle(FrameEvent(FrameKind.FRAME, frame, t), t)
     assert reply == expected
-    assert reply is not None
+    if valid_inside == 0:
+        assert reply is not None  # a valid frame inside the garbage may have moved the drive (2008H)
     check_reply(events[0], reply, before)
 
 
@@ -316,6 +319,11 @@ def test_a_reply_to_an_address_change_comes_from_the_old_address() -> None:
     assert reply is not None and reply.data == frame
     assert addresses(sim) == {4, 2, 5}
     check_reply(event, reply, before)
+
+
+def test_recovery_after_garbage_holding_an_address_change() -> None:
+    # Found by bench/fuzz.py: the garbage held a valid write 2008H = 2 to drive 1; both buses then stay silent.
+    check_recovery(bytes.fromhex("01 06 20 08 00 02 82 09"), ReadRequest(1, Reg.COMMAND, 1), tcp=False)
 
 
 def test_valid_frames_inside_a_stream_are_all_answered() -> None:
