@@ -234,9 +234,11 @@ class Dashboard(App[int]):
 
     def _title(self) -> Text:
         sim = self.sim
+        # Where to connect comes first: at 80 columns the rest may be cut, never the addresses.
         text = Text(" c20sim ", style="bold reverse")
-        text.append(f" {sim.profile.name} · {'virtual' if sim.virtual else 'realtime'} clock │ ")
+        text.append(" ")
         text.append_text(self.connect_text())
+        text.append(f" │ {sim.profile.name} · {'virtual' if sim.virtual else 'realtime'} clock")
         text.no_wrap = True
         text.overflow = "ellipsis"
         return text
