@@ -123,7 +123,9 @@ class ServerSpec:
     turnaround_ms: float | None = 0.0  #: None keeps the profile's default
     seed: int = 1
     buses: int = 1  #: c20sim: this many simulators, each on its own port
-    faults: str | None = None  #: c20sim: "random" flips link faults from a timer
+    #: c20sim: "random" flips link faults from a timer; "random+wrong" adds replies from a wrong
+    #: address, which a client must catch (the soak's self-check)
+    faults: str | None = None
     fault_period: float = 0.5
     log_size: int = 2000
 
@@ -226,13 +228,14 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
             ports.append(server.endpoints.tcp.port)
             sims.append(sim)
             closers.append(server.aclose)
-        if spec.faults == "random":
+        if spec.faults in ("random", "random+wrong"):
+            wrong = spec.faults == "random+wrong"
             rng = random.Random(spec.seed)
 
             def flip() -> None:
                 nonlocal switched
                 for sim in sims:
-                    _random_faults(sim.link_faults(), rng)
+                    _random_faults(sim.link_faults(), rng, wrong=wrong)
                 switched += 1
                 loop.call_later(spec.fault_period, flip)
 
@@ -283,10 +286,13 @@ def _main_thread_cpu() -> float:
     return cpu_seconds()
 
 
-def _random_faults(link: Any, rng: random.Random) -> None:
+def _random_faults(link: Any, rng: random.Random, *, wrong: bool = False) -> None:
     """One random link-fault setting: half the time none, else one of the reply faults."""
     link.clear()
-    choice = rng.choice(["none"] * 5 + ["drop", "corrupt", "delay", "truncate", "garbage", "drop_next"])
+    choices = ["none"] * 5 + ["drop", "corrupt", "delay", "truncate", "garbage", "drop_next"]
+    choice = rng.choice([*choices, "wrong_address"] if wrong else choices)
+    if choice == "wrong_address":
+        link.wrong_address = 99  # a good CRC from an address no client owns
     if choice == "drop":
         link.drop_percent = rng.choice([1.0, 5.0, 20.0])
     elif choice == "corrupt":

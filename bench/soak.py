@@ -112,6 +112,11 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--fault-period", type=float, default=1.0, help="seconds between link-fault switches")
     parser.add_argument("--no-faults", action="store_true")
+    parser.add_argument(
+        "--self-check",
+        action="store_true",
+        help="also inject replies from a wrong address: the run must then FAIL with wrong answers",
+    )
     parser.add_argument("--timeout", type=float, default=0.25, help="client reply timeout (s)")
     parser.add_argument("--sample", type=float, default=30.0, help="seconds between RSS samples")
     parser.add_argument("--json", help="also write the results to this file")
@@ -122,7 +127,7 @@ def main() -> int:
             addresses=tuple(range(1, CLIENTS + 1)),
             turnaround_ms=0.0,
             seed=args.seed,
-            faults=None if args.no_faults else "random",
+            faults=None if args.no_faults else ("random+wrong" if args.self_check else "random"),
             fault_period=args.fault_period,
         )
     )
