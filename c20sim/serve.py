@@ -14,14 +14,15 @@ import json
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Protocol
+from typing import IO, TYPE_CHECKING, Any, Protocol, TypeVar
 
 from .bus import FrameRecord
 from .errors import C20SimError
 from .simulator import Simulator
+from .transport.line import Line
 from .transport.pty import PtyPort
 from .transport.serial import SerialPort
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
@@ -30,7 +31,9 @@ if TYPE_CHECKING:
     from .control import ControlApi
     from .scenario import Report
 
-__all__ = ["Endpoints", "ServeOptions", "Server", "run_server"]
+T = TypeVar("T")
+
+__all__ = ["Endpoints", "ServeOptions", "Server", "run", "run_server"]
 
 
 class Endpoint(Protocol):
@@ -98,7 +101,7 @@ class Server:
     def __init__(self, sim: Simulator, options: ServeOptions) -> None:
         self.sim = sim
         self.options = options
-        self.line = asyncio.Lock()
+        self.line = Line(sim)
         self.endpoints = Endpoints()
         self._log_file: IO[str] | None = None
         self._unsubscribe: list[Callable[[], None]] = []
@@ -118,11 +121,10 @@ class Server:
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:
-                self.endpoints.pty = PtyPort(sim, line, link=opts.link, line_timing=opts.line_timing)
+                self.endpoints.pty = PtyPort(line, link=opts.link, line_timing=opts.line_timing)
                 await self.endpoints.pty.start()
             if opts.serial:
                 self.endpoints.serial = SerialPort(
-                    sim,
                     line,
                     opts.serial,
                     baud=opts.baud,
@@ -133,11 +135,11 @@ class Server:
                 await self.endpoints.serial.start()
             if opts.tcp:
                 host, port = parse_host_port(opts.tcp, "--tcp")
-                self.endpoints.tcp = RtuOverTcpServer(sim, line, host, port)
+                self.endpoints.tcp = RtuOverTcpServer(line, host, port)
                 await self.endpoints.tcp.start()
             if opts.modbus_tcp:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
-                self.endpoints.modbus_tcp = ModbusTcpServer(sim, line, host, port)
+                self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
             if opts.control:
                 from .control import ControlApi  # imports aiohttp: only when asked for
@@ -150,7 +152,7 @@ class Server:
             if scenario is not None:
                 from .scenario import play
 
-                self.scenario_task = asyncio.create_task(play(scenario, sim, line=line, out=sys.stdout))
+                self.scenario_task = asyncio.create_task(play(scenario, sim, out=sys.stdout))
                 self.scenario_task.add_done_callback(_report_scenario_error)
         except BaseException:
             self.close()
@@ -208,6 +210,7 @@ class Server:
             self.scenario_task.cancel()
         for endpoint in self.endpoints.all():
             endpoint.close()
+        self.line.close()
         for unsubscribe in self._unsubscribe:
             unsubscribe()
         self._unsubscribe.clear()
@@ -219,6 +222,15 @@ class Server:
 def _report_scenario_error(task: asyncio.Task[Report]) -> None:
     if not task.cancelled() and task.exception() is not None:
         print(f"c20sim: scenario stopped: {task.exception()}", file=sys.stderr, flush=True)
+
+
+def run(main: Coroutine[Any, Any, T]) -> T:
+    """Run a serving coroutine on uvloop where it is installed (the cheaper loop), else asyncio's."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.run(main)
+    return uvloop.run(main)
 
 
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:

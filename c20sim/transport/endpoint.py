@@ -1,22 +1,22 @@
-"""One stream of RTU bytes in front of the simulator: the glue every transport shares.
+"""One stream of RTU bytes in front of the line: the glue every transport shares.
 
 A pty, a serial port and each RTU-over-TCP connection own an
 :class:`RtuEndpoint`: bytes go into its framer stamped with the loop's time,
 silence is watched with a timer at the framer's deadline, and each framing
-event is served under the line's lock, so that requests from several
-connections are served one at a time, as on one RS485 line. The reply goes
-back on the stream that asked, after the turnaround delay.
+event goes to the shared :class:`~c20sim.transport.line.Line`, which serves
+requests from every stream one at a time. The reply comes back through
+``send`` on the stream that asked.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 
-from ..protocol import FrameEvent, RtuFramer
-from ..simulator import Simulator
+from ..bus import Reply
+from ..protocol import RtuFramer
+from .line import Line
 
 __all__ = ["RtuEndpoint"]
 
@@ -24,47 +24,45 @@ log = logging.getLogger(__name__)
 
 
 class RtuEndpoint:
-    """Frames a byte stream and serves it; ``send`` writes a reply to the same stream."""
+    """Frames a byte stream for the line; ``send`` writes a reply to the same stream."""
 
     def __init__(
         self,
-        sim: Simulator,
+        line: Line,
         framer: RtuFramer,
-        send: Callable[[bytes], Awaitable[None]],
-        line: asyncio.Lock,
+        send: Callable[[bytes], None],
         *,
         on_baud: Callable[[int], None] | None = None,
         name: str = "",
     ) -> None:
-        self.sim = sim
+        self.line = line
         self.framer = framer
         self._send = send
-        self._line = line
         self._on_baud = on_baud
         self.name = name
         self._loop = asyncio.get_running_loop()
-        self._events: asyncio.Queue[FrameEvent] = asyncio.Queue()
         self._tick: asyncio.TimerHandle | None = None
-        self._worker = asyncio.create_task(self._serve(), name=f"c20sim endpoint {name}")
+        self._closed = False
 
     def feed(self, data: bytes) -> None:
         """Bytes arrived now."""
+        if self._closed:
+            return
         self.framer.feed(data, self._loop.time())
         self._collect()
 
     def close(self) -> None:
-        """Stop serving; a half-received frame is dropped."""
+        """Stop serving; a half-received frame is dropped, a pending reply is not sent."""
+        self._closed = True
         if self._tick is not None:
             self._tick.cancel()
-        self._worker.cancel()
-
-    async def wait_closed(self) -> None:
-        with contextlib.suppress(asyncio.CancelledError):
-            await self._worker
+            self._tick = None
 
     def _collect(self) -> None:
-        for event in self.framer.events():
-            self._events.put_nowait(event)
+        event = self.framer.next_event()
+        while event is not None:
+            self.line.submit(event, self._respond)
+            event = self.framer.next_event()
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
@@ -77,25 +75,15 @@ class RtuEndpoint:
         self.framer.tick(self._loop.time())
         self._collect()
 
-    async def _serve(self) -> None:
-        while True:
-            event = await self._events.get()
-            async with self._line:
-                try:
-                    reply = self.sim.handle(event)
-                except Exception:
-                    log.exception("bug while serving %s on %s; the simulator keeps serving", event, self.name)
-                    continue
-                if reply is None:
-                    continue
-                if reply.delay > 0:
-                    await asyncio.sleep(reply.delay)
-                try:
-                    await self._send(reply.data)
-                except (ConnectionError, OSError) as exc:
-                    log.info("reply on %s not sent: %s", self.name, exc)
-                    continue
-                if reply.new_baud is not None:
-                    self.framer.set_baud(reply.new_baud)
-                    if self._on_baud is not None:
-                        self._on_baud(reply.new_baud)
+    def _respond(self, reply: Reply | None) -> None:
+        if reply is None or self._closed:
+            return
+        try:
+            self._send(reply.data)
+        except OSError as exc:
+            log.info("reply on %s not sent: %s", self.name, exc)
+            return
+        if reply.new_baud is not None:
+            self.framer.set_baud(reply.new_baud)
+            if self._on_baud is not None:
+                self._on_baud(reply.new_baud)

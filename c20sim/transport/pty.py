@@ -18,8 +18,8 @@ from pathlib import Path
 
 from ..errors import C20SimError
 from ..protocol import RtuFramer, char_time
-from ..simulator import Simulator
 from .endpoint import RtuEndpoint
+from .line import Line
 
 __all__ = ["PtyPort"]
 
@@ -27,10 +27,7 @@ __all__ = ["PtyPort"]
 class PtyPort:
     """A pty in front of a simulator's bus."""
 
-    def __init__(
-        self, sim: Simulator, line: asyncio.Lock, *, link: str | None = None, line_timing: bool = False
-    ) -> None:
-        self.sim = sim
+    def __init__(self, line: Line, *, link: str | None = None, line_timing: bool = False) -> None:
         self.line = line
         self.link = Path(link) if link else None
         self.line_timing = line_timing
@@ -38,6 +35,9 @@ class PtyPort:
         self._master = -1
         self._slave = -1
         self._endpoint: RtuEndpoint | None = None
+        self._unsent = bytearray()  # what the pty's buffer would not take yet
+        self._paced: asyncio.Queue[bytes] = asyncio.Queue()
+        self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
@@ -58,10 +58,12 @@ class PtyPort:
                 raise C20SimError(
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
-        baud = self.sim.bus.line_baud
+        baud = self.line.sim.bus.line_baud
         framer = RtuFramer(baud, complete_on_length=not self.line_timing, check_gaps=self.line_timing)
-        self._endpoint = RtuEndpoint(self.sim, framer, self._send, self.line, name=f"pty {self.path}")
+        self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
         asyncio.get_running_loop().add_reader(self._master, self._readable)
+        if self.line_timing:
+            self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
 
     @property
     def name(self) -> str:
@@ -79,38 +81,57 @@ class PtyPort:
         if data and self._endpoint is not None:
             self._endpoint.feed(data)
 
-    async def _send(self, data: bytes) -> None:
-        if not self.line_timing:
-            await self._write_all(data)
+    def _send(self, data: bytes) -> None:
+        if self.line_timing:
+            self._paced.put_nowait(data)
             return
-        loop = asyncio.get_running_loop()
-        per_char = char_time(self.sim.bus.line_baud)
-        start = loop.time()
-        sent = 0
-        while sent < len(data):
-            due = int((loop.time() - start) / per_char) + 1
-            chunk = data[sent : max(sent + 1, min(len(data), due))]
-            await self._write_all(chunk)
-            sent += len(chunk)
-            if sent < len(data):
-                await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
+        if self._unsent:
+            self._unsent += data
+            return
+        written = self._write_some(data)
+        if written < len(data):
+            self._unsent += data[written:]
+            asyncio.get_running_loop().add_writer(self._master, self._flush_unsent)
 
-    async def _write_all(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            try:
-                written = os.write(self._master, view)
-            except BlockingIOError:
-                await asyncio.sleep(0.001)
-                continue
-            view = view[written:]
+    def _write_some(self, data: bytes | bytearray) -> int:
+        try:
+            return os.write(self._master, data)
+        except BlockingIOError:
+            return 0
+
+    def _flush_unsent(self) -> None:
+        del self._unsent[: self._write_some(self._unsent)]
+        if not self._unsent:
+            asyncio.get_running_loop().remove_writer(self._master)
+
+    async def _pace(self) -> None:
+        """Put replies on the pty one character time apart, at the line's baud."""
+        loop = asyncio.get_running_loop()
+        while True:
+            data = await self._paced.get()
+            per_char = char_time(self.line.sim.bus.line_baud)
+            start = loop.time()
+            sent = 0
+            while sent < len(data):
+                due = max(sent + 1, min(len(data), int((loop.time() - start) / per_char) + 1))
+                chunk = data[sent:due]
+                while (written := self._write_some(chunk)) == 0:
+                    await asyncio.sleep(per_char)
+                sent += written
+                if sent < len(data):
+                    await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
 
     def close(self) -> None:
         if self._endpoint is not None:
             self._endpoint.close()
+        if self._pacer is not None:
+            self._pacer.cancel()
+            self._pacer = None
         if self._master >= 0:
             with contextlib.suppress(RuntimeError):
-                asyncio.get_running_loop().remove_reader(self._master)
+                loop = asyncio.get_running_loop()
+                loop.remove_reader(self._master)
+                loop.remove_writer(self._master)
             os.close(self._master)
             self._master = -1
         if self._slave >= 0:

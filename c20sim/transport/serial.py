@@ -15,8 +15,8 @@ import serial
 
 from ..errors import C20SimError
 from ..protocol import RtuFramer
-from ..simulator import Simulator
 from .endpoint import RtuEndpoint
+from .line import Line
 
 __all__ = ["SerialPort"]
 
@@ -28,8 +28,7 @@ class SerialPort:
 
     def __init__(
         self,
-        sim: Simulator,
-        line: asyncio.Lock,
+        line: Line,
         device: str,
         *,
         baud: int = 19200,
@@ -37,7 +36,6 @@ class SerialPort:
         stopbits: int = 1,
         line_timing: bool = False,
     ) -> None:
-        self.sim = sim
         self.line = line
         self.device = device
         self.baud = baud
@@ -66,7 +64,7 @@ class SerialPort:
             raise C20SimError(_explain(self.device, exc)) from None
         framer = RtuFramer(self.baud, complete_on_length=not self.line_timing, check_gaps=self.line_timing)
         self._endpoint = RtuEndpoint(
-            self.sim, framer, self._send, self.line, on_baud=self._set_baud, name=f"serial {self.device}"
+            self.line, framer, self._send, on_baud=self._set_baud, name=f"serial {self.device}"
         )
         asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
 
@@ -79,13 +77,13 @@ class SerialPort:
         if data:
             self._endpoint.feed(data)
 
-    async def _send(self, data: bytes) -> None:
+    def _send(self, data: bytes) -> None:
         assert self._port is not None
         self._port.write(data)
-        await asyncio.to_thread(self._port.flush)  # the reply is on the wire before any baud change
 
     def _set_baud(self, baud: int) -> None:
         assert self._port is not None
+        self._port.flush()  # the reply leaves the wire at the old baud first (a few ms)
         self._port.baudrate = baud
         self.baud = baud
 

@@ -1,10 +1,11 @@
 """TCP in front of the bus: raw RTU frames (a serial device server) and Modbus TCP (a gateway).
 
 RTU over TCP: each connection has its own framer, so a client that leaves in
-the middle of a frame costs the others nothing; every connection shares the
-line's lock, so requests are served one at a time and each reply goes to the
+the middle of a frame costs the others nothing; every connection feeds the one
+line, so requests are served one at a time and each reply goes to the
 connection that asked. A frame completes on its length (TCP has no line
-timing); a broken frame is ended by 20 ms of silence.
+timing); a broken frame is ended by 20 ms of silence. Connections are asyncio
+protocols feeding the shared line by callbacks: no task per request.
 
 Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
@@ -19,11 +20,14 @@ import asyncio
 import errno
 import logging
 import struct
+from collections.abc import Callable
+from typing import cast
 
+from ..bus import Reply
 from ..errors import C20SimError
 from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
-from ..simulator import Simulator
 from .endpoint import RtuEndpoint
+from .line import Line
 
 __all__ = ["ModbusTcpServer", "RtuOverTcpServer", "parse_host_port"]
 
@@ -50,9 +54,9 @@ def parse_host_port(text: str, option: str) -> tuple[str, int]:
     return host, port
 
 
-async def _listen(handler: object, host: str, port: int, option: str) -> asyncio.Server:
+async def _listen(factory: Callable[[], asyncio.Protocol], host: str, port: int, option: str) -> asyncio.Server:
     try:
-        return await asyncio.start_server(handler, host, port)  # type: ignore[arg-type]
+        return await asyncio.get_running_loop().create_server(factory, host, port)
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             raise C20SimError(
@@ -65,40 +69,52 @@ async def _listen(handler: object, host: str, port: int, option: str) -> asyncio
         raise C20SimError(f"{option} {host}:{port}: cannot listen: {exc.strerror or exc}") from None
 
 
+class _Connection(asyncio.Protocol):
+    """One client's TCP connection; subclasses turn its bytes into framing events."""
+
+    def __init__(self, owner: _TcpServer) -> None:
+        self.owner = owner
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.Transport, transport)  # uvloop's transports do not subclass asyncio's
+        self.owner.connections.add(self)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        # The client left, perhaps mid-frame: that costs the others nothing.
+        self.owner.connections.discard(self)
+        self.transport = None
+
+    def send(self, data: bytes) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(data)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+
 class _TcpServer:
     option = ""
 
-    def __init__(self, sim: Simulator, line: asyncio.Lock, host: str, port: int) -> None:
-        self.sim = sim
+    def __init__(self, line: Line, host: str, port: int) -> None:
         self.line = line
         self.host = host
         self.port = port
         self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.StreamWriter] = set()
+        self.connections: set[_Connection] = set()
 
     @property
     def name(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"{host}:{self.port}"
 
-    async def start(self) -> None:
-        self._server = await _listen(self._accept, self.host, self.port, self.option)
-        self.port = self._server.sockets[0].getsockname()[1]
-
-    async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._connections.add(writer)
-        try:
-            await self._connection(reader, writer)
-        except (ConnectionError, asyncio.IncompleteReadError):
-            pass  # the client left, perhaps mid-frame: that costs the others nothing
-        except asyncio.CancelledError:
-            pass  # shutting down: this task is the connection's top level, nothing waits on it
-        finally:
-            self._connections.discard(writer)
-            writer.close()
-
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def _connection(self) -> _Connection:
         raise NotImplementedError
+
+    async def start(self) -> None:
+        self._server = await _listen(self._connection, self.host, self.port, self.option)
+        self.port = self._server.sockets[0].getsockname()[1]
 
     async def wait_closed(self) -> None:
         if self._server is not None:
@@ -107,8 +123,23 @@ class _TcpServer:
     def close(self) -> None:
         if self._server is not None:
             self._server.close()
-        for writer in list(self._connections):
-            writer.close()  # the connection's read ends, and its handler with it
+        for connection in list(self.connections):
+            connection.close()
+
+
+class _RtuConnection(_Connection):
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        line = self.owner.line
+        framer = RtuFramer(line.sim.bus.line_baud, complete_on_length=True, check_gaps=False, silence=TCP_SILENCE)
+        self.endpoint = RtuEndpoint(line, framer, self.send, name=f"tcp {transport.get_extra_info('peername')}")
+
+    def data_received(self, data: bytes) -> None:
+        self.endpoint.feed(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.endpoint.close()
+        super().connection_lost(exc)
 
 
 class RtuOverTcpServer(_TcpServer):
@@ -116,19 +147,64 @@ class RtuOverTcpServer(_TcpServer):
 
     option = "--tcp"
 
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        async def send(data: bytes) -> None:
-            writer.write(data)
-            await writer.drain()
+    def _connection(self) -> _Connection:
+        return _RtuConnection(self)
 
-        framer = RtuFramer(self.sim.bus.line_baud, complete_on_length=True, check_gaps=False, silence=TCP_SILENCE)
-        peer = writer.get_extra_info("peername")
-        endpoint = RtuEndpoint(self.sim, framer, send, self.line, name=f"tcp {peer}")
-        try:
-            while data := await reader.read(4096):
-                endpoint.feed(data)
-        finally:
-            endpoint.close()
+
+class _MbapConnection(_Connection):
+    owner: ModbusTcpServer
+
+    def __init__(self, owner: ModbusTcpServer) -> None:
+        super().__init__(owner)
+        self._buffer = bytearray()
+        self._timers: set[asyncio.TimerHandle] = set()
+
+    def data_received(self, data: bytes) -> None:
+        self._buffer += data
+        buf = self._buffer
+        while len(buf) >= 7:
+            transaction, protocol, length, unit = struct.unpack_from(">HHHB", buf)
+            if protocol != 0 or not 2 <= length <= 254:
+                log.info("modbus tcp: bad MBAP header %s; closing the connection", bytes(buf[:7]).hex(" "))
+                self.close()
+                return
+            if len(buf) < 6 + length:
+                return
+            pdu = bytes(buf[7 : 6 + length])
+            del buf[: 6 + length]
+            self._request(transaction, unit, pdu)
+
+    def _request(self, transaction: int, unit: int, pdu: bytes) -> None:
+        line = self.owner.line
+        loop = asyncio.get_running_loop()
+        framer = RtuFramer(line.sim.bus.line_baud, check_gaps=False)
+        framer.feed(with_crc(bytes((unit,)) + pdu), loop.time())
+        framer.flush()
+
+        def respond(reply: Reply | None) -> None:
+            if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
+                self._answer(transaction, unit, reply.data[1:-2])
+            elif unit != BROADCAST:
+                # The line stayed silent (or answered garbage): the gateway says so after its timeout.
+                answer = bytes((pdu[0] | 0x80, GATEWAY_NO_RESPONSE))
+
+                def time_out() -> None:
+                    self._timers.discard(timer)
+                    self._answer(transaction, unit, answer)
+
+                timer = loop.call_later(self.owner.timeout, time_out)
+                self._timers.add(timer)
+
+        for event in framer.events():
+            line.submit(event, respond)
+
+    def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
+        self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        for timer in self._timers:
+            timer.cancel()
+        super().connection_lost(exc)
 
 
 class ModbusTcpServer(_TcpServer):
@@ -136,33 +212,9 @@ class ModbusTcpServer(_TcpServer):
 
     option = "--modbus-tcp"
 
-    def __init__(self, sim: Simulator, line: asyncio.Lock, host: str, port: int, *, timeout: float = 0.5) -> None:
-        super().__init__(sim, line, host, port)
+    def __init__(self, line: Line, host: str, port: int, *, timeout: float = 0.5) -> None:
+        super().__init__(line, host, port)
         self.timeout = timeout
 
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        loop = asyncio.get_running_loop()
-        while True:
-            header = await reader.readexactly(7)
-            transaction, protocol, length, unit = struct.unpack(">HHHB", header)
-            if protocol != 0 or not 2 <= length <= 254:
-                log.info("modbus tcp: bad MBAP header %s; closing the connection", header.hex(" "))
-                return
-            pdu = await reader.readexactly(length - 1)
-            framer = RtuFramer(self.sim.bus.line_baud, check_gaps=False)
-            framer.feed(with_crc(bytes((unit,)) + pdu), loop.time())
-            framer.flush()
-            for event in framer.events():
-                async with self.line:
-                    reply = self.sim.handle(event)
-                    if reply is not None:
-                        await asyncio.sleep(reply.delay)
-                answer: bytes | None = None
-                if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
-                    answer = reply.data[1:-2]
-                elif unit != BROADCAST:
-                    await asyncio.sleep(self.timeout)
-                    answer = bytes((pdu[0] | 0x80, GATEWAY_NO_RESPONSE))
-                if answer is not None:
-                    writer.write(struct.pack(">HHHB", transaction, 0, len(answer) + 1, unit) + answer)
-                    await writer.drain()
+    def _connection(self) -> _Connection:
+        return _MbapConnection(self)

@@ -1,0 +1,60 @@
+"""The shared line: requests from several streams served one at a time, a delayed reply holding the line."""
+
+from __future__ import annotations
+
+import asyncio
+
+from c20sim.bus import Reply
+from c20sim.clock import VirtualClock
+from c20sim.profile import load_profile
+from c20sim.protocol import FrameEvent, FrameKind, ReadRequest, WriteSingleRequest, encode
+from c20sim.simulator import Simulator
+from c20sim.transport.line import Line
+
+
+def frame(data: bytes) -> FrameEvent:
+    return FrameEvent(FrameKind.FRAME, data, 0.0)
+
+
+async def test_a_delayed_reply_holds_the_line_and_the_next_request_waits() -> None:
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())  # default turnaround: 2 ms
+    line = Line(sim)
+    got: list[tuple[str, bytes | None]] = []
+    done = asyncio.Event()
+
+    def to(name: str) -> object:
+        def respond(reply: Reply | None) -> None:
+            got.append((name, None if reply is None else reply.data))
+            if len(got) == 3:
+                done.set()
+
+        return respond
+
+    write = encode(WriteSingleRequest(1, 0x2001, 1234))
+    read = encode(ReadRequest(1, 0x2001, 1))
+    line.submit(frame(write), to("a"))  # type: ignore[arg-type]
+    line.submit(frame(read), to("b"))  # type: ignore[arg-type]
+    line.submit(frame(encode(ReadRequest(9, 0x2001, 1))), to("c"))  # type: ignore[arg-type]
+    # The write is served at once; its reply is due in 2 ms, and the read waits behind it.
+    assert line.busy
+    assert sim.drive(1).read(0x2001) == 1234
+    assert got == []
+    await asyncio.wait_for(done.wait(), 5)
+    assert got == [("a", write), ("b", bytes.fromhex("01 03 02 04 D2 3A D9")), ("c", None)]
+    assert not line.busy
+
+
+async def test_close_drops_what_waits() -> None:
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    line = Line(sim)
+    got: list[bytes | None] = []
+    line.submit(frame(encode(ReadRequest(1, 0x2103, 1))), lambda r: got.append(r and r.data))
+    line.submit(frame(encode(WriteSingleRequest(1, 0x2001, 7))), lambda r: got.append(r and r.data))
+    line.close()
+    assert sim.drive(1).read(0x2001) == 0  # the queued write was never served
+    # A request after the close is answered after its own turnaround, later than the dropped reply was due.
+    after = asyncio.get_running_loop().create_future()
+    line.submit(frame(encode(ReadRequest(1, 0x2001, 1))), after.set_result)
+    reply = await asyncio.wait_for(after, 5)
+    assert reply is not None and reply.data == bytes.fromhex("01 03 02 00 00 B8 44")
+    assert got == []
