@@ -24,7 +24,7 @@ import logging
 import random
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .decode import describe
 from .linkfaults import LinkFaults
@@ -36,9 +36,12 @@ from .protocol import (
     ReadRequest,
     Request,
     Response,
+    WriteMultipleRequest,
+    WriteSingleRequest,
     decode_request,
     encode,
 )
+from .registers import RegisterMap
 from .slave import Slave
 
 __all__ = ["Bus", "FrameRecord", "Reply"]
@@ -51,19 +54,35 @@ RESERVED = range(0xF8, 0x100)
 
 @dataclass(frozen=True, slots=True)
 class FrameRecord:
-    """One frame on the line, for the frame log."""
+    """One frame on the line, for the frame log.
 
-    t: float
+    ``words`` is the frame in words, or the decoded message to put in words
+    when someone reads :attr:`text`: the log costs next to nothing until it is
+    read, which keeps a request cheap.
+    """
+
+    t: float  #: the line's time: arrival of the frame's last byte, or when the reply is due
     direction: str  #: "rx" (master to drive) or "tx" (drive to master)
     data: bytes
-    kind: str  #: "request", "reply", "exception", "crc error", "length error", "noise"
+    kind: str  #: "request", "reply", "exception", "dropped", "crc error", "length error", "noise"
     slave: int | None
-    text: str  #: the frame in words
+    words: str | Request | Response
     note: str = ""  #: framing error detail, or an injected link fault
+    model_t: float | None = None  #: the drives' time when the frame was served
+    registers: RegisterMap | None = field(default=None, compare=False, repr=False)
+    request: Request | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def text(self) -> str:
+        """The frame in words."""
+        if isinstance(self.words, str):
+            return self.words
+        return describe(self.words, self.registers, self.request)
 
     def as_dict(self) -> dict[str, object]:
         return {
             "t": round(self.t, 6),
+            "model_t": None if self.model_t is None else round(self.model_t, 6),
             "dir": self.direction,
             "hex": self.data.hex(" ").upper(),
             "kind": self.kind,
@@ -96,6 +115,8 @@ class Bus:
         #: link faults of the whole line, and of each drive's interface (by position in ``slaves``)
         self.link = LinkFaults()
         self.drive_links: list[LinkFaults] = [LinkFaults() for _ in self.slaves]
+        self._link_of = dict(zip(self.slaves, self.drive_links, strict=True))
+        self._at: dict[int, Slave] = {}  #: address -> drive, a cache checked on every use
         self.rng = random.Random(seed)
         self.records: deque[FrameRecord] = deque(maxlen=log_size)
         self._listeners: list[Callable[[FrameRecord], None]] = []
@@ -128,13 +149,19 @@ class Bus:
         raise KeyError(f"no drive at address {address}")
 
     def _links(self, slave: Slave) -> tuple[LinkFaults, LinkFaults]:
-        return self.drive_links[self.slaves.index(slave)], self.link
+        return self._link_of[slave], self.link
 
     def slave_at(self, address: int) -> Slave | None:
         """The drive answering ``address`` at the line's baud, if any."""
+        # Addresses change (2008H, restore defaults, a state file): the cache is a guess, checked each time.
+        cached = self._at.get(address)
+        if cached is not None and cached.address == address and cached.baud == self.line_baud:
+            return cached
         for slave in self.slaves:
             if slave.address == address and slave.baud == self.line_baud:
+                self._at[address] = slave
                 return slave
+        self._at.pop(address, None)
         return None
 
     def handle(self, event: FrameEvent, now: float | None = None) -> Reply | None:
@@ -144,7 +171,7 @@ class Bus:
             return self._handle_frame(event, t)
         slave_address = event.data[0] if event.data else None
         self.record(
-            FrameRecord(event.t, "rx", event.data, event.kind.value, slave_address, event.kind.value, event.note)
+            FrameRecord(event.t, "rx", event.data, event.kind.value, slave_address, event.kind.value, event.note, t)
         )
         if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
             return None
@@ -153,56 +180,75 @@ class Bus:
             return None
         if any(link.offline for link in self._links(slave)):
             return None
-        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, None)
+        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None)
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
-        request = decode_request(event.data)
+        request = decode_request(event.data, check_crc=False)  # the framer checked it
         address = request.slave
-        text = describe(request, self.slaves[0].registers)
+
+        def rx(note: str = "", registers: RegisterMap | None = self.slaves[0].registers) -> None:
+            self.record(FrameRecord(event.t, "rx", event.data, "request", address, request, note, t, registers))
+
         if address == BROADCAST:
             if isinstance(request, ReadRequest):
-                self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast read: ignored"))
+                rx("broadcast read: ignored")
                 return None
-            self.record(FrameRecord(event.t, "rx", event.data, "request", 0, text, "broadcast: no reply"))
+            rx("broadcast: no reply")
             for each, link in zip(self.slaves, self.drive_links, strict=True):
                 if each.baud == self.line_baud and not (link.offline or self.link.offline):
                     each.handle(request, t)
             return None
         slave = self.slave_at(address) if address not in RESERVED else None
         if slave is None:
-            note = "reserved address: silence" if address in RESERVED else "no drive at this address: silence"
-            self.record(FrameRecord(event.t, "rx", event.data, "request", address, text, note))
+            rx("reserved address: silence" if address in RESERVED else "no drive at this address: silence")
             return None
         links = self._links(slave)
-        text = describe(request, slave.registers)
-        if any(link.offline for link in links):
-            self.record(FrameRecord(event.t, "rx", event.data, "request", address, text, "drive offline (injected)"))
+        if links[0].offline or links[1].offline:
+            rx("drive offline (injected)", slave.registers)
             return None
-        self.record(FrameRecord(event.t, "rx", event.data, "request", address, text))
-        forced = next((link.forced_exception for link in links if link.forced_exception is not None), None)
+        rx("", slave.registers)
+        forced = links[0].forced_exception if links[0].forced_exception is not None else links[1].forced_exception
         if forced is not None:
             response: Response = ExceptionResponse(address, request.function, forced)
         else:
             response = slave.handle(request, t)
-        return self._reply(slave, response, event.t, request)
+        return self._reply(slave, response, event.t, t, request)
 
-    def _reply(self, slave: Slave, response: Response, t: float, request: Request | None) -> Reply | None:
+    def _reply(
+        self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None
+    ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = "exception" if response.function & 0x80 else "reply"
-        text = describe(response, slave.registers, request)
         delay = slave.profile.protocol.turnaround_ms / 1000.0
         notes: list[str] = []
         for link in self._links(slave):
+            if not link.active_reply_faults:
+                continue
             assert data is not None
             mangled = link.mangle(data, delay, self.rng)
             data, delay = mangled.data, mangled.delay
             notes += mangled.notes
             if data is None:
-                self.record(FrameRecord(t + delay, "tx", b"", "dropped", response.slave, text, "; ".join(notes)))
+                self._tx(t + delay, b"", "dropped", slave, response, notes, model_t, request)
                 return None
         assert data is not None
-        self.record(FrameRecord(t + delay, "tx", data, kind, response.slave, text, "; ".join(notes)))
+        self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
         new_baud = None
-        if len(self.slaves) == 1 and slave.baud != self.line_baud:
+        wrote = isinstance(request, (WriteSingleRequest, WriteMultipleRequest))
+        if wrote and len(self.slaves) == 1 and slave.baud != self.line_baud:
             new_baud = self.line_baud = slave.baud
         return Reply(data, delay, response.slave, new_baud)
+
+    def _tx(
+        self,
+        t: float,
+        data: bytes,
+        kind: str,
+        slave: Slave,
+        response: Response,
+        notes: list[str],
+        model_t: float,
+        request: Request | None,
+    ) -> None:
+        note = "; ".join(notes)
+        self.record(FrameRecord(t, "tx", data, kind, response.slave, response, note, model_t, slave.registers, request))

@@ -63,6 +63,21 @@ class LinkFaults:
         default = LinkFaults()
         return [f.name for f in fields(self) if getattr(self, f.name) != getattr(default, f.name)]
 
+    @property
+    def active_reply_faults(self) -> bool:
+        """True if :meth:`mangle` would change anything (a cheap test on every reply)."""
+        return bool(
+            self.drop_next
+            or self.drop_percent
+            or self.delay
+            or self.delay_jitter
+            or self.corrupt_crc
+            or self.truncate
+            or self.garbage_before
+            or self.garbage_after
+            or self.wrong_address is not None
+        )
+
     def mangle(self, data: bytes, delay: float, rng: random.Random) -> Mangled:
         """Apply the reply faults to ``data`` sent after ``delay`` seconds."""
         notes: list[str] = []

@@ -286,12 +286,12 @@ def _known_function(frame: bytes, direction: Direction) -> bool:
     return function in (FunctionCode.READ_REGISTERS, FunctionCode.WRITE_SINGLE, FunctionCode.WRITE_MULTIPLE)
 
 
-def decode_request(frame: bytes) -> Request:
-    """Decode a request frame whose CRC and length have been checked.
+def decode_request(frame: bytes, *, check_crc: bool = True) -> Request:
+    """Decode a request frame; ``check_crc=False`` for a framer's FRAME event, checked already.
 
     Raises ValueError for a frame that is not a well-formed request.
     """
-    if not crc_ok(frame):
+    if check_crc and not crc_ok(frame):
         raise ValueError("bad CRC")
     length = expected_length(frame, "request")
     if length is None:

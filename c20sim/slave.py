@@ -47,16 +47,18 @@ class Slave:
         self._password = profile.protocol.password
         self._password_address = profile.password_address if self._password else None
         self._unlocked = not self._password
+        self._address_cell = self.registers.canonical(Reg.ADDRESS)
+        self._baud_cell = self.registers.canonical(Reg.BAUD)
 
     @property
     def address(self) -> int:
         """The station address the drive answers to now (2008H)."""
-        return self.drive.read(self.registers.canonical(Reg.ADDRESS))
+        return self.drive.read(self._address_cell)
 
     @property
     def baud(self) -> int:
         """The line speed the drive listens at now (2009H)."""
-        code = self.drive.read(self.registers.canonical(Reg.BAUD))
+        code = self.drive.read(self._baud_cell)
         return BAUD_RATES[code] if 0 <= code < len(BAUD_RATES) else BAUD_RATES[4]
 
     @property

@@ -58,7 +58,8 @@ class ParameterStore:
 
     def get(self, address: int) -> int:
         """Value of a function code, or of the 20xxH register mirroring one."""
-        return self._values[self.profile.registers.canonical(address)]
+        value = self._values.get(address)  # a function code's own address: the common, cheap case
+        return value if value is not None else self._values[self.profile.registers.canonical(address)]
 
     def set(self, address: int, value: int) -> None:
         """Store a value (persisted before returning when there is a state file)."""

@@ -121,6 +121,8 @@ def test_frame_log_records_both_directions_in_words(profile: Profile) -> None:
     assert last["hex"] == "01 03 02 00 03 F8 45"
     assert last["text"] == "2100H = 0003: stopped"
     assert last["dir"] == "tx"
+    # The line's time (reply due after the 2 ms turnaround) and the drives' time when it was served.
+    assert (last["t"], last["model_t"]) == (pytest.approx(0.152), pytest.approx(0.15))
 
 
 def test_frame_log_is_bounded(profile: Profile) -> None:
