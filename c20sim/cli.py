@@ -7,7 +7,6 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,7 +17,7 @@ from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
-from .serve import ServeOptions, run_server
+from .serve import ServeOptions, run, run_server
 from .simulator import Simulator, make_clock, parse_addresses
 
 __all__ = ["main"]
@@ -139,7 +138,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
 def cmd_serve(args: argparse.Namespace) -> int:
     options = serve_options(args)  # check the endpoints before building drives
     sim = build_simulator(args)
-    asyncio.run(run_server(sim, options))
+    run(run_server(sim, options))
     return 0
 
 
