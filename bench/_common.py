@@ -178,7 +178,12 @@ class ChildServer:
 
 def _server_main(spec: ServerSpec, conn: Connection) -> None:
     try:
-        asyncio.run(_serve(spec, conn))
+        if spec.kind == "c20sim":
+            from c20sim.serve import run  # the loop `c20sim serve` runs on (uvloop where installed)
+
+            run(_serve(spec, conn))
+        else:
+            asyncio.run(_serve(spec, conn))
     except BaseException as exc:  # report, so that the parent does not hang
         conn.send(("error", repr(exc)))
         raise
