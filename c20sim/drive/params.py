@@ -18,6 +18,7 @@ import json
 import os
 import tempfile
 from collections.abc import Mapping
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,7 @@ class ParameterStore:
         self.path = Path(path) if path is not None else None
         self._values: dict[int, int] = dict(profile.defaults)
         if self.path is not None:
+            self._remove_stale_temporaries()
             if self.path.exists():
                 self._values.update(self._read(self.path))
             else:
@@ -86,6 +88,13 @@ class ParameterStore:
         self.save()
 
     # --- The state file.
+
+    def _remove_stale_temporaries(self) -> None:
+        """Delete the temporary files a kill mid-write left beside the state file (one process per file)."""
+        assert self.path is not None
+        for stale in self.path.parent.glob(f".{glob_escape(self.path.name)}.*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
 
     def save(self) -> None:
         """Write the state file atomically (no-op without one)."""

@@ -147,3 +147,15 @@ def test_kill_at_any_moment_leaves_a_whole_file(profile: Profile, tmp_path: Path
         child.stdout.close()
         value = Drive(profile, state_path=path).read(F00_10)
         assert 0 < value < 40000
+
+
+def test_temporaries_left_by_a_kill_are_removed_at_the_next_start(profile: Profile, tmp_path: Path) -> None:
+    state = tmp_path / "drive.json"
+    ParameterStore(profile, state).set(F00_10, 2500)
+    stale = tmp_path / ".drive.json.k3x9.tmp"  # what a kill between mkstemp and os.replace leaves
+    stale.write_text("{half a file")
+    other = tmp_path / ".other.json.k3x9.tmp"  # another file's temporary is not ours to remove
+    other.write_text("{")
+    store = ParameterStore(profile, state)
+    assert store.get(F00_10) == 2500
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".other.json.k3x9.tmp", "drive.json"]
