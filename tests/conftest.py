@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import time
+from pathlib import Path
+
 import pytest
 
 from c20sim.bus import Bus, Reply
@@ -38,3 +43,15 @@ class Line:
     def hex(self, frame: bytes | str, dt: float = 0.05) -> str | None:
         reply = self.send(frame, dt)
         return reply.hex(" ").upper() if reply is not None else None
+
+
+def wait_for_ready_file(path: Path, proc: subprocess.Popen[str], timeout: float = 10.0) -> dict[str, str]:
+    """The ready file of a ``c20sim serve`` subprocess, once written; fails early if the process exits."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        if proc.poll() is not None:
+            raise AssertionError(f"c20sim exited with {proc.returncode}: {proc.stderr.read() if proc.stderr else ''}")
+        assert time.monotonic() < deadline, "no ready file in time"
+        time.sleep(0.01)
+    data: dict[str, str] = json.loads(path.read_text())
+    return data

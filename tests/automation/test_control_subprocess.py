@@ -6,7 +6,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,17 +16,7 @@ from pymodbus.client import ModbusTcpClient
 
 from c20sim.control import call
 from c20sim.errors import C20SimError
-
-
-def wait_for_ready(path: Path, proc: subprocess.Popen[str], timeout: float = 10.0) -> dict[str, str]:
-    deadline = time.monotonic() + timeout
-    while not path.exists():
-        if proc.poll() is not None:
-            raise AssertionError(f"c20sim exited with {proc.returncode}: {proc.stderr.read() if proc.stderr else ''}")
-        assert time.monotonic() < deadline, "no ready file in time"
-        time.sleep(0.01)
-    data: dict[str, str] = json.loads(path.read_text())
-    return data
+from tests.conftest import wait_for_ready_file
 
 
 @pytest.fixture
@@ -41,7 +30,7 @@ def served(tmp_path: Path) -> Iterator[tuple[dict[str, str], Path]]:
         text=True,
     )
     try:
-        yield wait_for_ready(ready, proc), ready
+        yield wait_for_ready_file(ready, proc), ready
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err

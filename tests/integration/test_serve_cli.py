@@ -7,7 +7,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -15,20 +14,11 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
+from tests.conftest import wait_for_ready_file
+
 
 def c20sim(*args: str) -> list[str]:
     return [sys.executable, "-m", "c20sim", *args]
-
-
-def wait_for_file(path: Path, proc: subprocess.Popen[str], timeout: float = 10.0) -> dict[str, str]:
-    deadline = time.monotonic() + timeout
-    while not path.exists():
-        if proc.poll() is not None:
-            raise AssertionError(f"c20sim exited with {proc.returncode}: {proc.stderr.read() if proc.stderr else ''}")
-        assert time.monotonic() < deadline, "no ready file in time"
-        time.sleep(0.01)
-    data: dict[str, str] = json.loads(path.read_text())
-    return data
 
 
 @pytest.fixture
@@ -64,7 +54,7 @@ def test_ready_file_link_frame_log_and_sigterm(tmp_path: Path, started: list[sub
         "--log-frames",
         str(log),
     )
-    info = wait_for_file(ready, proc)
+    info = wait_for_ready_file(ready, proc)
     assert set(info) == {"tcp", "modbus_tcp", "pty"}
     assert info["pty"] == str(link) and link.is_symlink()
     host, port = info["tcp"].rsplit(":", 1)
@@ -94,7 +84,7 @@ def test_ready_file_link_frame_log_and_sigterm(tmp_path: Path, started: list[sub
 def test_sigint_stops_cleanly(tmp_path: Path, started: list[subprocess.Popen[str]]) -> None:
     ready = tmp_path / "ready.json"
     proc = start(started, "--tcp", "127.0.0.1:0", "--ready-file", str(ready))
-    wait_for_file(ready, proc)
+    wait_for_ready_file(ready, proc)
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=10)
     assert proc.returncode == 0
