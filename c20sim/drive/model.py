@@ -259,6 +259,29 @@ class Drive:
         self._apply(event)
         return True
 
+    # --- Read-outs of the conditions set by injection (telemetry has supply, load, inertia, ambient).
+
+    @property
+    def physical_inputs(self) -> int:
+        """The physical input terminals as set (300DH and telemetry add the virtual ones, 2005H)."""
+        return self._physical_inputs
+
+    @property
+    def hall_fault(self) -> HallFault | None:
+        """The Hall sensor fault injected, or None if the sensor is sound."""
+        return self._hall_fault
+
+    def ai(self, channel: int) -> float:
+        """Analog input 1, 2 or 3 as set (V)."""
+        if channel not in (1, 2, 3):
+            raise ValueError(f"analog input must be 1, 2 or 3, not {channel}")
+        return self._ai[channel - 1]
+
+    @property
+    def held_fault(self) -> int | None:
+        """The code of a fault forced with ``persistent`` and not yet released (resets fail), else None."""
+        return self._fault if self._forced_hold and self._cause is None and self._fault else None
+
     def set_supply_voltage(self, volts: float) -> None:
         """The supply behind the DC bus (0 = switched off)."""
         self._supply = max(0.0, float(volts))

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import pytest
 
 from c20sim.drive.base import DrivePort
-from c20sim.drive.model import STEP, Drive
+from c20sim.drive.model import STEP, Drive, HallFault
 from c20sim.drive.terminals import Input, Output
 from c20sim.errors import ModbusError
 from c20sim.profile import Profile, load_profile
@@ -327,3 +327,24 @@ def test_other_profile_runs(profile: Profile) -> None:
     drive.write(Reg.COMMAND, 5)
     drive.advance_to(4.0)
     assert drive.read(Reg.STATUS1) == 3
+
+
+def test_injected_conditions_read_back(profile: Profile) -> None:
+    drive = Drive(profile)
+    assert (drive.physical_inputs, drive.hall_fault, drive.ai(1), drive.held_fault) == (0, None, 0.0, None)
+    drive.set_terminal_inputs(int(Input.EF))
+    drive.write(Reg.VIRTUAL_INPUTS, int(Input.S1))
+    assert drive.physical_inputs == Input.EF  # the virtual terminal is not a physical one
+    assert drive.telemetry().input_terminals == Input.EF | Input.S1
+    drive.set_hall_fault("stuck7")
+    assert drive.hall_fault is HallFault.STUCK7
+    drive.set_ai(2, 12.0)
+    assert drive.ai(2) == 10.0
+    with pytest.raises(ValueError):
+        drive.ai(0)
+    drive.force_fault(0x15, persistent=True)
+    assert drive.held_fault == 0x15
+    drive.release_fault()
+    assert drive.held_fault is None
+    drive.force_fault(0x0E)  # not persistent: nothing held
+    assert drive.held_fault is None
