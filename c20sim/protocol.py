@@ -259,7 +259,7 @@ def expected_length(frame: bytes, direction: Direction) -> int | None:
     """Length the frame starting with these bytes must have, or None if unknown.
 
     None means either that the function code is not one the C20 knows, or that
-    the byte giving the length has not arrived yet (:func:`_length_pending`).
+    the byte giving the length (the byte count of a 0x10 request or 0x03 reply) has not arrived yet.
     """
     if len(frame) < 2:
         return None
@@ -433,8 +433,8 @@ class RtuFramer:
         if not data:
             return
         if self._buffer:
-            # Arrival time of this chunk's first byte, its bytes being back to back.
-            gap = t - (len(data) - 1) * self._char - self._last_t
+            # Silence before this chunk: its bytes came back to back and its last one ended at t.
+            gap = t - len(data) * self._char - self._last_t
             if gap >= self.t35 - _EPSILON:
                 self._close()
             elif self.check_gaps and gap > self.t15 + _EPSILON and not self._broken:

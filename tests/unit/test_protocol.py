@@ -138,6 +138,27 @@ def test_gap_over_t15_inside_a_frame_makes_it_invalid() -> None:
     assert "t1.5" in events[0].note
 
 
+@pytest.mark.parametrize(
+    ("silence_chars", "kinds"),
+    [
+        (0.0, [FrameKind.FRAME]),
+        (1.0, [FrameKind.FRAME]),
+        (1.4, [FrameKind.FRAME]),
+        (1.6, [FrameKind.NOISE]),  # more than 1.5 characters inside a frame: invalid
+        (3.0, [FrameKind.NOISE]),
+        (3.5, [FrameKind.NOISE, FrameKind.CRC_ERROR]),  # 3.5 characters end the frame: two broken pieces
+    ],
+)
+def test_silence_inside_a_frame_is_measured_between_bytes(silence_chars: float, kinds: list[FrameKind]) -> None:
+    # At 9600 baud (t1.5 = 1.72 ms, t3.5 = 4.01 ms): the first 3 bytes end at 1.0, then silence, then 5 bytes.
+    char = 11 / 9600
+    framer = RtuFramer(9600)
+    framer.feed(READ[:3], 1.0)
+    framer.feed(READ[3:], 1.0 + silence_chars * char + 5 * char)
+    framer.tick(2.0)
+    assert [e.kind for e in framer.events()] == kinds
+
+
 def test_gap_between_t15_and_t35_is_tolerated_without_gap_checks() -> None:
     framer = RtuFramer(19200, check_gaps=False)
     framer.feed(READ[:3], 1.0)
@@ -149,7 +170,7 @@ def test_gap_between_t15_and_t35_is_tolerated_without_gap_checks() -> None:
 def test_two_frames_separated_by_silence() -> None:
     framer = RtuFramer(19200)
     framer.feed(READ, 1.0)
-    framer.feed(WRITE, 1.0 + 7 * CHAR + T35)
+    framer.feed(WRITE, 1.0 + 8 * CHAR + T35)  # 8 bytes back to back after t3.5 of silence
     framer.tick(5.0)
     assert frames(framer) == [(FrameKind.FRAME, READ), (FrameKind.FRAME, WRITE)]
 
@@ -300,7 +321,7 @@ def test_valid_frame_after_garbage_and_silence_is_recovered(garbage: bytes, requ
     frame = encode(request)  # type: ignore[arg-type]
     framer = RtuFramer(19200, complete_on_length=on_length, check_gaps=not on_length)
     framer.feed(garbage, 1.0)
-    start = 1.0 + T35 + (len(frame) - 1) * CHAR
+    start = 1.0 + T35 + len(frame) * CHAR
     framer.feed(frame, start)
     framer.tick(start + T35)
     events = framer.events()
