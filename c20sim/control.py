@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, fields
 from pathlib import Path
@@ -35,12 +37,15 @@ if TYPE_CHECKING:
 
     from .drive.model import Drive
 
+log = logging.getLogger(__name__)
+
 __all__ = [
     "CONDITIONS",
     "KEYPAD",
     "ControlApi",
     "ControlError",
     "add_ctl_command",
+    "advance",
     "call",
     "clear_fault",
     "drive_state",
@@ -71,6 +76,8 @@ class ControlError(C20SimError):
 def _number(key: str, value: object, low: float | None = None, high: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ControlError(f"{key}: expected a number, got {json.dumps(value)}")
+    if not math.isfinite(value):
+        raise ControlError(f"{key}: expected a finite number, got {value}")
     if (low is not None and value < low) or (high is not None and value > high):
         bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}"
         raise ControlError(f"{key}: {value:g} is outside {bounds}")
@@ -281,6 +288,18 @@ def press_key(sim: Simulator, address: int, key: object) -> bool:
     return drive.keypad(command)
 
 
+#: The longest step :func:`advance` takes: ten years of model time.
+MAX_ADVANCE = 10 * 365 * 86400
+
+
+def advance(sim: Simulator, seconds: object) -> float:
+    """Move a virtual clock on by ``seconds`` (finite, 0 to ten years); returns the new time."""
+    step = _number("seconds", seconds, 0, MAX_ADVANCE)
+    if not sim.virtual:
+        raise ControlError("time runs on the wall clock; start the server with --clock virtual to advance it", 409)
+    return sim.advance(step)
+
+
 def power_cycle(sim: Simulator, address: int) -> None:
     drive = model(sim, address)
     sim.sync()
@@ -451,6 +470,15 @@ def make_app(api: ControlApi) -> web.Application:
                     message += "; see GET / for the routes"
                 return reply({"error": message}, exc.status)
             raise
+        except Exception as exc:  # a bug: say so in JSON, log the traceback, keep serving
+            log.exception("control API: bug while serving %s %s", request.method, request.path)
+            message = (
+                f"{request.method} {request.path}: internal error ({type(exc).__name__}: {exc}); see the server's log"
+            )
+            return reply({"error": message}, 500)
+
+    def not_json(name: str) -> object:
+        raise ControlError(f"the body is not JSON: {name} is not a JSON number; give a finite number")
 
     async def body(request: web.Request) -> dict[str, Any]:
         if not request.can_read_body:
@@ -459,7 +487,7 @@ def make_app(api: ControlApi) -> web.Application:
         if not text.strip():
             return {}
         try:
-            data = json.loads(text)
+            data = json.loads(text, parse_constant=not_json)
         except json.JSONDecodeError as exc:
             raise ControlError(f"the body is not JSON: {exc}") from None
         if not isinstance(data, dict):
@@ -495,16 +523,12 @@ def make_app(api: ControlApi) -> web.Application:
     async def get_time(request: web.Request) -> web.Response:
         return reply({"t": sim.now(), "clock": "virtual" if sim.virtual else "realtime"})
 
-    async def advance(request: web.Request) -> web.Response:
+    async def post_advance(request: web.Request) -> web.Response:
         data = await body(request)
         only(data, "seconds")
         if "seconds" not in data:
             raise ControlError('give the time to advance by, such as {"seconds": 1.5}')
-        seconds = _number("seconds", data["seconds"], 0, 10 * 365 * 86400)
-        if not sim.virtual:
-            raise ControlError("time runs on the wall clock; start the server with --clock virtual to advance it", 409)
-        t = sim.advance(seconds)
-        return reply({"t": t})
+        return reply({"t": advance(sim, data["seconds"])})
 
     async def list_drives(request: web.Request) -> web.Response:
         return reply({"drives": [drive_state(sim, a) for a in sim.drives]})
@@ -598,7 +622,7 @@ def make_app(api: ControlApi) -> web.Application:
     r = app.router
     r.add_get("/", index)
     r.add_get("/time", get_time)
-    r.add_post("/time/advance", advance)
+    r.add_post("/time/advance", post_advance)
     r.add_get("/drives", list_drives)
     r.add_get("/drives/{address}", get_drive)
     r.add_get("/drives/{address}/registers/{register}", get_register)

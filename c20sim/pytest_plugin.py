@@ -149,7 +149,11 @@ class C20Sim:
 
     def advance(self, seconds: float) -> float:
         """Move virtual time on by ``seconds`` (instantly); returns the new time."""
-        return self.call(self.sim.advance, seconds)
+        if not self.sim.virtual:
+            raise C20SimError(
+                "time can only be advanced with the virtual clock; the c20sim marker says clock='realtime'"
+            )
+        return self._op(control.advance, seconds)
 
     # --- Drives.
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import difflib
+import math
 import sys
 import tomllib
 from collections.abc import Callable, Mapping
@@ -204,7 +205,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
     if not isinstance(raw, dict):
         raise ScenarioError(path, f"step {index}", "expected a table ([[step]])")
     at = raw.get("at")
-    if isinstance(at, bool) or not isinstance(at, int | float) or at < 0:
+    if isinstance(at, bool) or not isinstance(at, int | float) or not math.isfinite(at) or at < 0:
         raise ScenarioError(path, f"step {index}, key 'at'", "give the step's time in seconds from the start, >= 0")
     label = f"step {index} (at {at:g} s)"
 

@@ -25,9 +25,11 @@ async def client() -> AsyncIterator[Callable[[Simulator], Awaitable[Api]]]:
         await test_client.start_server()
         clients.append(test_client)
 
-        async def api(method: str, path: str, body: Any = None, *, raw: str | None = None) -> tuple[int, Any]:
+        async def api(
+            method: str, path: str, body: Any = None, *, raw: str | None = None, headers: dict[str, str] | None = None
+        ) -> tuple[int, Any]:
             kwargs: dict[str, Any] = {"data": raw} if raw is not None else {"json": body} if body is not None else {}
-            response = await test_client.request(method, path, **kwargs)
+            response = await test_client.request(method, path, headers=headers, **kwargs)
             return response.status, await response.json()
 
         return api
@@ -144,3 +146,56 @@ async def test_link_faults_and_frames(client: Callable[[Simulator], Awaitable[Ap
         400,
         {"error": "unknown query parameter 'limit' (known: last, slave, since)"},
     )
+
+
+async def test_non_finite_numbers_are_refused(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    sim = virtual()
+    api = await client(sim)
+    json_header = {"Content-Type": "application/json"}
+    for constant in ("NaN", "Infinity", "-Infinity"):
+        status, data = await api("POST", "/time/advance", raw=f'{{"seconds": {constant}}}', headers=json_header)
+        assert (status, data) == (
+            400,
+            {"error": f"the body is not JSON: {constant} is not a JSON number; give a finite number"},
+        )
+        status, data = await api("PUT", "/drives/1/conditions", raw=f'{{"supply_v": {constant}}}', headers=json_header)
+        assert status == 400
+    assert sim.now() == 0.0
+    status, state = await api("GET", "/drives/1")
+    assert (status, state["supply_v"]) == (200, 48.0)  # still served, the supply untouched
+
+
+def test_the_checks_refuse_nan_and_infinity() -> None:
+    from c20sim import control
+
+    sim = virtual()
+    with pytest.raises(control.ControlError, match=r"^seconds: expected a finite number, got nan$"):
+        control.advance(sim, float("nan"))
+    with pytest.raises(control.ControlError, match=r"^supply_v: expected a finite number, got inf$"):
+        control.set_conditions(sim, 1, {"supply_v": float("inf")})
+    with pytest.raises(control.ControlError, match=r"^delay: expected a finite number, got nan$"):
+        control.set_link_faults(sim, 1, {"delay": float("nan")})
+    assert (sim.now(), sim.drive(1).telemetry().supply_v, sim.link_faults(1).delay) == (0.0, 48.0, 0.0)
+
+
+async def test_a_bug_answers_json_500_and_logs_the_traceback(
+    client: Callable[[Simulator], Awaitable[Api]], monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    from c20sim import control
+
+    api = await client(virtual())
+
+    def broken(sim: Simulator, address: int) -> dict[str, Any]:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(control, "drive_state", broken)
+    assert await api("GET", "/drives/1") == (
+        500,
+        {"error": "GET /drives/1: internal error (RuntimeError: boom); see the server's log"},
+    )
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+        ("ERROR", "control API: bug while serving GET /drives/1")
+    ]
+    assert caplog.records[0].exc_info is not None
+    monkeypatch.undo()
+    assert (await api("GET", "/drives/1"))[0] == 200

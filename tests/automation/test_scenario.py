@@ -118,6 +118,12 @@ def test_a_refused_write_fails(tmp_path: Path) -> None:
             "s.toml: step 1 (at 1 s), key 'expect': F00: unknown key '10'; quote a function code, as \"F00.10\" = N",
         ),
         ({"at": -1}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
+        ({"at": float("nan")}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
+        ({"at": float("inf")}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
+        (
+            {"at": 1, "set": {"supply_v": float("nan")}},
+            "s.toml: step 1 (at 1 s), key 'set': supply_v: expected a finite number, got nan",
+        ),
     ],
 )
 def test_bad_step_names_file_step_and_key(step: dict[str, object], message: str) -> None:
@@ -138,6 +144,12 @@ def test_bad_files(tmp_path: Path) -> None:
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
         f"c20sim: {path}: step 1 (at 0 s), key 'expect': F09.99: the profile c20-400hr has no register F09.99\n"
+    )
+    path = write(tmp_path, "[[step]]\nat = 0\n[[step]]\nat = inf\nexpect = { status1 = 1 }\n")
+    result = c20sim("run-scenario", str(path))
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == (
+        f"c20sim: {path}: step 2, key 'at': give the step's time in seconds from the start, >= 0\n"
     )
     result = c20sim("run-scenario", str(tmp_path / "absent.toml"))
     assert result.stderr == f"c20sim: {tmp_path / 'absent.toml'}: cannot read: No such file or directory\n"

@@ -221,6 +221,9 @@ def test_faults_link_faults_and_drives(pytester: pytest.Pytester) -> None:
                 c20sim.set(supply=3)
             with pytest.raises(C20SimError, match="no drive at address 5; drives: 1, 2"):
                 c20sim.drive(5)
+            with pytest.raises(C20SimError, match="^seconds: expected a finite number, got nan$"):
+                c20sim.advance(float("nan"))
+            assert c20sim.now() == 0.0
         """,
     )
     result.assert_outcomes(passed=1)
