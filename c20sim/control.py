@@ -18,6 +18,7 @@ slowest import of the package.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import logging
 import math
@@ -389,14 +390,23 @@ def clear_link_faults(sim: Simulator, address: int | None) -> LinkFaults:
 def frames(
     sim: Simulator, *, last: int | None = None, slave: int | None = None, since: int = 0, first_seq: int = 0
 ) -> list[dict[str, Any]]:
-    """The frame log, oldest first, each record with its sequence number ``seq`` (from ``first_seq``)."""
-    out = []
-    for i, record in enumerate(sim.bus.records):
-        seq = first_seq + i
-        if seq < since or (slave is not None and record.slave != slave):
-            continue
-        out.append({"seq": seq, **record.as_dict()})
-    return out[-last:] if last is not None else out
+    """The frame log, oldest first, each record with its sequence number ``seq`` (from ``first_seq``).
+
+    ``last`` keeps the newest N (N >= 1) of the records left after ``since`` and ``slave``;
+    only the records kept are put in words, which is what costs.
+    """
+    if last is not None and (isinstance(last, bool) or last < 1):
+        raise ControlError(f"last={last} must be at least 1")
+    records = sim.bus.records
+    skip = min(max(0, since - first_seq), len(records))
+    kept = [
+        (first_seq + i, record)
+        for i, record in enumerate(itertools.islice(records, skip, None), start=skip)
+        if slave is None or record.slave == slave
+    ]
+    if last is not None:
+        kept = kept[-last:]
+    return [{"seq": seq, **record.as_dict()} for seq, record in kept]
 
 
 # --- The HTTP API.
@@ -607,7 +617,7 @@ def make_app(api: ControlApi) -> web.Application:
                 raise _unknown("query parameter", key, ["last", "slave", "since"])
         records = frames(
             sim,
-            last=arg("last", 0),
+            last=arg("last", 1),
             slave=arg("slave", 0),
             since=arg("since", 0) or 0,
             first_seq=api.first_seq,
@@ -660,7 +670,7 @@ ROUTES: Mapping[str, str] = {
     "PATCH /drives/{address}/link": '{"offline": true, "drop_next": 2, "delay": 0.5, ...}',
     "DELETE /drives/{address}/link": "- (clears every link fault of the drive)",
     "GET /link": "- (the whole bus's link faults; PATCH and DELETE as for a drive)",
-    "GET /frames": "- (query: last=N, slave=N, since=SEQ)",
+    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ)",
     "DELETE /frames": "- (empties the frame log)",
 }
 
@@ -724,6 +734,16 @@ def _pairs(words: list[str]) -> dict[str, object]:
         except json.JSONDecodeError:
             out[key] = text
     return out
+
+
+def _at_least_one(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
 
 
 def cmd_ctl(args: argparse.Namespace) -> int:
@@ -815,7 +835,7 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     advance.add_argument("seconds", type=float)
     action("time", help="the model's time")
     log = action("frames", help="the frame log")
-    log.add_argument("--last", type=int, metavar="N")
+    log.add_argument("--last", type=_at_least_one, metavar="N", help="only the newest N frames (N >= 1)")
     log.add_argument("--slave", type=int, metavar="N")
     log.add_argument("--json", action="store_true", help="print JSON, not one line per frame")
     ctl.set_defaults(func=cmd_ctl)

@@ -199,3 +199,35 @@ async def test_a_bug_answers_json_500_and_logs_the_traceback(
     assert caplog.records[0].exc_info is not None
     monkeypatch.undo()
     assert (await api("GET", "/drives/1"))[0] == 200
+
+
+async def test_last_frames_are_the_newest_and_only_they_are_put_in_words(
+    client: Callable[[Simulator], Awaitable[Api]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c20sim.bus import FrameRecord
+    from tests.conftest import Line
+
+    sim = virtual()
+    api = await client(sim)
+    line = Line(sim.bus)
+    for _ in range(5):
+        line.send("01 03 21 03 00 01 7E 36")
+    assert await api("GET", "/frames?last=0") == (400, {"error": "last=0 must be at least 1"})
+    assert await api("GET", "/frames?last=-1") == (400, {"error": "last=-1 must be at least 1"})
+    rendered: list[FrameRecord] = []
+    as_dict = FrameRecord.as_dict
+
+    def counting(record: FrameRecord) -> dict[str, object]:
+        rendered.append(record)
+        return as_dict(record)
+
+    monkeypatch.setattr(FrameRecord, "as_dict", counting)
+    status, log = await api("GET", "/frames?last=1")
+    assert (status, [(r["seq"], r["dir"]) for r in log["frames"]], log["next"]) == (200, [(9, "tx")], 10)
+    assert rendered == [sim.bus.records[-1]]
+    rendered.clear()
+    status, log = await api("GET", "/frames?since=6&last=3")
+    assert [r["seq"] for r in log["frames"]] == [7, 8, 9]
+    assert len(rendered) == 3
+    status, log = await api("GET", "/frames?since=20")
+    assert (status, log["frames"], rendered[3:]) == (200, [], [])

@@ -125,3 +125,6 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
         "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null, 'stuck0', 'stuck7' or 'sequence', "
         'got "stuck9"\n'
     )
+    result = ctl(ready, "frames", "--last", "0")
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr.endswith("error: argument --last: 0 must be at least 1\n")
