@@ -32,7 +32,7 @@ from .bus import FrameRecord
 from .drive.model import Telemetry
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, load_profile
-from .protocol import WriteMultipleRequest, WriteSingleRequest, decode_request
+from .protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest, decode_request
 from .serve import ServeOptions, Server
 from .simulator import Simulator, make_clock
 
@@ -212,13 +212,18 @@ class C20Sim:
     # --- Assertions.
 
     def assert_written(self, register: str | int, value: int, drive: int | None = None) -> None:
-        """Fail unless a master wrote ``value`` to ``register`` of ``drive`` (0x06 or 0x10) and it was taken."""
+        """Fail unless a master wrote ``value`` to ``register`` of ``drive`` (0x06 or 0x10) and it was taken.
+
+        Taken means the drive received the request and its reply (matched to that request,
+        even if a link fault then dropped it) was not an exception; a broadcast write, which
+        is never answered, counts as taken.
+        """
         __tracebackhide__ = True
         address = self._address(drive)
         reg = self._op(control.parse_register, register)
         records = self.frames()
         seen: list[str] = []
-        for i, record in enumerate(records):
+        for record in records:
             if record.direction != "rx" or record.kind != "request" or record.slave not in (address, 0):
                 continue
             written = _written(record.data).get(reg)
@@ -227,8 +232,13 @@ class C20Sim:
             if written != value:
                 seen.append(f"{written}")
                 continue
-            reply = next((r for r in records[i + 1 :] if r.direction == "tx"), None) if record.slave else None
-            if reply is not None and reply.kind == "exception":
+            if record.slave == 0:
+                return  # broadcast: every listening drive acts on it, none answers
+            reply = next((r for r in records if r.direction == "tx" and r.request is record.words), None)
+            if reply is None:  # the drive never got it: offline, absent, a reserved address
+                seen.append(f"{written}, not received ({record.note or 'no reply'})")
+                continue
+            if isinstance(reply.words, ExceptionResponse):
                 seen.append(f"{written}, refused: {reply.text}")
                 continue
             return

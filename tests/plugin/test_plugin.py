@@ -124,6 +124,81 @@ def test_a_refused_write_is_not_written(pytester: pytest.Pytester) -> None:
     )
 
 
+def test_a_write_the_drive_never_received_is_not_written(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        import pytest
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+        from pymodbus.exceptions import ModbusIOException
+
+        def test_offline(c20sim):
+            c20sim.link_faults(1, offline=True)
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=0.2, retries=0)
+            assert client.connect()
+            with pytest.raises(ModbusIOException):
+                client.write_register(0x2001, 1500, device_id=1)
+            client.close()
+            assert c20sim.read("2001H") == 0
+            c20sim.assert_written("2001H", 1500)
+        """,
+    )
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "E       AssertionError: drive 1: no accepted write of 1500 (0x05DC) to 2001H; "
+            "writes to 2001H seen: 1500, not received (drive offline (injected))",
+            "E       frames on the line:",
+            "E         +  0.0000 s rx 01 06 20 01 05 DC D1 03    write 2001H = 05DC: 1500 rpm  (drive offline (injected))",
+        ]
+    )
+
+
+def test_assert_written_matches_the_reply_to_its_own_request(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        import pytest
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+        from pymodbus.exceptions import ModbusIOException
+
+        @pytest.mark.c20sim(drives=(1, 2))
+        def test_refused_then_another_drive_answers(c20sim):
+            c20sim.link_faults(1, forced_exception=4, drop_next=1)  # refused, and the refusal lost
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=0.2, retries=0)
+            assert client.connect()
+            with pytest.raises(ModbusIOException):
+                client.write_register(0x2001, 1500, device_id=1)
+            assert not client.read_holding_registers(0x2103, count=1, device_id=2).isError()
+            with pytest.raises(ModbusIOException):  # broadcast: taken by both, unanswered
+                client.write_register(0x2001, 1500, device_id=0)
+            client.close()
+            assert [(r.direction, r.slave, r.kind) for r in c20sim.frames()] == [
+                ("rx", 1, "request"), ("tx", 1, "dropped"), ("rx", 2, "request"), ("tx", 2, "reply"),
+                ("rx", 0, "request"),
+            ]
+            c20sim.assert_written("2001H", 1500, drive=2)  # by the broadcast
+            c20sim.clear_frames()
+            c20sim.link_faults(1, forced_exception=4, drop_next=1)
+            client.connect()
+            with pytest.raises(ModbusIOException):
+                client.write_register(0x2001, 1500, device_id=1)
+            client.read_holding_registers(0x2103, count=1, device_id=2)
+            client.close()
+            c20sim.assert_written("2001H", 1500, drive=1)
+        """,
+    )
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(
+        [
+            "E       AssertionError: drive 1: no accepted write of 1500 (0x05DC) to 2001H; "
+            "writes to 2001H seen: 1500, refused: *",
+        ]
+    )
+
+
 def test_assert_register_failure_says_what_it_read(pytester: pytest.Pytester) -> None:
     result = run(
         pytester,
