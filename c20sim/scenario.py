@@ -413,7 +413,7 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
         out.append(_write(sim, step, address, register, reg, value))
     if step.keypad is not None:
         taken = control.press_key(sim, address, step.keypad)
-        out.append(Outcome(step, t, True, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
+        out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
     for expect in step.expect:
         info = control.read_register(sim, address, expect.address)
         ok = abs(info["raw"] - expect.value) <= expect.tolerance

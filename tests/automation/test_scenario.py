@@ -81,6 +81,19 @@ def test_a_refused_write_fails(tmp_path: Path) -> None:
     ]
 
 
+def test_a_refused_keypad_press_fails() -> None:
+    scenario = parse_scenario(
+        {"step": [{"at": 0, "fault": {"code": 17, "persistent": True}, "keypad": "reset"}, {"at": 1, "keypad": 1}]},
+        "stuck.toml",
+    )
+    report = run(scenario, Simulator(load_profile()))
+    assert [(o.step.index, o.ok, o.text) for o in report.outcomes] == [
+        (1, False, "keypad reset: refused by the drive"),
+        (2, False, "keypad 1: refused by the drive"),
+    ]
+    assert not report.ok
+
+
 @pytest.mark.parametrize(
     ("step", "message"),
     [
