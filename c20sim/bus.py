@@ -10,9 +10,11 @@ the profile says the model stays silent.
 A write to 2008H (address) or 2009H (baud) takes effect after its reply,
 which goes out at the old address and baud: the reply is built from the
 request, and the new settings are read for the next frame. When the only
-drive on the line changes its baud, the line follows (:attr:`Reply.new_baud`);
-with several drives, a drive set to another baud than the line's goes deaf,
-as it would on a real multi-drop line.
+drive on the line changes its baud, by any write (broadcast, or one whose
+reply is lost), the line follows: :attr:`Bus.line_baud` changes once the
+request is served, and :attr:`Reply.baud` keeps the baud the reply goes out
+at. With several drives, a drive set to another baud than the line's goes
+deaf, as it would on a real multi-drop line.
 
 Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
 and is passed to each listener (the JSON-lines writer, the dashboard).
@@ -36,8 +38,6 @@ from .protocol import (
     ReadRequest,
     Request,
     Response,
-    WriteMultipleRequest,
-    WriteSingleRequest,
     decode_request,
     encode,
 )
@@ -99,7 +99,7 @@ class Reply:
     data: bytes
     delay: float
     slave: int
-    new_baud: int | None = None  #: the line's new speed, to apply after sending
+    baud: int  #: the line speed it goes out at (the old one, after a 2009H write)
 
 
 class Bus:
@@ -126,7 +126,12 @@ class Bus:
     def subscribe(self, listener: Callable[[FrameRecord], None]) -> Callable[[], None]:
         """Call ``listener`` with every new record; returns a function that unsubscribes."""
         self._listeners.append(listener)
-        return lambda: self._listeners.remove(listener)
+
+        def unsubscribe() -> None:
+            if listener in self._listeners:  # a failing listener may have been removed already
+                self._listeners.remove(listener)
+
+        return unsubscribe
 
     def record(self, entry: FrameRecord) -> None:
         self.records.append(entry)
@@ -138,15 +143,6 @@ class Bus:
                 self._listeners.remove(listener)
 
     # -- serving
-
-    def link_faults(self, address: int | None = None) -> LinkFaults:
-        """The link faults of the drive at ``address``, or of the whole bus for None."""
-        if address is None:
-            return self.link
-        for slave, link in zip(self.slaves, self.drive_links, strict=True):
-            if slave.address == address:
-                return link
-        raise KeyError(f"no drive at address {address}")
 
     def _links(self, slave: Slave) -> tuple[LinkFaults, LinkFaults]:
         return self._link_of[slave], self.link
@@ -180,7 +176,7 @@ class Bus:
             return None
         if any(link.offline for link in self._links(slave)):
             return None
-        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None)
+        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud)
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
         request = decode_request(event.data, check_crc=False)  # the framer checked it
@@ -195,8 +191,11 @@ class Bus:
                 return None
             rx("broadcast: no reply")
             for each, link in zip(self.slaves, self.drive_links, strict=True):
-                if each.baud == self.line_baud and not (link.offline or self.link.offline):
-                    each.handle(request, t)
+                if each.baud != self.line_baud or link.offline or self.link.offline:
+                    continue
+                if link.forced_exception is None and self.link.forced_exception is None:
+                    each.handle(request, t)  # a forced exception means the drive never acts on the request
+                self._follow_baud(each)
             return None
         slave = self.slave_at(address) if address not in RESERVED else None
         if slave is None:
@@ -212,10 +211,17 @@ class Bus:
             response: Response = ExceptionResponse(address, request.function, forced)
         else:
             response = slave.handle(request, t)
-        return self._reply(slave, response, event.t, t, request)
+        baud = self.line_baud
+        self._follow_baud(slave)
+        return self._reply(slave, response, event.t, t, request, baud)
+
+    def _follow_baud(self, slave: Slave) -> None:
+        """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
+        if len(self.slaves) == 1 and slave.baud != self.line_baud:
+            self.line_baud = slave.baud
 
     def _reply(
-        self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None
+        self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None, baud: int
     ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = "exception" if response.function & 0x80 else "reply"
@@ -233,11 +239,7 @@ class Bus:
                 return None
         assert data is not None
         self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
-        new_baud = None
-        wrote = isinstance(request, (WriteSingleRequest, WriteMultipleRequest))
-        if wrote and len(self.slaves) == 1 and slave.baud != self.line_baud:
-            new_baud = self.line_baud = slave.baud
-        return Reply(data, delay, response.slave, new_baud)
+        return Reply(data, delay, response.slave, baud)
 
     def _tx(
         self,

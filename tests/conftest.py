@@ -6,6 +6,7 @@ import json
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -36,8 +37,7 @@ class Line:
         answers = [r for e in self.framer.events() if (r := self.bus.handle(e)) is not None]
         assert len(answers) <= 1, answers
         self.replies += answers
-        if answers and answers[0].new_baud:
-            self.framer.set_baud(answers[0].new_baud)
+        self.framer.set_baud(self.bus.line_baud)  # the master follows the line, as a transport does
         return answers[0].data if answers else None
 
     def hex(self, frame: bytes | str, dt: float = 0.05) -> str | None:
@@ -45,12 +45,14 @@ class Line:
         return reply.hex(" ").upper() if reply is not None else None
 
 
-def wait_for_ready_file(path: Path, proc: subprocess.Popen[str], timeout: float = 10.0) -> dict[str, str]:
+def wait_for_ready_file(path: Path, proc: subprocess.Popen[Any], timeout: float = 10.0) -> dict[str, str]:
     """The ready file of a ``c20sim serve`` subprocess, once written; fails early if the process exits."""
     deadline = time.monotonic() + timeout
     while not path.exists():
         if proc.poll() is not None:
-            raise AssertionError(f"c20sim exited with {proc.returncode}: {proc.stderr.read() if proc.stderr else ''}")
+            stderr = proc.stderr.read() if proc.stderr else ""
+            text = stderr.decode() if isinstance(stderr, bytes) else stderr
+            raise AssertionError(f"c20sim exited with {proc.returncode}: {text}")
         assert time.monotonic() < deadline, "no ready file in time"
         time.sleep(0.01)
     data: dict[str, str] = json.loads(path.read_text())

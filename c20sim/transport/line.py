@@ -7,6 +7,10 @@ turnaround, an injected delay) keeps the line busy until it is sent, and the
 events that arrive meanwhile wait their turn, as on a real RS485 line or
 behind a serial gateway. No task and no lock per request: callbacks on the
 event loop, which is what keeps a request cheap.
+
+When the bus's line speed changes (the only drive took a 2009H write), every
+endpoint attached to the line is told, after the reply that acknowledged it
+has been handed over at the old speed.
 """
 
 from __future__ import annotations
@@ -36,6 +40,18 @@ class Line:
         self._waiting: deque[tuple[FrameEvent, Respond]] = deque()
         self._busy = False
         self._timer: asyncio.TimerHandle | None = None
+        self._baud = sim.bus.line_baud
+        self._baud_listeners: list[Callable[[int], None]] = []
+
+    def on_baud(self, listener: Callable[[int], None]) -> Callable[[], None]:
+        """Call ``listener`` with the new line speed; returns a function that detaches it."""
+        self._baud_listeners.append(listener)
+
+        def detach() -> None:
+            if listener in self._baud_listeners:
+                self._baud_listeners.remove(listener)
+
+        return detach
 
     @property
     def busy(self) -> bool:
@@ -69,12 +85,25 @@ class Line:
                 self._timer = loop.call_later(reply.delay, self._release, reply, respond)
                 return
             _deliver(respond, reply)
+            self._announce_baud()
 
     def _release(self, reply: Reply, respond: Respond) -> None:
         self._timer = None
         self._busy = False
         _deliver(respond, reply)
+        self._announce_baud()
         self._serve_waiting()
+
+    def _announce_baud(self) -> None:
+        baud = self.sim.bus.line_baud
+        if baud == self._baud:
+            return
+        self._baud = baud
+        for listener in list(self._baud_listeners):
+            try:
+                listener(baud)
+            except Exception:
+                log.exception("bug while changing a port to %d baud; the simulator keeps serving", baud)
 
 
 def _deliver(respond: Respond, reply: Reply | None) -> None:

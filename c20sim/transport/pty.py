@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..errors import C20SimError
 from ..protocol import RtuFramer, char_time
-from .endpoint import RtuEndpoint
+from .endpoint import UNTIMED_SILENCE, RtuEndpoint
 from .line import Line
 
 __all__ = ["PtyPort"]
@@ -36,7 +36,7 @@ class PtyPort:
         self._slave = -1
         self._endpoint: RtuEndpoint | None = None
         self._unsent = bytearray()  # what the pty's buffer would not take yet
-        self._paced: asyncio.Queue[bytes] = asyncio.Queue()
+        self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
         self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
@@ -59,11 +59,21 @@ class PtyPort:
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
         baud = self.line.sim.bus.line_baud
-        framer = RtuFramer(baud, complete_on_length=not self.line_timing, check_gaps=self.line_timing)
+        framer = RtuFramer(
+            baud,
+            complete_on_length=not self.line_timing,
+            check_gaps=self.line_timing,
+            silence=None if self.line_timing else UNTIMED_SILENCE,
+        )
         self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         if self.line_timing:
             self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
+
+    @property
+    def baud(self) -> int:
+        """The baud the pty's framing follows now (the line's)."""
+        return self._endpoint.framer.baud if self._endpoint is not None else self.line.sim.bus.line_baud
 
     @property
     def name(self) -> str:
@@ -81,9 +91,9 @@ class PtyPort:
         if data and self._endpoint is not None:
             self._endpoint.feed(data)
 
-    def _send(self, data: bytes) -> None:
+    def _send(self, data: bytes, baud: int) -> None:
         if self.line_timing:
-            self._paced.put_nowait(data)
+            self._paced.put_nowait((data, baud))
             return
         if self._unsent:
             self._unsent += data
@@ -108,8 +118,8 @@ class PtyPort:
         """Put replies on the pty one character time apart, at the line's baud."""
         loop = asyncio.get_running_loop()
         while True:
-            data = await self._paced.get()
-            per_char = char_time(self.line.sim.bus.line_baud)
+            data, baud = await self._paced.get()
+            per_char = char_time(baud)  # the reply's own baud: the old one after a 2009H write
             start = loop.time()
             sent = 0
             while sent < len(data):

@@ -10,13 +10,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import logging
 
 import serial
 
 from ..errors import C20SimError
 from ..protocol import RtuFramer
-from .endpoint import RtuEndpoint
+from .endpoint import UNTIMED_SILENCE, RtuEndpoint
 from .line import Line
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SerialPort"]
 
@@ -31,23 +34,27 @@ class SerialPort:
         line: Line,
         device: str,
         *,
-        baud: int = 19200,
         parity: str = "N",
         stopbits: int = 1,
         line_timing: bool = False,
     ) -> None:
         self.line = line
         self.device = device
-        self.baud = baud
+        self.baud = line.sim.bus.line_baud  # the drive's own setting (F08.01), as --baud set it
         self.parity = parity
         self.stopbits = stopbits
         self.line_timing = line_timing
         self._port: serial.Serial | None = None
         self._endpoint: RtuEndpoint | None = None
+        self._baud_change: asyncio.Task[None] | None = None
 
     @property
     def name(self) -> str:
         return self.device
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
 
     async def start(self) -> None:
         try:
@@ -62,7 +69,12 @@ class SerialPort:
             )
         except serial.SerialException as exc:
             raise C20SimError(_explain(self.device, exc)) from None
-        framer = RtuFramer(self.baud, complete_on_length=not self.line_timing, check_gaps=self.line_timing)
+        framer = RtuFramer(
+            self.baud,
+            complete_on_length=not self.line_timing,
+            check_gaps=self.line_timing,
+            silence=None if self.line_timing else UNTIMED_SILENCE,
+        )
         self._endpoint = RtuEndpoint(
             self.line, framer, self._send, on_baud=self._set_baud, name=f"serial {self.device}"
         )
@@ -72,22 +84,33 @@ class SerialPort:
         assert self._port is not None and self._endpoint is not None
         try:
             data = self._port.read(4096)
-        except serial.SerialException:
+        except serial.SerialException as exc:
+            # The adapter was unplugged or the line hung up: the fd stays readable forever, so stop watching it.
+            log.error("serial port %s lost (%s); it is closed, the other endpoints keep serving", self.device, exc)
+            self.close()
             return
         if data:
             self._endpoint.feed(data)
 
-    def _send(self, data: bytes) -> None:
+    def _send(self, data: bytes, baud: int) -> None:
         assert self._port is not None
         self._port.write(data)
 
     def _set_baud(self, baud: int) -> None:
-        assert self._port is not None
-        self._port.flush()  # the reply leaves the wire at the old baud first (a few ms)
-        self._port.baudrate = baud
-        self.baud = baud
+        self._baud_change = asyncio.get_running_loop().create_task(self._change_baud(baud))
+
+    async def _change_baud(self, baud: int) -> None:
+        port = self._port
+        if port is None:
+            return
+        await asyncio.to_thread(port.flush)  # the acknowledging reply leaves the wire at the old baud first
+        if port.is_open:
+            port.baudrate = baud
+            self.baud = baud
 
     def close(self) -> None:
+        if self._baud_change is not None:
+            self._baud_change.cancel()
         if self._endpoint is not None:
             self._endpoint.close()
         if self._port is not None:

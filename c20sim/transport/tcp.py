@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
+import socket
 import struct
 from collections.abc import Callable
 from typing import cast
@@ -26,15 +27,13 @@ from typing import cast
 from ..bus import Reply
 from ..errors import C20SimError
 from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
-from .endpoint import RtuEndpoint
+from .endpoint import UNTIMED_SILENCE, RtuEndpoint
 from .line import Line
 
 __all__ = ["ModbusTcpServer", "RtuOverTcpServer", "parse_host_port"]
 
 log = logging.getLogger(__name__)
 
-#: Silence that ends a broken frame on TCP, where bytes carry no line timing.
-TCP_SILENCE = 0.02
 #: Modbus TCP exception 0x0B: gateway target device failed to respond.
 GATEWAY_NO_RESPONSE = 0x0B
 
@@ -113,8 +112,14 @@ class _TcpServer:
         raise NotImplementedError
 
     async def start(self) -> None:
-        self._server = await _listen(self._connection, self.host, self.port, self.option)
-        self.port = self._server.sockets[0].getsockname()[1]
+        # Bind one address: "localhost" resolves to 127.0.0.1 and ::1, and with port 0 each would get
+        # a port of its own while the ready file can name only one.
+        try:
+            infos = await asyncio.get_running_loop().getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
+        except OSError as exc:
+            raise C20SimError(f"{self.option} {self.host}:{self.port}: cannot resolve the host: {exc}") from None
+        self._server = await _listen(self._connection, str(infos[0][4][0]), self.port, self.option)
+        self.host, self.port = self._server.sockets[0].getsockname()[:2]
 
     async def wait_closed(self) -> None:
         if self._server is not None:
@@ -131,8 +136,10 @@ class _RtuConnection(_Connection):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
         line = self.owner.line
-        framer = RtuFramer(line.sim.bus.line_baud, complete_on_length=True, check_gaps=False, silence=TCP_SILENCE)
-        self.endpoint = RtuEndpoint(line, framer, self.send, name=f"tcp {transport.get_extra_info('peername')}")
+        framer = RtuFramer(line.sim.bus.line_baud, complete_on_length=True, check_gaps=False, silence=UNTIMED_SILENCE)
+        self.endpoint = RtuEndpoint(
+            line, framer, lambda data, _baud: self.send(data), name=f"tcp {transport.get_extra_info('peername')}"
+        )
 
     def data_received(self, data: bytes) -> None:
         self.endpoint.feed(data)
@@ -184,7 +191,7 @@ class _MbapConnection(_Connection):
         def respond(reply: Reply | None) -> None:
             if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
                 self._answer(transaction, unit, reply.data[1:-2])
-            elif unit != BROADCAST:
+            elif unit != BROADCAST and self.transport is not None:
                 # The line stayed silent (or answered garbage): the gateway says so after its timeout.
                 answer = bytes((pdu[0] | 0x80, GATEWAY_NO_RESPONSE))
 

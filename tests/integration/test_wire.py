@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import os
 import tempfile
+import tty
 from pathlib import Path
 
 import pytest
@@ -217,7 +219,6 @@ async def test_broken_replies_are_not_taken_as_answers(serve: ServeFactory, faul
         tx = [r for r in served.sim.bus.records if r.direction == "tx"][-1]
         assert "(injected)" in tx.note
         link.clear()
-        await asyncio.sleep(0.05)  # let the client's framer drop the broken reply's bytes
         assert await read(client, 0x2103) == 0x20
     finally:
         client.close()
@@ -275,13 +276,20 @@ async def test_two_tcp_clients_never_receive_each_others_replies(serve: ServeFac
 
 async def test_a_client_leaving_mid_frame_costs_the_others_nothing(serve: ServeFactory) -> None:
     served = await serve()
-    _reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
-    writer.write(bytes.fromhex("01 03 21"))  # half a request
-    await writer.drain()
-    writer.close()
+    assert served.server.endpoints.tcp is not None
+    connections = served.server.endpoints.tcp.connections
     client = await served.rtu_tcp_client()
     try:
+        _reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
+        await wait_for(lambda: len(connections) == 2)
+        writer.write(bytes.fromhex("01 03 21"))  # half a request
+        await writer.drain()
+        writer.close()
+        await wait_for(lambda: len(connections) == 1)
+        # Had the half frame stayed in a shared buffer, this request would be garbled behind it.
         assert await read(client, 0x2103) == 0x20
+        kinds = [r.kind for r in served.sim.bus.records if r.direction == "rx"]
+        assert kinds == ["request"]
     finally:
         client.close()
 
@@ -314,6 +322,31 @@ async def test_serial_port_through_a_socat_pair(serve: ServeFactory) -> None:
         finally:
             proc.terminate()
             await proc.wait()
+
+
+async def test_a_lost_serial_port_is_closed_and_the_rest_keeps_serving(serve: ServeFactory) -> None:
+    socat = need("socat")
+    with tempfile.TemporaryDirectory() as tmp:
+        a, b = Path(tmp) / "drive", Path(tmp) / "master"
+        proc = await asyncio.create_subprocess_exec(
+            socat,
+            f"pty,raw,echo=0,link={a}",
+            f"pty,raw,echo=0,link={b}",
+            stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.DEVNULL,
+        )
+        await wait_for(lambda: a.exists() and b.exists())
+        served = await serve(serial=str(a), pty=False)
+        port = served.server.endpoints.serial
+        assert port is not None and port.is_open
+        proc.kill()  # the adapter is unplugged: its device hangs up
+        await proc.wait()
+        await wait_for(lambda: not port.is_open)
+        client = await served.rtu_tcp_client()
+        try:
+            assert await read(client, 0x2103) == 0x20
+        finally:
+            client.close()
 
 
 async def test_mbpoll_reads_the_drive_id_through_the_pty(serve: ServeFactory) -> None:
@@ -357,6 +390,35 @@ async def test_line_timing_pty_serves_a_master(serve: ServeFactory) -> None:
         assert await read(client, 0x2103) == 0x20
         assert not (await client.write_registers(0x2003, [40, 60], device_id=1)).isError()
         assert await read(client, 0x2004) == 60
-        assert served.server.endpoints.pty is not None and served.server.endpoints.pty.line_timing
+    finally:
+        client.close()
+
+
+async def test_line_timing_splits_a_frame_at_a_pause(serve: ServeFactory) -> None:
+    # 10 ms is far beyond t3.5 at 19200 baud (2 ms): with line timing the frame is two broken pieces, and silence.
+    served = await serve(line_timing=True)
+    fd = os.open(served.pty, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd)
+        os.write(fd, bytes.fromhex("01 03 21"))
+        await asyncio.sleep(0.01)  # the pause under test, not a wait for a result
+        os.write(fd, bytes.fromhex("03 00 01 7E 36"))
+        await wait_for(lambda: len(served.sim.bus.records) == 2)
+        assert [r.kind for r in served.sim.bus.records] == ["noise", "crc error"]  # 03 00 01 ...: no frame
+    finally:
+        os.close(fd)
+
+
+async def test_a_baud_change_reaches_every_endpoint(serve: ServeFactory) -> None:
+    served = await serve(line_timing=True)
+    client = await served.rtu_tcp_client()
+    try:
+        assert not (await client.write_register(0x2009, 3, device_id=1)).isError()  # 9600 baud
+        pty = served.server.endpoints.pty
+        assert pty is not None
+        await wait_for(lambda: pty.baud == 9600)  # the pty's framing follows a change made over TCP
+        assert served.sim.bus.line_baud == 9600
+        ack = [r for r in served.sim.bus.records if r.direction == "tx"][-1]
+        assert ack.data == bytes.fromhex("01 06 20 09 00 03 12 09")
     finally:
         client.close()

@@ -9,7 +9,15 @@ import pytest
 from c20sim.bus import Bus
 from c20sim.drive.store import RegisterStoreDrive
 from c20sim.profile import Profile
-from c20sim.protocol import ReadRequest, ReadResponse, WriteMultipleRequest, WriteSingleRequest, encode, with_crc
+from c20sim.protocol import (
+    ExceptionCode,
+    ReadRequest,
+    ReadResponse,
+    WriteMultipleRequest,
+    WriteSingleRequest,
+    encode,
+    with_crc,
+)
 from c20sim.registers import Reg
 from c20sim.slave import Slave
 from tests.conftest import Line
@@ -89,14 +97,14 @@ def test_baud_change_takes_effect_after_its_reply_on_a_single_drive_line(profile
     line = Line(Bus([make_slave(profile, 1)]))
     assert line.bus.line_baud == 19200
     assert line.send(write(1, 0x2009, 3)) == write(1, 0x2009, 3)
-    assert line.replies[-1].new_baud == 9600
+    assert line.replies[-1].baud == 19200  # the acknowledgement goes out at the old baud
     assert line.bus.line_baud == 9600
     assert line.send(read(1, 0x2009)) == encode(ReadResponse(1, (3,)))
 
 
 def test_a_drive_set_to_another_baud_on_a_shared_line_goes_deaf(three: Line) -> None:
     assert three.send(write(2, 0x2009, 3)) == write(2, 0x2009, 3)
-    assert three.replies[-1].new_baud is None
+    assert three.replies[-1].baud == 19200
     assert three.bus.line_baud == 19200
     assert three.send(read(2, 0x2103)) is None
     assert three.send(read(1, 0x2103)) is not None
@@ -141,3 +149,37 @@ def test_noise_is_logged_and_not_answered(profile: Profile) -> None:
 def test_unsupported_function_on_the_wire(profile: Profile) -> None:
     line = Line(Bus([make_slave(profile, 1)]))
     assert line.hex(with_crc(bytes.fromhex("01 04 30 00 00 01"))) == "01 84 01 82 C0"
+
+
+def test_a_broadcast_baud_change_moves_the_line_of_a_single_drive(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    assert line.send(write(0, 0x2009, 3)) is None  # broadcast: no reply, but the drive acts on it
+    assert line.bus.line_baud == 9600
+    assert line.send(read(1, 0x2009)) == encode(ReadResponse(1, (3,)))
+
+
+def test_a_baud_change_whose_reply_is_dropped_still_moves_the_line(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    line.bus.drive_links[0].drop_next = 1
+    assert line.send(write(1, 0x2009, 3)) is None
+    assert line.bus.line_baud == 9600
+    assert line.send(read(1, 0x2009)) == encode(ReadResponse(1, (3,)))
+
+
+def test_a_forced_exception_keeps_a_broadcast_from_acting(profile: Profile) -> None:
+    line = Line(Bus([make_slave(profile, 1)]))
+    line.bus.link.forced_exception = ExceptionCode.OPERATION_FAILED
+    assert line.send(write(0, 0x2001, 1234)) is None
+    assert line.bus.slaves[0].drive.read(0x2001) == 0
+
+
+def test_unsubscribing_twice_is_harmless(profile: Profile) -> None:
+    bus = Bus([make_slave(profile, 1)])
+
+    def failing(record: object) -> None:
+        raise RuntimeError("listener bug")
+
+    unsubscribe = bus.subscribe(failing)
+    Line(bus).send(read(1, 0x2103))  # the failing listener is logged and removed
+    unsubscribe()
+    unsubscribe()

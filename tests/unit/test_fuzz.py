@@ -301,7 +301,7 @@ def test_the_reply_check_catches_a_wrong_address() -> None:
     event = FrameEvent(FrameKind.FRAME, frame, 1.0)
     reply = sim.bus.handle(event, 1.0)
     assert reply is not None
-    forged = Reply(encode(ReadResponse(2, (3,))), reply.delay, 2)
+    forged = Reply(encode(ReadResponse(2, (3,))), reply.delay, 2, reply.baud)
     try:
         check_reply(event, forged, addresses(sim))
     except AssertionError:
