@@ -76,7 +76,12 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--link", metavar="PATH", help="a stable symlink to the pty, such as /tmp/ttyC20 (implies --pty)"
     )
     where.add_argument("--serial", metavar="DEVICE", help="a real serial port, such as /dev/ttyUSB0")
-    where.add_argument("--baud", type=int, default=19200, choices=BAUD_RATES, help="serial baud rate (default 19200)")
+    where.add_argument(
+        "--baud",
+        type=int,
+        choices=BAUD_RATES,
+        help="the drives' baud rate, F08.01 (default: the profile's or the state file's, 19200 as shipped)",
+    )
     where.add_argument("--parity", default="N", choices=["N", "E", "O"], help="serial parity (default N)")
     where.add_argument("--stopbits", type=int, default=1, choices=[1, 2], help="serial stop bits (default 1)")
     where.add_argument("--tcp", metavar="HOST:PORT", help="raw RTU frames over TCP, as a serial device server")
@@ -110,6 +115,7 @@ def build_simulator(args: argparse.Namespace) -> Simulator:
         clock=make_clock(args.clock, args.speed),
         state=Path(args.state) if args.state else None,
         seed=args.seed,
+        baud=args.baud,
     )
 
 
@@ -118,7 +124,6 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         pty=args.pty,
         link=args.link,
         serial=args.serial,
-        baud=args.baud,
         parity=args.parity,
         stopbits=args.stopbits,
         tcp=args.tcp,
@@ -136,7 +141,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    options = serve_options(args)  # check the endpoints before building drives
+    options = serve_options(args)
     sim = build_simulator(args)
     run(run_server(sim, options))
     return 0

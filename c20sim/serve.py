@@ -52,7 +52,6 @@ class ServeOptions:
     pty: bool = False
     link: str | None = None
     serial: str | None = None
-    baud: int = 19200
     parity: str = "N"
     stopbits: int = 1
     tcp: str | None = None
@@ -127,7 +126,6 @@ class Server:
                 self.endpoints.serial = SerialPort(
                     line,
                     opts.serial,
-                    baud=opts.baud,
                     parity=opts.parity,
                     stopbits=opts.stopbits,
                     line_timing=opts.line_timing,
@@ -236,12 +234,13 @@ def run(main: Coroutine[Any, Any, T]) -> T:
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:
     """Serve until SIGINT or SIGTERM."""
     server = Server(sim, options)
-    await server.start()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+    # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     try:
+        await server.start()
         print(server.ready_line(), file=out, flush=True)
         await stop.wait()
     finally:

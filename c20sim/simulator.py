@@ -8,6 +8,7 @@ I/O beyond what the drives do with their state files.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -18,10 +19,10 @@ from .errors import C20SimError
 from .linkfaults import LinkFaults
 from .profile import Profile
 from .protocol import FrameEvent
-from .registers import Reg
+from .registers import BAUD_RATES, Reg
 from .slave import Slave
 
-__all__ = ["DriveFactory", "Simulator", "make_clock", "parse_addresses", "set_address", "state_path_for"]
+__all__ = ["DriveFactory", "Simulator", "make_clock", "parse_addresses", "set_address", "set_baud", "state_path_for"]
 
 #: Builds one drive: (profile, address, state file or None, start time) -> drive.
 DriveFactory = Callable[[Profile, int, "Path | None", float], DrivePort]
@@ -67,6 +68,15 @@ def default_drive_factory(profile: Profile, address: int, state: Path | None, t0
     return drive
 
 
+def set_baud(drive: DrivePort, profile: Profile, baud: int) -> None:
+    """Put a drive at the line speed the command line gave it (F08.01, mirrored by 2009H)."""
+    if baud not in BAUD_RATES:
+        raise C20SimError(f"baud {baud} is not one the C20 supports: {', '.join(map(str, BAUD_RATES))}")
+    cell = profile.registers.canonical(Reg.BAUD)
+    if drive.read(cell) != BAUD_RATES.index(baud):
+        drive.write(cell, BAUD_RATES.index(baud))
+
+
 def set_address(drive: DrivePort, profile: Profile, address: int) -> None:
     """Put a drive at the address the command line gave it (F08.00, mirrored by 2008H)."""
     cell = profile.registers.canonical(Reg.ADDRESS)
@@ -87,6 +97,7 @@ class Simulator:
         seed: int | None = None,
         drive_factory: DriveFactory = default_drive_factory,
         log_size: int = 2000,
+        baud: int | None = None,
     ) -> None:
         if not addresses:
             raise C20SimError("no drives: give at least one address")
@@ -97,6 +108,9 @@ class Simulator:
             address: drive_factory(profile, address, state_path_for(state, address, len(addresses)), t0)
             for address in addresses
         }
+        if baud is not None:
+            for drive in self.drives.values():
+                set_baud(drive, profile, baud)
         self.slaves = {address: Slave(profile, drive) for address, drive in self.drives.items()}
         self.bus = Bus(self.slaves.values(), log_size=log_size, seed=seed)
 
@@ -131,8 +145,8 @@ class Simulator:
         """Move virtual time on by ``seconds`` and bring every drive to it; returns the new time."""
         if not isinstance(self.clock, VirtualClock):
             raise C20SimError("time can only be advanced with the virtual clock (--clock virtual)")
-        if seconds < 0:
-            raise C20SimError(f"cannot advance by {seconds} s: time does not run backwards")
+        if not math.isfinite(seconds) or seconds < 0:
+            raise C20SimError(f"cannot advance by {seconds} s: time does not run backwards, nor to infinity")
         t = self.clock.advance(seconds)
         self.sync()
         return t
