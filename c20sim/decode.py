@@ -27,7 +27,7 @@ from .protocol import (
     decode_request,
     decode_response,
 )
-from .registers import Reg, RegisterMap, format_fcode, is_fcode, status2_words
+from .registers import Reg, RegisterMap, address_label, status2_words
 
 __all__ = ["Decoded", "decode_frame", "describe", "register_label"]
 
@@ -40,13 +40,13 @@ _FUNCTION_WORDS: dict[int, str] = {
 
 def register_label(address: int, registers: RegisterMap | None) -> str:
     """``2000H`` or ``F00.10``, with the register's name where the map knows it."""
-    label = format_fcode(address) if is_fcode(address) else f"{address:04X}H"
+    label = address_label(address)
     spec = registers.get(address) if registers else None
     return f"{label} ({spec.name})" if spec else label
 
 
 def _value(address: int, raw: int, registers: RegisterMap | None) -> str:
-    label = format_fcode(address) if is_fcode(address) else f"{address:04X}H"
+    label = address_label(address)
     spec = registers.get(address) if registers else None
     if address == Reg.STATUS2:
         words = f": {status2_words(raw)}"

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ProfileError
-from .registers import Access, Reg, RegisterMap, RegisterSpec, format_fcode, is_fcode, parse_fcode
+from .registers import FIXED_REGISTERS, Access, Reg, RegisterMap, RegisterSpec, format_fcode, is_fcode, parse_fcode
 
 __all__ = [
     "DEFAULT_PROFILE",
@@ -542,9 +542,15 @@ def _parse_parameters(check: _Checker, raw: Any) -> tuple[list[RegisterSpec], di
                 raise check.fail(
                     f"{where}.mirror", f"{register:04X}H already mirrors {format_fcode(mirrors[register])}"
                 )
-            fixed_access = _fixed_access(register)
-            if fixed_access is Access.RW_STOPPED and access_text != Access.RW_STOPPED.value:
+            fixed = FIXED_REGISTERS[register]
+            if fixed.access is Access.RW_STOPPED and access_text != Access.RW_STOPPED.value:
                 raise check.fail(f"{where}.access", f"must be W/R* like the register it mirrors, {register:04X}H")
+            if minimum < fixed.minimum or maximum > fixed.maximum:
+                raise check.fail(
+                    f"{where}.max" if maximum > fixed.maximum else f"{where}.min",
+                    f"{minimum}-{maximum} goes beyond {register:04X}H's range in the sheet, "
+                    f"{fixed.minimum}-{fixed.maximum}",
+                )
             mirrors[register] = address
         specs.append(
             RegisterSpec(
@@ -573,9 +579,3 @@ def _parse_register(text: Any) -> int | None:
         return int(body, 16)
     except ValueError:
         return None
-
-
-def _fixed_access(register: int) -> Access:
-    from .registers import FIXED_REGISTERS
-
-    return FIXED_REGISTERS[register].access

@@ -22,6 +22,7 @@ __all__ = [
     "Reg",
     "RegisterMap",
     "RegisterSpec",
+    "address_label",
     "fcode_address",
     "format_fcode",
     "is_fcode",
@@ -152,7 +153,7 @@ class RegisterSpec:
     @property
     def label(self) -> str:
         """``2000H`` for a fixed register, ``F00.10`` for a function code."""
-        return format_fcode(self.address) if is_fcode(self.address) else f"{self.address:04X}H"
+        return address_label(self.address)
 
     def engineering(self, raw: int) -> float:
         """The value in ``unit``."""
@@ -299,6 +300,11 @@ def fcode_address(group: int, number: int) -> int:
 def is_fcode(address: int) -> bool:
     """True for addresses in the function-code space (below 2000H)."""
     return address < 0x2000
+
+
+def address_label(address: int) -> str:
+    """``2000H`` for a fixed register, ``F00.10`` for a function code."""
+    return format_fcode(address) if is_fcode(address) else f"{address:04X}H"
 
 
 def format_fcode(address: int) -> str:

@@ -121,18 +121,21 @@ class Slave:
         for address in writes:
             if address != self._password_address and address not in self.registers:
                 raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is not in the map")
+        unlocked = self._unlocked
         if self._password_address in writes:
-            given = writes.pop(self._password_address)
-            self._unlocked = given == self._password
-            if not self._unlocked:
+            if writes.pop(self._password_address) != self._password:
+                self._unlocked = False  # a wrong password locks, as it is refused
                 raise ModbusError(ExceptionCode.PASSWORD_ERROR, "wrong password")
+            unlocked = True
         checked = [(self.registers[a], v) for a, v in writes.items()]
         for spec, value in checked:
-            self._check(spec, value)
+            self._check(spec, value, unlocked)
+        # All checked: now the unlock and the writes take effect together.
+        self._unlocked = unlocked
         for spec, value in checked:
             self.drive.write(spec.storage, value)
 
-    def _check(self, spec: RegisterSpec, value: int) -> None:
+    def _check(self, spec: RegisterSpec, value: int, unlocked: bool) -> None:
         if not spec.access.writable:
             raise ModbusError(ExceptionCode.READ_ONLY, f"{spec.label} is read-only")
         if not spec.accepts(value):
@@ -142,7 +145,7 @@ class Slave:
         if is_fcode(spec.address):
             if not self.drive.read(Reg.WRITE_ENABLE):
                 raise ModbusError(ExceptionCode.OPERATION_FAILED, "function codes are locked (200EH = 0)")
-            if not self._unlocked:
+            if not unlocked:
                 raise ModbusError(ExceptionCode.PASSWORD_ERROR, "password not given")
         if spec.access is Access.RW_STOPPED and self.drive.running:
             raise ModbusError(ExceptionCode.NOT_WHILE_RUNNING, f"{spec.label} is W/R*: stop the drive first")

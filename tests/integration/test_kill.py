@@ -12,7 +12,6 @@ flight (which may have landed before the kill), and nothing else.
 
 from __future__ import annotations
 
-import json
 import os
 import random
 import signal
@@ -29,6 +28,7 @@ from c20sim.drive.model import Drive
 from c20sim.profile import load_profile
 from c20sim.protocol import WriteSingleRequest, encode
 from c20sim.registers import Reg, parse_fcode
+from tests.conftest import wait_for_ready_file
 
 #: F00.11, acceleration time: 1-6000, mirrored by 2003H, kept in the EEPROM.
 FCODE = parse_fcode("F00.11")
@@ -48,18 +48,6 @@ def _start(state: Path, ready: Path) -> subprocess.Popen[bytes]:
     command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--state", str(state)]
     command += ["--ready-file", str(ready), "--clock", "virtual"]
     return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-
-
-def _wait_ready(proc: subprocess.Popen[bytes], ready: Path, timeout: float = 20.0) -> int:
-    deadline = time.monotonic() + timeout
-    while not ready.exists():
-        if proc.poll() is not None:
-            stderr = proc.stderr.read().decode() if proc.stderr else ""
-            raise AssertionError(f"c20sim serve exited with {proc.returncode}: {stderr}")
-        if time.monotonic() > deadline:
-            raise AssertionError("c20sim serve wrote no ready file in time")
-        time.sleep(0.005)
-    return int(json.loads(ready.read_text())["tcp"].rsplit(":", 1)[1])
 
 
 def _write(sock: socket.socket, value: int) -> bool:
@@ -86,7 +74,7 @@ def kill_once(workdir: Path, seed: int, *, max_writes: int = 40) -> Outcome:
     proc = _start(state, ready)
     acknowledged = sent = 0
     try:
-        port = _wait_ready(proc, ready)
+        port = int(wait_for_ready_file(ready, proc, timeout=20.0)["tcp"].rsplit(":", 1)[1])
         writes_before_kill = rng.randint(1, max_writes)
         in_flight = rng.random() < 0.7
         spin = rng.random() * 0.003  # with a write in flight: kill 0-3 ms after sending it

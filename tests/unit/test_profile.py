@@ -88,3 +88,11 @@ def test_bad_toml(tmp_path: Path) -> None:
 def test_unknown_profile_name_suggests_one() -> None:
     with pytest.raises(ProfileError, match="did you mean 'c20-400hr'"):
         load_profile("c20-400h")
+
+
+def test_a_mirror_cannot_widen_the_sheets_range(tmp_path: Path) -> None:
+    # F08.00 mirrors 2008H, 1-247 in the sheet: 250 would put the drive on a reserved address.
+    text = DEFAULT_TEXT.replace("min = 1\nmax = 247", "min = 1\nmax = 250")
+    assert text != DEFAULT_TEXT
+    message = bad(tmp_path, text)
+    assert message.endswith("parameter F08.00.max: 1-250 goes beyond 2008H's range in the sheet, 1-247")

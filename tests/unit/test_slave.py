@@ -140,6 +140,19 @@ def test_05_password(profile: Profile) -> None:
     assert exc(slave, WriteSingleRequest(1, 0x000A, 2600)) is X.PASSWORD_ERROR
 
 
+def test_05_password_in_a_refused_0x10_frame_does_not_unlock(profile: Profile) -> None:
+    # Password register F00.09, right before F00.10: one frame gives the password and an out-of-range F00.10.
+    protocol = dataclasses.replace(profile.protocol, password=1234, password_register="F00.09")
+    slave = Slave(dataclasses.replace(profile, protocol=protocol), RegisterStoreDrive(profile))
+    slave.handle(WriteSingleRequest(1, 0x200E, 1), 0.0)
+    assert exc(slave, WriteMultipleRequest(1, 0x0009, (1234, 50000))) is X.ILLEGAL_VALUE
+    assert not slave.unlocked  # all or nothing: the password did not take either
+    # The same frame with a good value unlocks and writes in one go.
+    assert slave.handle(WriteMultipleRequest(1, 0x0009, (1234, 2500)), 0.0) == WriteMultipleResponse(1, 0x0009, 2)
+    assert slave.unlocked
+    assert slave.drive.read(0x000A) == 2500
+
+
 def test_no_password_register_without_a_password(slave: Slave) -> None:
     assert exc(slave, WriteSingleRequest(1, 0x0700, 1234)) is X.ILLEGAL_ADDRESS
 
