@@ -20,8 +20,10 @@ says ``clock="realtime"``: time stands still until the test calls
 from __future__ import annotations
 
 import asyncio
+import math
+import os
 import threading
-from collections.abc import Callable, Coroutine, Iterator, Sequence
+from collections.abc import Callable, Coroutine, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -42,6 +44,8 @@ T = TypeVar("T")
 
 #: Transports the fixture can open; ``tcp`` is RTU over TCP.
 TRANSPORTS = ("tcp", "pty", "modbus-tcp")
+#: Clocks the marker can ask for.
+CLOCKS = ("virtual", "realtime")
 #: Frames shown in an assertion's message.
 SHOWN_FRAMES = 20
 
@@ -356,36 +360,82 @@ def c20sim_drives() -> Sequence[int]:
 
 
 def _transports(value: object) -> tuple[str, ...]:
-    names = (value,) if isinstance(value, str) else tuple(value)  # type: ignore[arg-type]
+    if isinstance(value, str):
+        names: tuple[object, ...] = (value,)
+    elif isinstance(value, Iterable):
+        names = tuple(value)
+    else:
+        raise pytest.UsageError(f"c20sim: transport {value!r}: give a name or a sequence of {', '.join(TRANSPORTS)}")
     for name in names:
         if name not in TRANSPORTS:
             raise pytest.UsageError(f"c20sim: unknown transport {name!r}; use one or more of {', '.join(TRANSPORTS)}")
     if not names:
         raise pytest.UsageError("c20sim: give at least one transport")
-    return names
+    return tuple(str(name) for name in names)
+
+
+def _drives(value: object) -> tuple[int, ...]:
+    """Drive addresses, checked as ``--drives`` is: 1-247, each once."""
+    addresses = (value,) if isinstance(value, int) else tuple(value) if isinstance(value, Iterable) else ()
+    if not addresses or not all(isinstance(a, int) and not isinstance(a, bool) for a in addresses):
+        raise pytest.UsageError(f"c20sim: drives {value!r}: give drive addresses 1-247, such as (1, 2)")
+    checked: list[int] = []
+    for address in addresses:
+        if not 1 <= address <= 247:
+            raise pytest.UsageError(f"c20sim: drives {value!r}: address {address} is outside 1-247")
+        if address in checked:
+            raise pytest.UsageError(f"c20sim: drives {value!r}: address {address} is listed twice")
+        checked.append(address)
+    return tuple(checked)
+
+
+def _profile(value: object) -> Profile:
+    if isinstance(value, Profile):
+        return value
+    if not isinstance(value, str | os.PathLike):
+        raise pytest.UsageError(f"c20sim: profile {value!r}: give a profile name, a path or a Profile")
+    try:
+        return load_profile(os.fspath(value))
+    except C20SimError as exc:
+        raise pytest.UsageError(f"c20sim: profile: {exc}") from None
 
 
 def settings_for(request: pytest.FixtureRequest, profile: object, transport: object, drives: object) -> Settings:
-    """The fixtures' values, overridden by the test's ``c20sim`` marker."""
+    """The fixtures' values, overridden by the test's ``c20sim`` marker (a setting given as None is left to the
+    fixture or the default); a bad setting is a :class:`pytest.UsageError` saying what is wrong."""
     marker = request.node.get_closest_marker("c20sim")
-    given: dict[str, Any] = dict(marker.kwargs) if marker is not None else {}
     if marker is not None and marker.args:
         raise pytest.UsageError("c20sim marker: give keywords, such as @pytest.mark.c20sim(drives=(1, 2))")
-    unknown = set(given) - {"profile", "transport", "drives", "clock", "speed", "seed"}
+    given: dict[str, Any] = {k: v for k, v in marker.kwargs.items() if v is not None} if marker is not None else {}
+    unknown = set(marker.kwargs if marker is not None else ()) - {
+        "profile",
+        "transport",
+        "drives",
+        "clock",
+        "speed",
+        "seed",
+    }
     if unknown:
         raise pytest.UsageError(
             f"c20sim marker: unknown setting {', '.join(sorted(unknown))}; "
             "use profile, transport, drives, clock, speed or seed"
         )
-    drives_value = given.get("drives", drives)
-    addresses = (drives_value,) if isinstance(drives_value, int) else tuple(drives_value)
+    clock = given.get("clock", "virtual")
+    if clock not in CLOCKS:
+        raise pytest.UsageError(f"c20sim: unknown clock {clock!r}; use {' or '.join(map(repr, CLOCKS))}")
+    speed = given.get("speed", 1.0)
+    if isinstance(speed, bool) or not isinstance(speed, int | float) or not math.isfinite(speed) or speed <= 0:
+        raise pytest.UsageError(f"c20sim: speed {speed!r}: give a positive number of model seconds per wall second")
+    seed = given.get("seed", 1)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise pytest.UsageError(f"c20sim: seed {seed!r}: give a whole number")
     return Settings(
-        profile=given.get("profile", profile),
+        profile=_profile(given.get("profile", profile)),
         transport=_transports(given.get("transport", transport)),
-        drives=addresses,
-        clock=given.get("clock", "virtual"),
-        speed=float(given.get("speed", 1.0)),
-        seed=int(given.get("seed", 1)),
+        drives=_drives(given.get("drives", drives)),
+        clock=clock,
+        speed=float(speed),
+        seed=seed,
     )
 
 

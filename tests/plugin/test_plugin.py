@@ -317,3 +317,54 @@ def test_bad_marker_is_a_usage_error(pytester: pytest.Pytester) -> None:
     )
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines(["*c20sim: unknown transport 'serial'; use one or more of tcp, pty, modbus-tcp*"])
+
+
+def test_none_in_the_marker_leaves_the_setting_to_the_fixture(pytester: pytest.Pytester) -> None:
+    result = run(
+        pytester,
+        """
+        import pytest
+
+        @pytest.fixture
+        def c20sim_drives():
+            return (4,)
+
+        @pytest.mark.c20sim(profile=None, transport=None, drives=None, clock=None, speed=None, seed=None)
+        def test_defaults(c20sim):
+            assert (c20sim.profile.name, c20sim.addresses, c20sim.port is not None) == ("c20-400hr", (4,), True)
+            assert c20sim.advance(1) == 1.0
+        """,
+    )
+    result.assert_outcomes(passed=1)
+
+
+@pytest.mark.parametrize(
+    ("marker", "message"),
+    [
+        ("drives=(1, 1)", "c20sim: drives (1, 1): address 1 is listed twice"),
+        ("drives=(0,)", "c20sim: drives (0,): address 0 is outside 1-247"),
+        ("drives=(248,)", "c20sim: drives (248,): address 248 is outside 1-247"),
+        ("drives=()", "c20sim: drives (): give drive addresses 1-247, such as (1, 2)"),
+        ("drives=('1',)", "c20sim: drives ('1',): give drive addresses 1-247, such as (1, 2)"),
+        ("transport=5", "c20sim: transport 5: give a name or a sequence of tcp, pty, modbus-tcp"),
+        ("clock='wall'", "c20sim: unknown clock 'wall'; use 'virtual' or 'realtime'"),
+        ("speed=0", "c20sim: speed 0: give a positive number of model seconds per wall second"),
+        ("speed='fast'", "c20sim: speed 'fast': give a positive number of model seconds per wall second"),
+        ("seed='x'", "c20sim: seed 'x': give a whole number"),
+        ("profile=3", "c20sim: profile 3: give a profile name, a path or a Profile"),
+        ("profile='c20-9999'", "c20sim: profile: *c20-9999*"),
+    ],
+)
+def test_a_bad_marker_setting_says_what_is_wrong(pytester: pytest.Pytester, marker: str, message: str) -> None:
+    result = run(
+        pytester,
+        f"""
+        import pytest
+
+        @pytest.mark.c20sim({marker})
+        def test_bad(c20sim):
+            pass
+        """,
+    )
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines([f"E *UsageError: {message}"])
