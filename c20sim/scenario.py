@@ -35,13 +35,17 @@ import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from . import control
 from .errors import C20SimError
 from .protocol import FrameEvent, FrameKind, WriteSingleRequest, decode_response, encode
 from .registers import Reg, format_fcode, parse_fcode
 from .simulator import Simulator
+
+if TYPE_CHECKING:
+    from .bus import Reply
+    from .transport.line import Line
 
 __all__ = [
     "Expect",
@@ -51,6 +55,8 @@ __all__ = [
     "ScenarioError",
     "Step",
     "add_run_scenario_command",
+    "apply_step",
+    "apply_step_on_line",
     "load_scenario",
     "play",
     "run",
@@ -392,11 +398,12 @@ def check(scenario: Scenario, sim: Simulator) -> None:
                     )
 
 
-def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
-    """Apply ``step`` at the simulator's time; returns the outcomes of its writes and expectations."""
-    address = step.drive if step.drive is not None else next(iter(sim.drives))
-    t = sim.now()
-    out: list[Outcome] = []
+def _drive_of(step: Step, sim: Simulator) -> int:
+    return step.drive if step.drive is not None else next(iter(sim.drives))
+
+
+def _act(step: Step, sim: Simulator, address: int) -> None:
+    """The step's actions before its writes: conditions, link and device faults, power."""
     if step.set:
         control.set_conditions(sim, address, step.set)
     if step.link:
@@ -409,8 +416,11 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
         control.clear_fault(sim, address, True)
     if step.power_cycle:
         control.power_cycle(sim, address)
-    for register, reg, value in step.write:
-        out.append(_write(sim, step, address, register, reg, value))
+
+
+def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Outcome]:
+    """The keypad press and the expectations, after the writes were answered."""
+    out: list[Outcome] = []
     if step.keypad is not None:
         taken = control.press_key(sim, address, step.keypad)
         out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
@@ -426,12 +436,11 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
     return out
 
 
-def _write(sim: Simulator, step: Step, address: int, register: str, reg: int, value: int) -> Outcome:
-    """A master's write: the frame goes through the bus (frame log, link faults, access rules)."""
-    t = sim.now()
-    request = WriteSingleRequest(address, reg, value)
-    reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(request), t))
-    label = f"write {register} = {value}"
+def _written(
+    sim: Simulator, step: Step, t: float, register: str, request: WriteSingleRequest, reply: Reply | None
+) -> Outcome:
+    """The outcome of a master's write, from the reply the bus gave it."""
+    label = f"write {register} = {request.value}"
     if reply is None:
         return Outcome(step, t, False, f"{label}: no reply")
     try:
@@ -445,6 +454,57 @@ def _write(sim: Simulator, step: Step, address: int, register: str, reg: int, va
     return Outcome(step, t, True, f"{label}: taken")
 
 
+def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
+    """Apply ``step`` at the simulator's time, with no line: the outcomes of its writes and expectations.
+
+    A write is a master's frame handed to the bus (frame log, link faults, access rules),
+    stamped with the model's time: with no endpoint there is no other line time, so the
+    frame log's times are the model's (``t`` equals ``model_t``).
+    """
+    address = _drive_of(step, sim)
+    t = sim.now()
+    _act(step, sim, address)
+    out = []
+    for register, reg, value in step.write:
+        request = WriteSingleRequest(address, reg, value)
+        reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(request), sim.now()))
+        out.append(_written(sim, step, t, register, request, reply))
+    return out + _after_writes(step, sim, address, t)
+
+
+async def apply_step_on_line(step: Step, sim: Simulator, line: Line) -> list[Outcome]:
+    """Apply ``step`` on a served simulator: each write is a frame submitted to ``line``, stamped with the
+    loop's time like a port's, served in its turn (after a reply the line holds) and awaited."""
+    address = _drive_of(step, sim)
+    t = sim.now()
+    _act(step, sim, address)
+    out = []
+    for register, reg, value in step.write:
+        request = WriteSingleRequest(address, reg, value)
+        reply = await _submit(line, encode(request))
+        out.append(_written(sim, step, t, register, request, reply))
+    return out + _after_writes(step, sim, address, t)
+
+
+#: The longest wait for the line's answer to a scenario's write: an injected delay and its jitter (60 s each).
+LINE_TIMEOUT = 125.0
+
+
+async def _submit(line: Line, frame: bytes) -> Reply | None:
+    loop = asyncio.get_running_loop()
+    answer: asyncio.Future[Reply | None] = loop.create_future()
+
+    def respond(reply: Reply | None) -> None:
+        if not answer.done():
+            answer.set_result(reply)
+
+    line.submit(FrameEvent(FrameKind.FRAME, frame, loop.time()), respond)
+    try:
+        return await asyncio.wait_for(answer, LINE_TIMEOUT)
+    except TimeoutError:
+        return None  # the line never answered (a bug it logged): the outcome says no reply
+
+
 def run(scenario: Scenario, sim: Simulator) -> Report:
     """Play ``scenario`` on a simulator with a virtual clock, instantly."""
     if not sim.virtual:
@@ -456,36 +516,32 @@ def run(scenario: Scenario, sim: Simulator) -> Report:
         target = start + step.at
         if target > sim.now():
             sim.advance(target - sim.now())
-        outcomes += _guarded(scenario, step, sim)
+        try:
+            outcomes += apply_step(step, sim)
+        except control.ControlError as exc:
+            raise ScenarioError(scenario.path, step.label, str(exc)) from None
     return Report(scenario, tuple(outcomes))
 
 
-def _guarded(scenario: Scenario, step: Step, sim: Simulator) -> list[Outcome]:
-    try:
-        return apply_step(step, sim)
-    except control.ControlError as exc:
-        raise ScenarioError(scenario.path, step.label, str(exc)) from None
-
-
-async def play(
-    scenario: Scenario, sim: Simulator, *, line: asyncio.Lock | None = None, out: IO[str] | None = None
-) -> Report:
+async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, out: IO[str] | None = None) -> Report:
     """Play ``scenario`` on a served simulator: a virtual clock is advanced to each step, a realtime one
-    is waited for. Each step runs under the line's lock, between frames; each outcome is printed to ``out``."""
+    is waited for. With the server's ``line``, writes are frames on it, served in turn with the
+    ports' (without, they go to the bus directly); each outcome is printed to ``out``."""
     check(scenario, sim)
     outcomes: list[Outcome] = []
     start = sim.now()
-    lock = line if line is not None else asyncio.Lock()
     for step in scenario.steps:
         target = start + step.at
         if not sim.virtual:
             speed = float(getattr(sim.clock, "speed", 1.0))  # model seconds per wall second
             while sim.now() < target:
                 await asyncio.sleep(min(0.5, (target - sim.now()) / speed))
-        async with lock:
-            if sim.virtual and target > sim.now():
-                sim.advance(target - sim.now())
-            results = _guarded(scenario, step, sim)
+        if sim.virtual and target > sim.now():
+            sim.advance(target - sim.now())
+        try:
+            results = apply_step(step, sim) if line is None else await apply_step_on_line(step, sim, line)
+        except control.ControlError as exc:
+            raise ScenarioError(scenario.path, step.label, str(exc)) from None
         outcomes += results
         if out is not None:
             for o in results:

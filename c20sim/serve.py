@@ -29,7 +29,7 @@ from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 
 if TYPE_CHECKING:
     from .control import ControlApi
-    from .scenario import Report
+    from .scenario import Report, Scenario
 
 T = TypeVar("T")
 
@@ -115,6 +115,8 @@ class Server:
             from .scenario import check, load_scenario
 
             scenario = load_scenario(opts.scenario)
+            for warning in _scenario_differences(scenario, sim):
+                print(f"c20sim: warning: {warning}", file=sys.stderr, flush=True)
             check(scenario, sim)
         try:
             if opts.log_frames:
@@ -150,7 +152,7 @@ class Server:
             if scenario is not None:
                 from .scenario import play
 
-                self.scenario_task = asyncio.create_task(play(scenario, sim, out=sys.stdout))
+                self.scenario_task = asyncio.create_task(play(scenario, sim, line=line, out=sys.stdout))
                 self.scenario_task.add_done_callback(_report_scenario_error)
         except BaseException:
             self.close()
@@ -196,8 +198,10 @@ class Server:
         self._unsubscribe.append(self.sim.bus.subscribe(write))
 
     async def aclose(self) -> None:
-        """Close, and wait until every TCP connection has ended."""
+        """Close, and wait until every TCP connection has ended and the scenario has stopped."""
         self.close()
+        if self.scenario_task is not None:
+            await asyncio.wait([self.scenario_task])  # cancelled by close(); an error was reported as it ended
         await self._close_control()
         for server in (self.endpoints.tcp, self.endpoints.modbus_tcp):
             if server is not None:
@@ -215,6 +219,32 @@ class Server:
         if self._log_file is not None:
             self._log_file.close()
             self._log_file = None
+
+
+def _profile_name(name_or_path: str) -> str:
+    from .profile import load_profile
+
+    try:
+        return load_profile(name_or_path).name
+    except C20SimError:
+        return name_or_path
+
+
+def _scenario_differences(scenario: Scenario, sim: Simulator) -> list[str]:
+    """What the scenario asks for that serve does not take from it: the profile and the drives come from
+    the command line."""
+    out = []
+    if scenario.profile is not None and _profile_name(scenario.profile) != sim.profile.name:
+        out.append(
+            f"{scenario.path}: the scenario names profile {scenario.profile}, but {sim.profile.name} is served; "
+            "serve takes the profile from --profile"
+        )
+    if scenario.drives is not None and tuple(scenario.drives) != tuple(sim.drives):
+        out.append(
+            f"{scenario.path}: the scenario names drives {','.join(map(str, scenario.drives))}, "
+            f"but {','.join(map(str, sim.drives))} are served; serve takes the drives from --drives"
+        )
+    return out
 
 
 def _report_scenario_error(task: asyncio.Task[Report]) -> None:

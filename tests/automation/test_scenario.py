@@ -208,3 +208,72 @@ async def test_play_follows_a_realtime_clock() -> None:
     report = await play(scenario, sim)  # 1 s of model time is 50 ms of wall time at speed 20
     assert [(o.step.index, o.ok) for o in report.outcomes] == [(1, True), (2, True), (2, True)]
     assert report.outcomes[-1].t >= 1.0
+
+
+async def test_a_served_scenario_writes_on_the_line_in_its_turn() -> None:
+    import asyncio
+
+    from c20sim.bus import Reply
+    from c20sim.protocol import FrameEvent, FrameKind, ReadRequest, encode
+    from c20sim.scenario import play
+    from c20sim.transport.line import Line
+
+    sim = Simulator(load_profile(), (1,))
+    line = Line(sim)
+    sim.link_faults(1).delay = 0.05  # every reply holds the line for 50 ms
+    loop = asyncio.get_running_loop()
+    served_when_answered: list[int] = []
+
+    def master(reply: Reply | None) -> None:
+        assert reply is not None
+        served_when_answered.append(len(sim.bus.records))
+
+    sent = loop.time()
+    line.submit(FrameEvent(FrameKind.FRAME, encode(ReadRequest(1, 0x2103, 1)), sent), master)
+    assert line.busy
+    scenario = parse_scenario({"step": [{"at": 0, "write": {"2001H": 1500}, "expect": {"2001H": 1500}}]}, "s.toml")
+    report = await play(scenario, sim, line=line)
+    assert [(o.ok, o.text) for o in report.outcomes] == [
+        (True, "write 2001H = 1500: taken"),
+        (True, "2001H (communication speed setting) = 1500 (1500 rpm), expected 1500"),
+    ]
+    assert [(r.direction, r.data[1]) for r in sim.bus.records] == [("rx", 3), ("tx", 3), ("rx", 6), ("tx", 6)]
+    # the write waited for the master's reply to leave the line: it was not served before then
+    assert served_when_answered == [2]
+    # and it is stamped as a port stamps a frame, with the loop's time; model_t is the drive's
+    write_rx = sim.bus.records[2]
+    assert sent <= write_rx.t <= loop.time()
+    assert write_rx.model_t == 0.0
+
+
+async def test_serve_warns_of_the_scenario_settings_it_does_not_take(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c20sim.serve import ServeOptions, Server
+
+    path = write(tmp_path, 'profile = "c20-2200hv"\ndrives = [1, 2]\n[[step]]\nat = 0\nexpect = { status1 = 3 }\n')
+    server = Server(Simulator(load_profile(), (1,)), ServeOptions(tcp="127.0.0.1:0", scenario=str(path)))
+    await server.start()
+    assert server.scenario_task is not None
+    report = await server.scenario_task
+    await server.aclose()
+    assert report.ok
+    assert capsys.readouterr().err == (
+        f"c20sim: warning: {path}: the scenario names profile c20-2200hv, but c20-400hr is served; "
+        "serve takes the profile from --profile\n"
+        f"c20sim: warning: {path}: the scenario names drives 1,2, but 1 are served; serve takes the drives from --drives\n"
+    )
+
+
+async def test_closing_the_server_waits_for_the_scenario_to_stop(tmp_path: Path) -> None:
+    from c20sim.clock import RealtimeClock
+    from c20sim.serve import ServeOptions, Server
+
+    path = write(tmp_path, "[[step]]\nat = 3600\nexpect = { status1 = 3 }\n")
+    sim = Simulator(load_profile(), (1,), clock=RealtimeClock())
+    server = Server(sim, ServeOptions(tcp="127.0.0.1:0", scenario=str(path)))
+    await server.start()
+    task = server.scenario_task
+    assert task is not None and not task.done()
+    await server.aclose()
+    assert task.cancelled()
