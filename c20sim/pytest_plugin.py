@@ -79,9 +79,17 @@ class _LoopThread:
             raise RuntimeError("c20sim: called from the simulator's own thread")
         return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the loop and close it; if its thread does not end within ``timeout``, say so and leave it."""
+        if self.loop.is_closed():
+            return
         self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join(10)
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise RuntimeError(
+                f"c20sim: the simulator's event loop did not stop within {timeout:g} s "
+                "(something running on it blocks); its thread is left running"
+            )
         self.loop.close()
 
 
