@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import queue
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -168,6 +171,47 @@ def test_bad_files(tmp_path: Path) -> None:
     assert result.stderr == f"c20sim: {tmp_path / 'absent.toml'}: cannot read: No such file or directory\n"
 
 
+def read_lines(proc: subprocess.Popen[str], count: int, timeout: float = 20.0) -> list[str]:
+    """The next ``count`` lines of the process's stdout, or a failure saying what came before the deadline."""
+    assert proc.stdout is not None
+    stream = proc.stdout
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def reader() -> None:
+        for line in iter(stream.readline, ""):
+            lines.put(line)
+        lines.put(None)  # end of the stream
+
+    threading.Thread(target=reader, daemon=True).start()
+    got: list[str] = []
+    deadline = time.monotonic() + timeout
+    while len(got) < count:
+        try:
+            line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            line = None
+        if line is None:
+            state = "still running" if proc.poll() is None else f"exited with {proc.returncode}"
+            raise AssertionError(f"{len(got)} of {count} lines in {timeout:g} s; the process is {state}; got {got}")
+        got.append(line)
+    return got
+
+
+def test_read_lines_fails_at_its_deadline() -> None:
+    code = "import sys, time; print('one', flush=True); time.sleep(30)"
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        started = time.monotonic()
+        with pytest.raises(
+            AssertionError, match=r"^1 of 2 lines in 1 s; the process is still running; got \['one\\n'\]$"
+        ):
+            read_lines(proc, 2, timeout=1.0)
+        assert time.monotonic() - started < 10
+    finally:
+        proc.kill()
+        proc.wait()
+
+
 def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
     ready = tmp_path / "ready.json"
     scenario = str(SCENARIOS / "comm_timeout.toml")
@@ -180,7 +224,7 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
     )
     try:
         assert proc.stdout is not None
-        lines = [proc.stdout.readline() for _ in range(13)]  # the ready line, 11 checks, the verdict
+        lines = read_lines(proc, 13)  # the ready line, 11 checks, the verdict
         assert lines[0].startswith("c20sim ready: c20-400hr, drives 1, virtual clock; tcp 127.0.0.1:")
         assert lines[-1] == "scenario communication timeout: passed\n"
         assert (
