@@ -41,7 +41,7 @@ from .widgets import (
     LinkFaultsPanel,
     TrendPlot,
 )
-from .workbench import DEVICE_SWITCHES, LINK_SWITCHES, DriveView, Workbench
+from .workbench import LINK_SWITCHES, DriveView, Workbench
 
 __all__ = ["Dashboard"]
 
@@ -429,7 +429,7 @@ class Dashboard(App[int]):
         yield SystemCommand("Power cycle", "switch the drive off and on", self.action_power_cycle)
         yield SystemCommand("Restore defaults", "200FH = 1 (only while stopped)", self.action_restore_defaults)
         yield SystemCommand("Save frame log", "write the frames shown to a file", self.action_save_log)
-        for switch in DEVICE_SWITCHES:
+        for switch in self.bench.device_switches:
             yield SystemCommand(f"Device fault: {switch.label}", switch.how, lambda k=switch.key: self._device_fault(k))
         for key, (code, name) in self.bench.forced.items():
             yield SystemCommand(

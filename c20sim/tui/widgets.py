@@ -3,6 +3,8 @@
 Views hold what they show in reactive attributes and render from them; the
 panels act on the drives only through the app's :class:`Workbench`, and say
 so with a :class:`ConditionsChanged` message so the views refresh at once.
+What the bench refuses (a condition outside the control API's range) is
+shown as an error notification.
 """
 
 from __future__ import annotations
@@ -21,11 +23,20 @@ from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
 from ..bus import Bus, FrameRecord
+from ..control import ControlError
 from ..drive.terminals import Input as Terminal
 from ..drive.terminals import Output
 from ..registers import STATUS_WORDS
 from .messages import ConditionsChanged, FramesLogged
-from .workbench import CHANNEL_NAMES, DEVICE_SWITCHES, LINK_SWITCHES, SOURCE_NAMES, DriveView, Workbench
+from .workbench import (
+    CHANNEL_NAMES,
+    DEVICE_SWITCHES,
+    LINK_SWITCHES,
+    SOURCE_NAMES,
+    DriveView,
+    Workbench,
+    condition_range,
+)
 
 if TYPE_CHECKING:
     from .app import Dashboard
@@ -371,13 +382,13 @@ class NumberInput(Input):
         self.post_message(Input.Submitted(self, self.value))
 
 
-#: Conditions panel fields: id -> (label, unit, step, low, high).
+#: Conditions panel fields: id -> (label, unit, step, the control API's condition, which bounds it).
 CONDITION_FIELDS = {
-    "supply": ("supply", "V", 1.0, 0.0, 1000.0),
-    "load": ("load", "N m", 0.1, 0.0, 100.0),
-    "ambient": ("ambient", "°C", 5.0, -40.0, 1000.0),
-    "ai1": ("AI1 knob", "V", 0.5, 0.0, 10.0),
-    "ai2": ("AI2", "V", 0.5, 0.0, 10.0),
+    "supply": ("supply", "V", 1.0, "supply_v"),
+    "load": ("load", "N m", 0.1, "load_torque_nm"),
+    "ambient": ("ambient", "°C", 5.0, "ambient_c"),
+    "ai1": ("AI1 knob", "V", 0.5, "ai1_v"),
+    "ai2": ("AI2", "V", 0.5, "ai2_v"),
 }
 
 
@@ -386,18 +397,21 @@ class ConditionsPanel(Vertical):
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="fields"):
-            for name, (label, unit, step, low, high) in CONDITION_FIELDS.items():
+            for name, (label, unit, step, condition) in CONDITION_FIELDS.items():
                 yield Label(f"{label} ({unit})")
-                yield NumberInput(step, low, high, id=f"cond-{name}")
+                yield NumberInput(step, *condition_range(condition), id=f"cond-{name}")
         with Horizontal(classes="terminals"):
             yield Label("input terminals")
             for terminal in Terminal:
                 yield Checkbox(terminal.name or "", id=f"term-{terminal.name}", compact=True)
-        yield Static("Enter applies a value; up/down step it. Terminals are the physical inputs.", classes="hint")
+        yield Static(
+            "Enter applies a value (in the control API's range); up/down step it. Terminals are the physical inputs.",
+            classes="hint",
+        )
 
     def show(self, bench: Workbench, address: int) -> None:
         """Show the conditions of drive ``address`` (fields being edited are left alone)."""
-        cond = bench.conditions[address]
+        cond = bench.conditions(address)
         values = {
             "supply": cond.supply_v,
             "load": cond.load_torque_nm,
@@ -426,15 +440,12 @@ class ConditionsPanel(Vertical):
         except ValueError:
             self.notify(f"{name}: not a number: {event.value!r}", severity="error")
             return
-        address, bench = dash.selected, dash.bench
-        setters = {
-            "supply": lambda: bench.set_supply(address, value),
-            "load": lambda: bench.set_load(address, value),
-            "ambient": lambda: bench.set_ambient(address, value),
-            "ai1": lambda: bench.set_ai(address, 1, value),
-            "ai2": lambda: bench.set_ai(address, 2, value),
-        }
-        setters[name]()
+        address = dash.selected
+        try:
+            dash.bench.set_conditions(address, {CONDITION_FIELDS[name][3]: value})
+        except ControlError as exc:
+            self.notify(f"drive {address}: {exc}", severity="error", timeout=5)
+            return
         self.post_message(ConditionsChanged(f"drive {address}: {name} {value:g}"))
 
     @on(Checkbox.Changed)
@@ -445,7 +456,10 @@ class ConditionsPanel(Vertical):
         for terminal in Terminal:
             if self.query_one(f"#term-{terminal.name}", Checkbox).value:
                 bits |= terminal
-        dash.bench.set_inputs(dash.selected, bits)
+        try:
+            dash.bench.set_inputs(dash.selected, bits)
+        except ControlError as exc:
+            self.notify(f"drive {dash.selected}: {exc}", severity="error", timeout=5)
         self.post_message(ConditionsChanged())
 
 
@@ -495,7 +509,7 @@ class DeviceFaultsPanel(_SwitchPanel):
         self.bench = bench
 
     def switches(self) -> list[tuple[str, str]]:
-        out = [(s.key, s.label) for s in DEVICE_SWITCHES]
+        out = [(s.key, s.label) for s in self.bench.device_switches]
         out += [(key, f"{name} 0x{code:02X}") for key, (code, name) in self.bench.forced.items()]
         out.append(("z", "clear all"))
         return out
@@ -509,7 +523,11 @@ class DeviceFaultsPanel(_SwitchPanel):
         if key.isdigit() and key not in self.bench.forced:
             return
         dash = _dashboard(self)
-        note = self.bench.toggle_device_fault(dash.selected, key)
+        try:
+            note = self.bench.toggle_device_fault(dash.selected, key)
+        except ControlError as exc:
+            self.notify(f"drive {dash.selected}: {exc}", severity="error", timeout=5)
+            return
         self.post_message(ConditionsChanged(note))
 
     def refresh_marks(self, address: int) -> None:

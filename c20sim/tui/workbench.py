@@ -1,20 +1,27 @@
 """The bench around the drives: the keypad, the physical conditions, the fault switches.
 
 Everything the dashboard does to a drive goes through here, so it is tested
-without a screen. Device faults are injected as their *causes*, through the
-drive's own API: an undervoltage trip is a supply switched low, an overheat is
-a hot ambient, an external fault is the EF terminal. Only faults the model has
-no physical cause for (a power stage, the EEPROM, ...) are latched with
-``force_fault``. Link faults are the :class:`~c20sim.linkfaults.LinkFaults`
-switches of one drive or of the whole bus. No textual import here.
+without a screen. Device faults are injected as their *causes*: an
+undervoltage trip is a supply switched low, an overheat is a hot ambient, an
+external fault is the EF terminal. Conditions are set through
+:func:`c20sim.control.set_conditions`, so they are checked as the control API
+and the scenarios check them and a dashboard session can be replayed there;
+they are read back from the drive, never copied, so what the control API
+changes on the same loop shows here. Only faults the model has no physical
+cause for (a power stage, the EEPROM, ...) are latched with ``force_fault``.
+Link faults are the :class:`~c20sim.linkfaults.LinkFaults` switches of one
+drive or of the whole bus. No textual import here.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
+from .. import control
 from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.terminals import Input
 from ..errors import C20SimError
@@ -34,6 +41,7 @@ __all__ = [
     "History",
     "Switch",
     "Workbench",
+    "condition_range",
 ]
 
 #: F00.01 values in words.
@@ -62,8 +70,6 @@ PHYSICAL_CAUSES = frozenset(
     }
 )
 
-#: Seconds an overheat takes to trip once switched on (the ambient is set to make it so).
-OVERHEAT_SECONDS = 30.0
 HALL_CYCLE: tuple[HallFault | None, ...] = (None, HallFault.STUCK0, HallFault.STUCK7, HallFault.SEQUENCE)
 
 
@@ -83,7 +89,7 @@ DEVICE_SWITCHES: tuple[Switch, ...] = (
     Switch("c", "overcurrent", "load torque past the overcurrent level (OC1-3 by phase, while running)"),
     Switch("l", "overload", "load torque near the current limit (OL1 after about 30 s running)"),
     Switch("k", "locked rotor", "load torque past the current limit (stall while running)"),
-    Switch("o", "overheat", f"ambient raised to trip in about {OVERHEAT_SECONDS:g} s"),
+    Switch("o", "overheat", "ambient at the control API's maximum (the trip time is the profile's)"),
     Switch("h", "Hall sensor", "cycles: stuck at 0, stuck at 7, out of sequence, mended"),
     Switch("e", "external fault", "the EF input terminal"),
 )
@@ -105,18 +111,71 @@ LINK_SWITCHES: tuple[Switch, ...] = (
 GARBAGE = b"\x00\xff"
 
 
-@dataclass
+@dataclass(frozen=True, slots=True)
 class Conditions:
-    """The physical conditions the bench holds a drive in (the dashboard's own record)."""
+    """The physical conditions a drive is in now, as read from the drive."""
 
     supply_v: float
     load_torque_nm: float
+    load_inertia_kg_m2: float
     ambient_c: float
-    ai1_v: float = 0.0
-    ai2_v: float = 0.0
-    inputs: int = 0
-    hall: HallFault | None = None
-    forced: int | None = None  #: a fault code latched with force_fault (persistent until switched off)
+    ai1_v: float
+    ai2_v: float
+    inputs: int  #: the physical input terminals (not the virtual ones of 2005H)
+    hall: HallFault | None
+    held_fault: int | None  #: a fault latched with force_fault(persistent=True), not yet released
+
+    @classmethod
+    def of(cls, drive: Drive) -> Conditions:
+        tel = drive.telemetry()
+        return cls(
+            supply_v=tel.supply_v,
+            load_torque_nm=tel.load_torque_nm,
+            load_inertia_kg_m2=tel.load_inertia_kg_m2,
+            ambient_c=tel.ambient_c,
+            ai1_v=drive.ai(1),
+            ai2_v=drive.ai(2),
+            inputs=drive.physical_inputs,
+            hall=drive.hall_fault,
+            held_fault=drive.held_fault,
+        )
+
+
+@functools.cache
+def condition_range(name: str) -> tuple[float, float]:
+    """The range :data:`c20sim.control.CONDITIONS` accepts for the numeric condition ``name``.
+
+    Found by asking its checker (the one validation of the API, the scenarios
+    and the dashboard), to a millionth; an unbounded side is infinite.
+    """
+    check = control.CONDITIONS[name]
+
+    def accepts(value: float) -> bool:
+        try:
+            check(name, value)
+        except control.ControlError:
+            return False
+        return True
+
+    if not accepts(0.0):
+        raise C20SimError(f"condition {name}: 0 is not accepted; its range cannot be found")
+
+    def bound(direction: float) -> float:
+        inside, step = 0.0, 1.0
+        while accepts(direction * step):
+            inside, step = direction * step, step * 2
+            if step > 1e15:
+                return direction * math.inf
+        outside = direction * step
+        for _ in range(80):
+            middle = (inside + outside) / 2
+            if accepts(middle):
+                inside = middle
+            else:
+                outside = middle
+        return round(inside, 6)
+
+    return bound(-1.0), bound(1.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,14 +227,16 @@ class Workbench:
             if not isinstance(drive, Drive):
                 raise C20SimError("the dashboard needs the behavioural drive model (c20sim.drive.model.Drive)")
             self.drives[address] = drive
-        s, th = self.profile.supply, self.profile.thermal
-        self.conditions = {a: Conditions(s.voltage_v, 0.0, th.ambient_c) for a in self.drives}
         self.history = {a: History() for a in self.drives}
         #: forced faults: key -> (code, name), the profile's faults with no physical cause, keys 1-9
         self.forced: dict[str, tuple[int, str]] = {}
         for spec in self.profile.faults.values():
             if spec.cause not in PHYSICAL_CAUSES and len(self.forced) < 9:
                 self.forced[str(len(self.forced) + 1)] = (spec.code, spec.name)
+        #: the device fault switches, the overheat's trip time worked out for this profile
+        self.device_switches = tuple(
+            replace(s, how=self._overheat_how()) if s.key == "o" else s for s in DEVICE_SWITCHES
+        )
 
     # --- reading
 
@@ -187,6 +248,10 @@ class Workbench:
 
     def telemetry(self, address: int) -> Telemetry:
         return self.drive(address).telemetry()
+
+    def conditions(self, address: int) -> Conditions:
+        """The conditions drive ``address`` is in now, whoever set them."""
+        return Conditions.of(self.drive(address))
 
     def sample(self) -> dict[int, DriveView]:
         """Bring the drives to the clock's time; what each shows, its telemetry added to the plot history."""
@@ -214,9 +279,6 @@ class Workbench:
             left -= step
             for address, drive in self.drives.items():
                 self.history[address].add(drive.telemetry())
-
-    def channel(self, address: int) -> int:
-        return self.drive(address).telemetry().run_channel
 
     # --- the keypad
 
@@ -252,7 +314,6 @@ class Workbench:
     def power_cycle(self, address: int) -> None:
         self.sim.sync()
         self.drive(address).power_cycle()
-        self.conditions[address].forced = None
 
     def restore_defaults(self, address: int) -> str | None:
         """200FH = 1, as the keypad does it: only while stopped. Keeps the bus address given on the command line."""
@@ -264,41 +325,30 @@ class Workbench:
         set_address(drive, self.profile, address)
         return None
 
-    # --- physical conditions
+    # --- physical conditions, checked by the control API's one validation (ControlError if refused)
+
+    def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
+        """Set conditions by their :data:`c20sim.control.CONDITIONS` names; none is set if one is refused."""
+        control.set_conditions(self.sim, address, values)
 
     def set_supply(self, address: int, volts: float) -> None:
-        self.sim.sync()
-        self.conditions[address].supply_v = max(0.0, volts)
-        self.drive(address).set_supply_voltage(volts)
+        self.set_conditions(address, {"supply_v": volts})
 
     def set_load(self, address: int, nm: float) -> None:
-        self.sim.sync()
-        self.conditions[address].load_torque_nm = max(0.0, nm)
-        self.drive(address).set_load_torque(nm)
+        self.set_conditions(address, {"load_torque_nm": nm})
 
     def set_ambient(self, address: int, celsius: float) -> None:
-        self.sim.sync()
-        self.conditions[address].ambient_c = celsius
-        self.drive(address).set_ambient(celsius)
+        self.set_conditions(address, {"ambient_c": celsius})
 
     def set_ai(self, address: int, channel: int, volts: float) -> None:
-        self.sim.sync()
-        volts = min(max(volts, 0.0), 10.0)
-        if channel == 1:
-            self.conditions[address].ai1_v = volts
-        else:
-            self.conditions[address].ai2_v = volts
-        self.drive(address).set_ai(channel, volts)
+        self.set_conditions(address, {f"ai{channel}_v": volts})
 
     def set_inputs(self, address: int, bits: int) -> None:
-        self.sim.sync()
-        self.conditions[address].inputs = bits & 0x1FF
-        self.drive(address).set_terminal_inputs(bits & 0x1FF)
+        """The physical input terminals."""
+        self.set_conditions(address, {"terminal_inputs": bits})
 
     def set_hall(self, address: int, fault: HallFault | None) -> None:
-        self.sim.sync()
-        self.conditions[address].hall = fault
-        self.drive(address).set_hall_fault(fault)
+        self.set_conditions(address, {"hall_fault": None if fault is None else fault.value})
 
     # --- device faults, as causes
 
@@ -313,14 +363,42 @@ class Workbench:
             "k": round(p.current_limit_a * m.kt_nm_per_a * 1.5, 2),
         }
 
+    def overheat_ambient(self) -> float:
+        """The ambient the overheat switch sets: the highest the control API accepts."""
+        return condition_range("ambient_c")[1]
+
+    def overheat_seconds(self, from_c: float | None = None) -> float:
+        """Seconds to the overheat trip at :meth:`overheat_ambient`, from ``from_c`` (the profile's ambient).
+
+        Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
+        """
+        th = self.profile.thermal
+        start = th.ambient_c if from_c is None else from_c
+        ambient = self.overheat_ambient()
+        if start > th.overheat_c:
+            return 0.0
+        if ambient <= th.overheat_c:
+            return math.inf
+        return th.time_constant_s * math.log((ambient - start) / (ambient - th.overheat_c))
+
+    def _overheat_how(self) -> str:
+        seconds = self.overheat_seconds()
+        when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
+        return f"ambient {self.overheat_ambient():g} °C, the control API's maximum: {when}; T/t advances virtual time"
+
     def device_fault_active(self, address: int, key: str) -> bool:
-        cond, levels = self.conditions[address], self.levels()
+        """Whether the cause of a device fault is there now, whoever put it there.
+
+        Supply and ambient are lit past their trip levels; the load switches when the load is their own level.
+        """
+        cond, levels = self.conditions(address), self.levels()
+        s = self.profile.supply
         if key == "u":
-            return cond.supply_v == levels["u"]
+            return cond.supply_v < s.undervoltage_v
         if key == "v":
-            return cond.supply_v == levels["v"]
+            return cond.supply_v > s.overvoltage_v
         if key in ("c", "l", "k"):
-            return cond.load_torque_nm == levels[key]
+            return math.isclose(cond.load_torque_nm, levels[key])
         if key == "o":
             return cond.ambient_c > self.profile.thermal.overheat_c
         if key == "h":
@@ -328,12 +406,12 @@ class Workbench:
         if key == "e":
             return bool(cond.inputs & Input.EF)
         if key in self.forced:
-            return cond.forced == self.forced[key][0]
+            return cond.held_fault == self.forced[key][0]
         return False
 
     def toggle_device_fault(self, address: int, key: str) -> str:
         """Switch a device fault's cause on or off; returns what was done, in words."""
-        cond, levels = self.conditions[address], self.levels()
+        cond, levels = self.conditions(address), self.levels()
         active = self.device_fault_active(address, key)
         s, th = self.profile.supply, self.profile.thermal
         if key in ("u", "v"):
@@ -346,13 +424,13 @@ class Workbench:
             return f"drive {address}: load torque {nm:g} N m"
         if key == "o":
             if active:
-                celsius = th.ambient_c
-            else:
-                temp = self.telemetry(address).temperature_c
-                rise = (th.overheat_c + 1.0 - temp) / (1.0 - math.exp(-OVERHEAT_SECONDS / th.time_constant_s))
-                celsius = float(round(temp + max(rise, 1.0)))
+                self.set_ambient(address, th.ambient_c)
+                return f"drive {address}: ambient {th.ambient_c:g} °C"
+            celsius = self.overheat_ambient()
             self.set_ambient(address, celsius)
-            return f"drive {address}: ambient {celsius:g} °C"
+            seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
+            when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
+            return f"drive {address}: ambient {celsius:g} °C ({when})"
         if key == "h":
             fault = HALL_CYCLE[(HALL_CYCLE.index(cond.hall) + 1) % len(HALL_CYCLE)]
             self.set_hall(address, fault)
@@ -366,10 +444,8 @@ class Workbench:
             drive = self.drive(address)
             if active:
                 drive.release_fault()
-                cond.forced = None
                 return f"drive {address}: {name} cause gone (reset to clear)"
             drive.force_fault(code, persistent=True)
-            cond.forced = code
             return f"drive {address}: {name} (0x{code:02X}) latched"
         if key == "z":
             self.clear_device_faults(address)
@@ -378,15 +454,17 @@ class Workbench:
 
     def clear_device_faults(self, address: int) -> None:
         s, th = self.profile.supply, self.profile.thermal
-        cond = self.conditions[address]
-        self.set_supply(address, s.voltage_v)
-        self.set_load(address, 0.0)
-        self.set_ambient(address, th.ambient_c)
-        self.set_hall(address, None)
-        self.set_inputs(address, cond.inputs & ~Input.EF)
-        if cond.forced is not None:
-            self.drive(address).release_fault()
-            cond.forced = None
+        self.set_conditions(
+            address,
+            {
+                "supply_v": s.voltage_v,
+                "load_torque_nm": 0.0,
+                "ambient_c": th.ambient_c,
+                "hall_fault": None,
+                "terminal_inputs": self.drive(address).physical_inputs & ~Input.EF,
+            },
+        )
+        self.drive(address).release_fault()
 
     # --- link faults
 

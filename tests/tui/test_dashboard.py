@@ -7,10 +7,11 @@ from pathlib import Path
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
-from textual.widgets import RichLog
+from textual.widgets import Checkbox, Input, RichLog
 
+from c20sim import control
 from c20sim.tui.app import HelpScreen, SaveLogScreen
-from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel
+from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel, NumberInput
 from tests.tui.conftest import Bench, running
 
 STATUS1, STATUS2, FAULT, SPEED, INPUTS = 0x2100, 0x2101, 0x2102, 0x3006, 0x300D
@@ -26,7 +27,7 @@ async def run_forward(bench: Bench, rpm: int = 1500) -> None:
 async def test_undervoltage_while_running_trips_0x0A(bench: Bench) -> None:
     await run_forward(bench)
     await bench.press("f4", "u")  # device faults, undervoltage: the supply drops
-    assert bench.app.bench.conditions[1].supply_v == 18.0
+    assert bench.app.bench.conditions(1).supply_v == 18.0
     await bench.press("t")
     assert await bench.read(FAULT) == 0x000A
     assert await bench.read(STATUS1) == 4
@@ -183,6 +184,35 @@ async def test_every_switch_has_a_key_and_a_button(bench: Bench) -> None:
         for key, _ in panel.switches():
             assert key in keys
             assert panel.query_one(f"#{panel.prefix}-{key}")
+
+
+async def test_dashboard_shows_conditions_set_by_the_control_api(bench: Bench) -> None:
+    sim = bench.app.sim
+    await bench.press("f3", "escape")  # the conditions, no field being edited
+    control.set_conditions(sim, 1, {"supply_v": 18, "load_torque_nm": 0.5, "ai1_v": 2.5, "terminal_inputs": 0x010})
+    bench.app.refresh_views()
+    await bench.pilot.pause()
+    screen = bench.app.get_screen_main()
+    shown = {name: screen.query_one(f"#cond-{name}", Input).value for name in ("supply", "load", "ai1")}
+    assert shown == {"supply": "18", "load": "0.5", "ai1": "2.5"}
+    assert screen.query_one("#term-S1", Checkbox).value
+    await bench.press("f4")
+    assert bench.app.get_screen_main().query_one("#dev-u").has_class("-on")
+    await bench.press("u")  # the undervoltage the API made, switched off here
+    assert sim.drives[1].telemetry().supply_v == sim.profile.supply.voltage_v
+
+
+async def test_condition_fields_take_the_control_api_range(bench: Bench) -> None:
+    await bench.press("f3")
+    screen = bench.app.get_screen_main()
+    supply = screen.query_one("#cond-supply", NumberInput)
+    assert (supply.low, supply.high) == (0.0, 2000.0)
+    ambient = screen.query_one("#cond-ambient", NumberInput)
+    assert (ambient.low, ambient.high) == (-50.0, 150.0)
+    await bench.press("home", "ctrl+k", "5", "0", "0", "0", "enter")
+    assert bench.app.sim.drives[1].telemetry().supply_v == 48.0  # refused, as the API refuses it
+    errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
+    assert any("supply_v: 5000 is outside 0-2000" in e for e in errors)
 
 
 async def test_server_is_closed_on_exit() -> None:
