@@ -288,8 +288,8 @@ class Workbench:
         drive = self.drive(address)
         command = KEYPAD[key]
         state = drive.state.value
-        if key == "jog" and state.startswith("jog"):
-            command = 8  # jog stop: the key is released
+        if key in ("jog", "jogrev") and state.startswith("jog"):
+            command = 8  # jog stop: a jog key pressed while jogging is released
         if drive.keypad(command):
             return None
         if key == "reset":

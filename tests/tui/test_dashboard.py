@@ -186,6 +186,14 @@ async def test_every_switch_has_a_key_and_a_button(bench: Bench) -> None:
             assert panel.query_one(f"#{panel.prefix}-{key}")
 
 
+async def test_jog_reverse_key_pressed_again_releases(bench: Bench) -> None:
+    await bench.write(0x2001, 1000)
+    await bench.press("m", "J", "t")  # keypad channel; jog reverse
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (2, 300)
+    await bench.press("J", "t", "t")
+    assert (await bench.read(STATUS1), await bench.read(SPEED)) == (3, 0)
+
+
 async def test_dashboard_shows_conditions_set_by_the_control_api(bench: Bench) -> None:
     sim = bench.app.sim
     await bench.press("f3", "escape")  # the conditions, no field being edited

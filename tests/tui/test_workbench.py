@@ -116,3 +116,16 @@ def test_overheat_is_an_ambient_the_control_api_accepts() -> None:
     assert bench.drive(1).read(Reg.FAULT_CODE) == 0
     bench.advance(6.0)
     assert bench.drive(1).read(Reg.FAULT_CODE) == 0x10
+
+
+@pytest.mark.parametrize(("key", "state"), [("jog", "jog forward"), ("jogrev", "jog reverse")])
+def test_each_jog_key_releases_its_jog(key: str, state: str) -> None:
+    bench = Workbench(Simulator(load_profile(), (1,), clock=VirtualClock()))
+    assert bench.cycle_channel(1) == 0  # communication -> keypad
+    assert bench.keypad(1, key) is None
+    bench.advance(1.0)
+    assert bench.drive(1).state.value == state
+    assert bench.keypad(1, key) is None  # pressed again: released
+    bench.advance(2.0)
+    assert bench.drive(1).state.value == "stopped"
+    assert bench.drive(1).read(Reg.MOTOR_SPEED) == 0
