@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, cast
 
 from rich.text import Text
-from textual import on
+from textual import events, on
 from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Grid, Horizontal, Vertical
@@ -355,8 +355,16 @@ class FrameLog(Vertical, can_focus=True):
         return len(records)
 
 
+#: What a number field takes; any other printable key goes on to the dashboard (RESET, time, ...).
+NUMBER_CHARACTERS = frozenset("0123456789+-.eE")
+
+
 class NumberInput(Input):
-    """A number that Enter applies, and up/down step like a slider."""
+    """A number that Enter applies, and up/down step like a slider.
+
+    Keys that cannot be part of a number are left to the dashboard, so the
+    keypad (``x`` RESET, ``s`` STOP), time and quit work while a field has focus.
+    """
 
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("up", "step(1)", "Up", show=False),
@@ -367,6 +375,13 @@ class NumberInput(Input):
     def __init__(self, step: float, low: float, high: float, *, id: str | None = None) -> None:
         super().__init__(type="number", compact=True, id=id)
         self.step, self.low, self.high = step, low, high
+
+    def check_consume_key(self, key: str, character: str | None) -> bool:
+        return character is not None and character in NUMBER_CHARACTERS
+
+    async def _on_key(self, event: events.Key) -> None:
+        if event.is_printable and event.character not in NUMBER_CHARACTERS:
+            event.prevent_default()  # skip Input's handler: the key bubbles on to the app's bindings
 
     def action_leave(self) -> None:
         """Give the keys back to the dashboard (the keypad, time, tabs)."""

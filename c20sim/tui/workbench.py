@@ -105,7 +105,7 @@ LINK_SWITCHES: tuple[Switch, ...] = (
     Switch("g", "garbage before", "two noise bytes before the reply"),
     Switch("n", "garbage after", "two noise bytes after the reply"),
     Switch("w", "wrong address", "answer from another address"),
-    Switch("x", "exception", "cycles: force exception 0x01 .. 0x08, off"),
+    Switch("e", "exception", "cycles: force exception 0x01 .. 0x08, off"),
 )
 
 GARBAGE = b"\x00\xff"
@@ -485,7 +485,7 @@ class Workbench:
             "g": bool(link.garbage_before),
             "n": bool(link.garbage_after),
             "w": link.wrong_address is not None,
-            "x": link.forced_exception is not None,
+            "e": link.forced_exception is not None,
         }.get(key, False)
 
     def toggle_link_fault(self, scope: int | None, key: str) -> str:
@@ -522,7 +522,7 @@ class Workbench:
             wrong = 0x63 if scope is None else scope % 247 + 1
             link.wrong_address = None if link.wrong_address is not None else wrong
             return f"{where}: wrong address {'off' if link.wrong_address is None else link.wrong_address}"
-        if key == "x":
+        if key == "e":
             codes = [None, *ExceptionCode]
             current = codes.index(link.forced_exception)
             link.forced_exception = codes[(current + 1) % len(codes)]

@@ -10,7 +10,7 @@ from pymodbus.exceptions import ModbusIOException
 from textual.widgets import Checkbox, Input, RichLog
 
 from c20sim import control
-from c20sim.tui.app import HelpScreen, SaveLogScreen
+from c20sim.tui.app import Dashboard, HelpScreen, SaveLogScreen
 from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel, NumberInput
 from tests.tui.conftest import Bench, running
 
@@ -84,7 +84,7 @@ async def test_link_faults_offline_and_forced_exception(bench: Bench) -> None:
     assert bench.app.sim.link_faults(1).offline
     with pytest.raises(ModbusIOException):
         await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
-    await bench.press("o", "x", "x")  # online; forced exception 0x01, then 0x02
+    await bench.press("o", "e", "e")  # online; forced exception 0x01, then 0x02
     response = await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
     assert (response.function_code, response.exception_code) == (0x83, 0x02)
     await bench.press("b", "c")  # the whole bus: bad CRC
@@ -184,6 +184,25 @@ async def test_every_switch_has_a_key_and_a_button(bench: Bench) -> None:
         for key, _ in panel.switches():
             assert key in keys
             assert panel.query_one(f"#{panel.prefix}-{key}")
+
+
+@pytest.mark.parametrize("tab", ["f2", "f3", "f4", "f5"])
+async def test_x_resets_a_fault_on_every_tab(bench: Bench, tab: str) -> None:
+    await bench.press(tab)
+    control.inject_fault(bench.app.sim, 1, 0x15)
+    assert await bench.read(FAULT) == 0x15
+    await bench.press("x")
+    assert await bench.read(FAULT) == 0
+    assert not bench.app.sim.link_faults(1).active  # the key did nothing else
+
+
+async def test_no_panel_binding_shadows_a_dashboard_key(bench: Bench) -> None:
+    app_keys = {key for binding in Dashboard.BINDINGS for key in binding.key.split(",")}  # type: ignore[union-attr]
+    assert {"x", "f", "J", "t", "q"} <= app_keys
+    screen = bench.app.get_screen_main()
+    for node in (screen, *screen.walk_children()):
+        shadowed = app_keys & set(node._bindings.key_to_bindings)
+        assert not shadowed, f"{node!r} binds {shadowed}, the dashboard's own keys"
 
 
 async def test_jog_reverse_key_pressed_again_releases(bench: Bench) -> None:
