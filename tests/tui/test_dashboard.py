@@ -177,13 +177,35 @@ async def test_help_screen_and_palette_commands(bench: Bench) -> None:
     assert "Keypad: STOP" in titles
 
 
-async def test_every_switch_has_a_key_and_a_button(bench: Bench) -> None:
-    screen = bench.app.get_screen_main()
-    for panel in (screen.query_one(DeviceFaultsPanel), screen.query_one(LinkFaultsPanel)):
-        keys = {b.key for b in panel.BINDINGS}  # type: ignore[union-attr]
-        for key, _ in panel.switches():
-            assert key in keys
-            assert panel.query_one(f"#{panel.prefix}-{key}")
+async def test_every_device_switch_key_switches_its_cause(bench: Bench) -> None:
+    workbench, panel = bench.app.bench, bench.app.get_screen_main().query_one(DeviceFaultsPanel)
+    await bench.press("f4")
+    for key, _ in panel.switches():
+        assert panel.query_one(f"#dev-{key}")
+        if key == "z":
+            continue
+        before = workbench.device_fault_active(1, key)
+        await bench.press(key)
+        assert workbench.device_fault_active(1, key) != before, f"device switch {key!r}"
+    await bench.press("z")
+    assert not any(workbench.device_fault_active(1, key) for key, _ in panel.switches())
+
+
+async def test_every_link_switch_key_switches_its_fault(bench: Bench) -> None:
+    workbench, panel = bench.app.bench, bench.app.get_screen_main().query_one(LinkFaultsPanel)
+    await bench.press("f5")
+    for key, _ in panel.switches():
+        assert panel.query_one(f"#link-{key}")
+        if key in ("z", "b"):
+            continue
+        before = workbench.link_fault_active(1, key)
+        await bench.press(key)
+        assert workbench.link_fault_active(1, key) != before, f"link switch {key!r}"
+    await bench.press("z")
+    assert not workbench.link(1).active
+    await bench.press("b", "c")
+    assert panel.on_bus
+    assert workbench.link_fault_active(None, "c")
 
 
 @pytest.mark.parametrize("tab", ["f2", "f3", "f4", "f5"])
