@@ -12,7 +12,7 @@ through the :class:`~c20sim.tui.workbench.Workbench`.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import ClassVar, cast
 
@@ -27,7 +27,6 @@ from textual.screen import ModalScreen, Screen
 from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
-from ..bus import FrameRecord
 from ..errors import C20SimError
 from ..serve import ServeOptions, Server
 from ..simulator import Simulator
@@ -196,7 +195,7 @@ class Dashboard(App[int]):
         self._plotted: tuple[int, int] | None = None
         self._drive_labels: dict[int, str] = {}
         self.set_reactive(Dashboard.selected, next(iter(self.bench.drives)))
-        self._unsubscribe: list[object] = []
+        self._unsubscribe: list[Callable[[], None]] = []
         self._started = False
 
     # --- life cycle
@@ -225,8 +224,7 @@ class Dashboard(App[int]):
 
     async def close_server(self) -> None:
         for unsubscribe in self._unsubscribe:
-            if callable(unsubscribe):
-                unsubscribe()
+            unsubscribe()
         self._unsubscribe.clear()
         if self._started:
             self._started = False
@@ -409,9 +407,6 @@ class Dashboard(App[int]):
             self.notify(f"saved {count} frames to {path}", timeout=4)
 
         self.push_screen(SaveLogScreen("c20sim-frames.log"), save)
-
-    def on_frame(self, record: FrameRecord) -> None:  # pragma: no cover - kept for listeners
-        self.get_screen_main().query_one(FrameLog).add(record)
 
     # --- the command palette
 
