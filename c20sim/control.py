@@ -22,7 +22,7 @@ import itertools
 import json
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -48,18 +48,24 @@ __all__ = [
     "add_ctl_command",
     "advance",
     "call",
+    "check_conditions",
+    "check_fault",
+    "check_link_faults",
     "clear_fault",
     "drive_state",
     "frames",
     "inject_fault",
+    "key_command",
     "link_state",
     "make_app",
     "parse_register",
     "power_cycle",
     "press_key",
     "read_register",
+    "register_address",
     "set_conditions",
     "set_link_faults",
+    "unknown",
 ]
 
 
@@ -99,7 +105,8 @@ def _flag(key: str, value: object) -> bool:
     return value
 
 
-def _unknown(kind: str, key: str, known: Mapping[str, object] | list[str]) -> ControlError:
+def unknown(kind: str, key: str, known: Mapping[str, object] | Sequence[str]) -> ControlError:
+    """The error for an unknown name: the closest known one, and all of them."""
     import difflib
 
     names = list(known)
@@ -136,34 +143,42 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
     return state
 
 
-def parse_register(sim: Simulator, text: str | int) -> int:
-    """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` or an int -> the register's address."""
-    registers = sim.profile.registers
-    if isinstance(text, bool):
+def register_address(text: object) -> int:
+    """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` (or ``fault code``) or an int -> an address 0-FFFFH.
+
+    The spelling only: whether a profile has the register is :func:`parse_register`'s question.
+    """
+    if isinstance(text, bool) or not isinstance(text, str | int):
         raise ControlError(f"register: expected a name or an address, got {json.dumps(text)}")
     if isinstance(text, int):
         address = text
     else:
         body = text.strip()
-        address = -1
         name = body.upper().replace("-", "_").replace(" ", "_")
         if name in Reg.__members__:
-            address = Reg[name]
-        elif body.upper().startswith("F") and "." in body:
+            return int(Reg[name])
+        if body.upper().startswith("F") and "." in body:
             try:
-                address = parse_fcode(body)
+                return parse_fcode(body)
             except ValueError as exc:
                 raise ControlError(f"register {text!r}: {exc}") from None
-        else:
-            digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
-            try:
-                address = int(digits, 16)
-            except ValueError:
-                raise ControlError(
-                    f"register {text!r}: give an address such as 2100H or 0x2100, a function code such as F00.10, "
-                    f"or a name such as status1"
-                ) from None
-    if address not in registers:
+        digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
+        try:
+            address = int(digits, 16)
+        except ValueError:
+            raise ControlError(
+                f"register {text!r}: give an address such as 2100H or 0x2100, a function code such as F00.10, "
+                f"or a name such as status1"
+            ) from None
+    if not 0 <= address <= 0xFFFF:
+        raise ControlError(f"register {text!r}: an address is 0000H-FFFFH")
+    return address
+
+
+def parse_register(sim: Simulator, text: str | int) -> int:
+    """A register as :func:`register_address` reads it, which the simulator's profile must have."""
+    address = register_address(text)
+    if address not in sim.profile.registers:
         raise ControlError(f"register {text!r}: the profile {sim.profile.name} has no register {address:04X}H")
     return address
 
@@ -229,27 +244,37 @@ CONDITIONS: Mapping[str, Callable[[str, object], Callable[[Drive], None]]] = {
 }
 
 
-def set_conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> None:
-    """Set conditions at the drive's current time; all are checked before any is applied."""
-    drive = model(sim, address)
+def check_conditions(values: object) -> list[Callable[[Drive], None]]:
+    """Check conditions by their :data:`CONDITIONS` names; returns the changes to make."""
     if not isinstance(values, Mapping) or not values:
         raise ControlError(f'give conditions as an object, such as {{"supply_v": 30}}; known: {", ".join(CONDITIONS)}')
     changes = []
     for key, value in values.items():
         check = CONDITIONS.get(key)
         if check is None:
-            raise _unknown("condition", key, CONDITIONS)
+            raise unknown("condition", key, CONDITIONS)
         changes.append(check(key, value))
+    return changes
+
+
+def set_conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> None:
+    """Set conditions at the drive's current time; all are checked before any is applied."""
+    drive = model(sim, address)
+    changes = check_conditions(values)
     sim.sync()
     for change in changes:
         change(drive)
 
 
+def check_fault(code: object, persistent: object = False) -> tuple[int, bool]:
+    """A device fault to inject: ``code`` 1-255, and whether it is ``persistent``."""
+    return _integer("code", code, 1, 0xFF), _flag("persistent", persistent)
+
+
 def inject_fault(sim: Simulator, address: int, code: object, persistent: object = False) -> None:
     """Latch device fault ``code`` now; ``persistent`` makes resets fail until :func:`clear_fault`."""
     drive = model(sim, address)
-    number = _integer("code", code, 1, 0xFF)
-    hold = _flag("persistent", persistent)
+    number, hold = check_fault(code, persistent)
     sim.sync()
     drive.force_fault(number, persistent=hold)
 
@@ -276,15 +301,19 @@ KEYPAD: Mapping[str, int] = {
 }
 
 
+def key_command(key: object) -> int:
+    """A keypad key (a name of :data:`KEYPAD` or a 2000H value 1-8) -> its 2000H value."""
+    if isinstance(key, str):
+        if key not in KEYPAD:
+            raise unknown("key", key, KEYPAD)
+        return KEYPAD[key]
+    return _integer("key", key, 1, 8)
+
+
 def press_key(sim: Simulator, address: int, key: object) -> bool:
     """Press a keypad key (a name of :data:`KEYPAD` or a 2000H value 1-8); False if the drive refused it."""
     drive = model(sim, address)
-    if isinstance(key, str):
-        if key not in KEYPAD:
-            raise _unknown("key", key, KEYPAD)
-        command = KEYPAD[key]
-    else:
-        command = _integer("key", key, 1, 8)
+    command = key_command(key)
     sim.sync()
     return drive.keypad(command)
 
@@ -363,9 +392,8 @@ LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
 }
 
 
-def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, object]) -> LinkFaults:
-    """Switch link faults of one drive (or the bus for None); all are checked before any is set."""
-    link = _links(sim, address)
+def check_link_faults(values: object) -> dict[str, object]:
+    """Check link faults by their :data:`LINK_CHECKS` names; returns the values to set."""
     if not isinstance(values, Mapping) or not values:
         raise ControlError(
             f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(LINK_CHECKS)}'
@@ -374,9 +402,15 @@ def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, ob
     for key, value in values.items():
         check = LINK_CHECKS.get(key)
         if check is None:
-            raise _unknown("link fault", key, LINK_CHECKS)
+            raise unknown("link fault", key, LINK_CHECKS)
         checked[key] = check(key, value)
-    for key, value in checked.items():
+    return checked
+
+
+def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, object]) -> LinkFaults:
+    """Switch link faults of one drive (or the bus for None); all are checked before any is set."""
+    link = _links(sim, address)
+    for key, value in check_link_faults(values).items():
         setattr(link, key, value)
     return link
 
@@ -516,7 +550,7 @@ def make_app(api: ControlApi) -> web.Application:
     def only(data: Mapping[str, Any], *allowed: str) -> None:
         for key in data:
             if key not in allowed:
-                raise _unknown("field", key, list(allowed))
+                raise unknown("field", key, list(allowed))
 
     async def index(request: web.Request) -> web.Response:
         sim.sync()
@@ -614,7 +648,7 @@ def make_app(api: ControlApi) -> web.Application:
 
         for key in query:
             if key not in ("last", "slave", "since"):
-                raise _unknown("query parameter", key, ["last", "slave", "since"])
+                raise unknown("query parameter", key, ["last", "slave", "since"])
         records = frames(
             sim,
             last=arg("last", 1),

@@ -28,24 +28,26 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import difflib
+import functools
 import math
 import sys
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, TypeVar
 
 from . import control
 from .errors import C20SimError
 from .protocol import FrameEvent, FrameKind, WriteSingleRequest, decode_response, encode
-from .registers import Reg, format_fcode, parse_fcode
+from .registers import format_fcode
 from .simulator import Simulator
 
 if TYPE_CHECKING:
     from .bus import Reply
     from .transport.line import Line
+
+T = TypeVar("T")
 
 __all__ = [
     "Expect",
@@ -133,30 +135,6 @@ STEP_KEYS = (
 TOP_KEYS = ("name", "description", "profile", "drives", "step")
 
 
-def _did_you_mean(key: str, known: tuple[str, ...] | list[str]) -> str:
-    close = difflib.get_close_matches(key, list(known), n=1)
-    return f"; did you mean {close[0]!r}?" if close else f"; known keys: {', '.join(known)}"
-
-
-def parse_address(text: object) -> int:
-    """A register as a scenario names it: ``2100H``, ``0x2100``, ``F00.10`` or a name such as ``status1``."""
-    if isinstance(text, int) and not isinstance(text, bool):
-        return text
-    if not isinstance(text, str):
-        raise ValueError(f"{text!r} is not a register")
-    body = text.strip()
-    name = body.upper().replace("-", "_")
-    if name in Reg.__members__:
-        return int(Reg[name])
-    if body.upper().startswith("F") and "." in body:
-        return parse_fcode(body)
-    digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
-    try:
-        return int(digits, 16)
-    except ValueError:
-        raise ValueError(f"{text!r} is not a register; give 2100H, 0x2100, F00.10 or a name such as status1") from None
-
-
 def load_scenario(path: str | Path) -> Scenario:
     """Read and check a scenario file; raises ScenarioError naming the file, step and key."""
     where = str(path)
@@ -172,7 +150,7 @@ def load_scenario(path: str | Path) -> Scenario:
 def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenario:
     for key in data:
         if key not in TOP_KEYS:
-            raise ScenarioError(path, f"key {key!r}", "unknown key" + _did_you_mean(key, TOP_KEYS))
+            raise ScenarioError(path, f"key {key!r}", str(control.unknown("key", key, TOP_KEYS)))
     name = data.get("name", Path(path).stem)
     if not isinstance(name, str):
         raise ScenarioError(path, "key 'name'", "expected a string")
@@ -220,7 +198,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
 
     for key in raw:
         if key not in STEP_KEYS:
-            raise fail(key, "unknown key" + _did_you_mean(key, STEP_KEYS))
+            raise fail(key, str(control.unknown("key", key, STEP_KEYS)))
 
     def table(key: str) -> dict[str, Any]:
         value = raw.get(key, {})
@@ -234,9 +212,10 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
             raise fail(key, "expected true or false")
         return value
 
-    def checked(key: str, fn: Callable[[], object]) -> None:
+    def checked(key: str, fn: Callable[[], T]) -> T:
+        """Check with control's own checker: one vocabulary, and its message, for the API and the scenarios."""
         try:
-            fn()
+            return fn()
         except control.ControlError as exc:
             raise fail(key, str(exc)) from None
 
@@ -248,17 +227,11 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         raise fail("note", "expected a string")
 
     conditions = table("set")
-    for name, value in conditions.items():
-        check = control.CONDITIONS.get(name)
-        if check is None:
-            raise fail("set", f"unknown condition {name!r}" + _did_you_mean(name, list(control.CONDITIONS)))
-        checked("set", lambda check=check, name=name, value=value: check(name, value))  # type: ignore[misc]
+    if conditions:
+        checked("set", lambda: control.check_conditions(conditions))
     link = table("link")
-    for name, value in link.items():
-        link_check = control.LINK_CHECKS.get(name)
-        if link_check is None:
-            raise fail("link", f"unknown link fault {name!r}" + _did_you_mean(name, list(control.LINK_CHECKS)))
-        checked("link", lambda c=link_check, name=name, value=value: c(name, value))  # type: ignore[misc]
+    if link:
+        checked("link", lambda: control.check_link_faults(link))
 
     fault_value = raw.get("fault")
     fault: tuple[int, bool] | None = None
@@ -270,36 +243,23 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
             code, persistent = fault_value.get("code"), fault_value.get("persistent", False)
         else:
             code, persistent = fault_value, False
-        if isinstance(code, bool) or not isinstance(code, int) or not 1 <= code <= 0xFF:
-            raise fail("fault", "expected a fault code 1-255, or { code = 16, persistent = true }")
-        if not isinstance(persistent, bool):
-            raise fail("fault", "persistent: expected true or false")
-        fault = (code, persistent)
+        fault = checked("fault", lambda: control.check_fault(code, persistent))
 
     writes: list[tuple[str, int, int]] = []
     for register, value in table("write").items():
-        try:
-            address = parse_address(register)
-        except ValueError as exc:
-            raise fail("write", str(exc)) from None
+        address = checked("write", functools.partial(control.register_address, register))
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
             raise fail("write", f"{register}: expected a raw value 0-65535, got {value!r}")
         writes.append((register, address, value))
 
     keypad = raw.get("keypad")
-    if keypad is not None and not (
-        (isinstance(keypad, str) and keypad in control.KEYPAD)
-        or (isinstance(keypad, int) and not isinstance(keypad, bool) and 1 <= keypad <= 8)
-    ):
-        raise fail("keypad", f"expected a key: {', '.join(control.KEYPAD)}, or a 2000H value 1-8")
+    if keypad is not None:
+        checked("keypad", lambda: control.key_command(keypad))
 
     expects: list[Expect] = []
     for register, given in table("expect").items():
         value = given
-        try:
-            address = parse_address(register)
-        except ValueError as exc:
-            raise fail("expect", str(exc)) from None
+        address = checked("expect", functools.partial(control.register_address, register))
         tolerance: object = 0
         if isinstance(given, dict):
             extra = set(given) - {"value", "tolerance"}

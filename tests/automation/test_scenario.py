@@ -84,6 +84,18 @@ def test_a_refused_write_fails(tmp_path: Path) -> None:
     ]
 
 
+def test_registers_are_named_as_the_control_api_names_them() -> None:
+    from c20sim import control
+
+    sim = Simulator(load_profile())
+    names = ["fault code", "fault-code", "FAULT_CODE", "2102H", "0x2102", "2102h", "status1"]
+    scenario = parse_scenario({"step": [{"at": 0, "expect": dict.fromkeys(names, 0)}]}, "s.toml")
+    assert [e.address for e in scenario.steps[0].expect] == [control.parse_register(sim, n) for n in names]
+    assert [e.address for e in scenario.steps[0].expect] == [0x2102] * 6 + [0x2100]
+    report = run(scenario, sim)
+    assert [o.ok for o in report.outcomes] == [True] * 6 + [False]
+
+
 def test_a_refused_keypad_press_fails() -> None:
     scenario = parse_scenario(
         {"step": [{"at": 0, "fault": {"code": 17, "persistent": True}, "keypad": "reset"}, {"at": 1, "keypad": 1}]},
@@ -100,10 +112,15 @@ def test_a_refused_keypad_press_fails() -> None:
 @pytest.mark.parametrize(
     ("step", "message"),
     [
-        ({"at": 1, "expct": {}}, "s.toml: step 1 (at 1 s), key 'expct': unknown key; did you mean 'expect'?"),
+        (
+            {"at": 1, "expct": {}},
+            "s.toml: step 1 (at 1 s), key 'expct': unknown key 'expct'; did you mean 'expect'? (known: at, drive, "
+            "note, set, link, clear_link, fault, clear_fault, power_cycle, write, keypad, expect)",
+        ),
         (
             {"at": 1, "set": {"supply": 3}},
-            "s.toml: step 1 (at 1 s), key 'set': unknown condition 'supply'; did you mean 'supply_v'?",
+            "s.toml: step 1 (at 1 s), key 'set': unknown condition 'supply'; did you mean 'supply_v'? (known: "
+            "supply_v, load_torque_nm, load_inertia_kg_m2, ambient_c, hall_fault, ai1_v, ai2_v, ai3_v, terminal_inputs)",
         ),
         (
             {"at": 1, "set": {"supply_v": "low"}},
@@ -115,7 +132,8 @@ def test_a_refused_keypad_press_fails() -> None:
         ),
         (
             {"at": 1, "expect": {"statu1": 4}},
-            "s.toml: step 1 (at 1 s), key 'expect': 'statu1' is not a register; give 2100H, 0x2100, F00.10 or a name such as status1",
+            "s.toml: step 1 (at 1 s), key 'expect': register 'statu1': give an address such as 2100H or 0x2100, "
+            "a function code such as F00.10, or a name such as status1",
         ),
         (
             {"at": 1, "link": {"offline": "yes"}},
@@ -123,15 +141,25 @@ def test_a_refused_keypad_press_fails() -> None:
         ),
         (
             {"at": 1, "keypad": "run"},
-            "s.toml: step 1 (at 1 s), key 'keypad': expected a key: forward, reverse, jog_forward, jog_reverse, stop, free_stop, reset, jog_stop, or a 2000H value 1-8",
+            "s.toml: step 1 (at 1 s), key 'keypad': unknown key 'run' (known: forward, reverse, jog_forward, "
+            "jog_reverse, stop, free_stop, reset, jog_stop)",
         ),
         (
             {"at": 1, "fault": 0},
-            "s.toml: step 1 (at 1 s), key 'fault': expected a fault code 1-255, or { code = 16, persistent = true }",
+            "s.toml: step 1 (at 1 s), key 'fault': code: 0 is outside 1-255",
         ),
         (
             {"at": 1, "expect": {"F00": {"10": 5000}}},  # TOML read F00.10 = 5000 unquoted as a table
             "s.toml: step 1 (at 1 s), key 'expect': F00: unknown key '10'; quote a function code, as \"F00.10\" = N",
+        ),
+        ({"at": 1, "keypad": 9}, "s.toml: step 1 (at 1 s), key 'keypad': key: 9 is outside 1-8"),
+        (
+            {"at": 1, "fault": {"code": 16, "persistent": "yes"}},
+            "s.toml: step 1 (at 1 s), key 'fault': persistent: expected true or false, got \"yes\"",
+        ),
+        (
+            {"at": 1, "write": {"F99.99": 1}},
+            "s.toml: step 1 (at 1 s), key 'write': register 'F99.99': 'F99.99': group must be 00-31 and number 00-255",
         ),
         ({"at": -1}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
         ({"at": float("nan")}, "s.toml: step 1, key 'at': give the step's time in seconds from the start, >= 0"),
@@ -153,7 +181,11 @@ def test_bad_files(tmp_path: Path) -> None:
         ScenarioError, match=r"s\.toml: step 2 \(at 1 s\), key 'at': time runs backwards: step 1 is at 2 s$"
     ):
         parse_scenario({"step": [{"at": 2}, {"at": 1}]}, "s.toml")
-    with pytest.raises(ScenarioError, match=r"^s\.toml: key 'steps': unknown key; did you mean 'step'\?$"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"^s\.toml: key 'steps': unknown key 'steps'; did you mean 'step'\? "
+        r"\(known: name, description, profile, drives, step\)$",
+    ):
         parse_scenario({"steps": []}, "s.toml")
     path = write(tmp_path, '[[step]]\nat = 0\nexpect = { "F09.99" = 1 }\n')
     result = c20sim("run-scenario", str(path))
