@@ -85,9 +85,12 @@ async def test_bad_bodies_and_fields(client: Callable[[Simulator], Awaitable[Api
         },
     )
     # nothing is half-applied: the good key before the bad one did not take
-    status, _ = await api("PUT", "/drives/1/conditions", {"supply_v": 30, "ambient_c": "hot"})
-    assert status == 400
-    assert (await api("GET", "/drives/1"))[1]["supply_v"] == 48.0
+    assert await api("PUT", "/drives/1/conditions", {"supply_v": 30, "ambient_c": "hot"}) == (
+        400,
+        {"error": 'ambient_c: expected a number, got "hot"'},
+    )
+    status, state = await api("GET", "/drives/1")
+    assert (status, state["supply_v"]) == (200, 48.0)
 
 
 async def test_faults_keypad_power_cycle_and_registers(client: Callable[[Simulator], Awaitable[Api]]) -> None:
@@ -96,20 +99,27 @@ async def test_faults_keypad_power_cycle_and_registers(client: Callable[[Simulat
     status, state = await api("POST", "/drives/1/fault", {"code": 17, "persistent": True})
     assert (status, state["state"], state["fault_code"]) == (200, "fault", 17)
     status, state = await api("POST", "/drives/1/keypad", {"key": "reset"})
-    assert (state["accepted"], state["state"]) == (False, "fault")  # persistent: the cause is still there
+    assert (status, state["accepted"], state["state"]) == (200, False, "fault")  # persistent: the cause is still there
     status, state = await api("DELETE", "/drives/1/fault")
-    assert (state["reset"], state["fault_code"]) == (True, 0)
-    assert (await api("GET", "/drives/1/registers/status1"))[1] == {
-        "register": "2100H",
-        "address": 0x2100,
-        "name": "status word 1",
-        "raw": 3,
-        "value": 3.0,
-        "unit": "",
-        "text": "stopped",
-    }
-    assert (await api("GET", "/drives/1/registers/F00.10"))[1]["text"] == "50.00 Hz"
-    assert (await api("GET", "/drives/1/registers/0x3008"))[1]["raw"] == 480
+    assert (status, state["reset"], state["fault_code"]) == (200, True, 0)
+    assert await api("GET", "/drives/1/registers/status1") == (
+        200,
+        {
+            "register": "2100H",
+            "address": 0x2100,
+            "name": "status word 1",
+            "raw": 3,
+            "value": 3.0,
+            "unit": "",
+            "text": "stopped",
+        },
+    )
+    status, register = await api("GET", "/drives/1/registers/F00.10")
+    assert (status, register["text"]) == (200, "50.00 Hz")
+    status, register = await api("GET", "/drives/1/registers/0x3008")
+    assert (status, register["raw"]) == (200, 480)
+    status, register = await api("GET", "/drives/1/registers/fault code")
+    assert (status, register["address"]) == (200, 0x2102)
     sim.drive(1).write(0x2001, 1000)  # RAM: a power cycle clears it
     status, state = await api("POST", "/drives/1/power-cycle")
     assert status == 200 and sim.drive(1).read(0x2001) == 0
@@ -121,10 +131,13 @@ async def test_link_faults_and_frames(client: Callable[[Simulator], Awaitable[Ap
     status, link = await api("PATCH", "/drives/2/link", {"drop_next": 2, "garbage_after": "ff 00"})
     assert (status, link["active"], link["garbage_after"]) == (200, ["drop_next", "garbage_after"], "FF 00")
     assert sim.link_faults(2).garbage_after == b"\xff\x00" and sim.link_faults(1).active == []
-    assert (await api("PATCH", "/link", {"offline": True}))[1]["active"] == ["offline"]
+    status, link = await api("PATCH", "/link", {"offline": True})
+    assert (status, link["active"]) == (200, ["offline"])
     assert sim.bus.link.offline
-    assert (await api("DELETE", "/link"))[1]["active"] == []
-    assert (await api("DELETE", "/drives/2/link"))[1]["active"] == []
+    status, link = await api("DELETE", "/link")
+    assert (status, link["active"]) == (200, [])
+    status, link = await api("DELETE", "/drives/2/link")
+    assert (status, link["active"]) == (200, [])
 
     from tests.conftest import Line
 
@@ -132,15 +145,16 @@ async def test_link_faults_and_frames(client: Callable[[Simulator], Awaitable[Ap
     line.send("01 03 21 03 00 01 7E 36")
     line.send("02 03 21 03 00 01 7E 05")
     status, log = await api("GET", "/frames?slave=2")
+    assert status == 200
     assert [(r["seq"], r["dir"], r["hex"]) for r in log["frames"]] == [
         (2, "rx", "02 03 21 03 00 01 7E 05"),
         (3, "tx", "02 03 02 00 20 FD 9C"),
     ]
     assert log["next"] == 4
-    assert (await api("DELETE", "/frames"))[1] == {"frames": [], "next": 4}
+    assert await api("DELETE", "/frames") == (200, {"frames": [], "next": 4})
     line.send("02 03 21 03 00 01 7E 05")
     status, log = await api("GET", "/frames?since=5")
-    assert [r["seq"] for r in log["frames"]] == [5]
+    assert (status, [r["seq"] for r in log["frames"]]) == (200, [5])
     assert await api("GET", "/frames?last=x") == (400, {"error": "last='x' is not a number"})
     assert await api("GET", "/frames?limit=3") == (
         400,
