@@ -78,6 +78,7 @@ class Line:
                 reply = self.sim.handle(event)
             except Exception:
                 log.exception("bug while serving %s; the simulator keeps serving", event)
+                _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 continue
             if reply is not None and reply.delay > 0:
                 self._busy = True

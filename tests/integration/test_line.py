@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
+
 from c20sim.bus import Reply
 from c20sim.clock import VirtualClock
 from c20sim.profile import load_profile
@@ -58,3 +60,24 @@ async def test_close_drops_what_waits() -> None:
     reply = await asyncio.wait_for(after, 5)
     assert reply is not None and reply.data == bytes.fromhex("01 03 02 00 00 B8 44")
     assert got == []
+
+
+async def test_a_bug_while_serving_is_silence_for_the_asker_and_the_line_goes_on(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    line = Line(sim)
+
+    def broken(event: FrameEvent) -> Reply | None:
+        raise RuntimeError("a bug")
+
+    real, sim.handle = sim.handle, broken  # type: ignore[method-assign]
+    got: list[Reply | None] = []
+    line.submit(frame(encode(ReadRequest(1, 0x2103, 1))), got.append)
+    assert got == [None]
+    assert "bug while serving" in caplog.text
+    sim.handle = real  # type: ignore[method-assign]
+    after = asyncio.get_running_loop().create_future()
+    line.submit(frame(encode(ReadRequest(1, 0x2103, 1))), after.set_result)
+    reply = await asyncio.wait_for(after, 5)
+    assert reply is not None and reply.data == bytes.fromhex("01 03 02 00 20 B9 9C")
