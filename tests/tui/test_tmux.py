@@ -21,10 +21,11 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0) -> None:
+def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0, show: Callable[[], str] = str) -> None:
+    """Poll ``check`` until it holds; on time out, fail saying what was awaited and what ``show`` gives."""
     deadline = time.monotonic() + timeout
     while not check():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        assert time.monotonic() < deadline, f"timed out waiting for {what}\n{show()}"
         time.sleep(0.05)
 
 
@@ -42,8 +43,28 @@ class Terminal:
         subprocess.run([TMUX or "tmux", "send-keys", "-t", self.session, *keys], check=True)
 
     def wait_for_text(self, text: str) -> str:
-        wait_for(repr(text), lambda: text in self.screen())
+        wait_for(repr(text), lambda: text in self.screen(), show=self.screen)
         return self.screen()
+
+    def pane(self, fmt: str) -> str:
+        """A tmux format of the session's pane, such as ``#{pane_dead}``."""
+        result = subprocess.run(
+            [TMUX or "tmux", "display-message", "-p", "-t", self.session, fmt],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return result.stdout.strip()
+
+    def exit_status(self) -> str:
+        """Wait for the program in the pane to end (the pane stays: remain-on-exit); how it ended.
+
+        ``status N`` or ``signal N``: tmux marks the pane dead a moment before it has the status.
+        """
+        ended = "status #{pane_dead_status} signal #{pane_dead_signal}"  # a tmux condition takes status 0 for false
+        wait_for("the program's exit status", lambda: self.pane(ended) != "status  signal", show=self.screen)
+        status, signal = self.pane("#{pane_dead_status}"), self.pane("#{pane_dead_signal}")
+        return f"status {status}" if status else f"signal {signal}"
 
 
 @pytest.fixture
@@ -51,12 +72,13 @@ def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
     ready = tmp_path / "ready.json"
     session = f"c20sim-{uuid.uuid4().hex[:8]}"
     command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
-    subprocess.run(
-        [TMUX or "tmux", "new-session", "-d", "-s", session, "-x", "100", "-y", "30", command],
-        check=True,
-        cwd=Path(__file__).parents[2],
-    )
+    tmux = TMUX or "tmux"
+    cwd = Path(__file__).parents[2]
+    # A shell first, so the pane is kept when the dashboard ends (remain-on-exit) before the dashboard starts.
+    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
+        subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
+        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
         terminal = Terminal(session)
         wait_for("the ready file", ready.exists)
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
@@ -97,4 +119,4 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     assert read(client, 0x2102) == 0x000A
     assert read(client, 0x2100) == 4
     terminal.keys("q")
-    wait_for("the dashboard to quit", lambda: "c20sim" not in terminal.screen())
+    assert terminal.exit_status() == "status 0", terminal.screen()
