@@ -420,8 +420,7 @@ class ConditionsPanel(Vertical):
             for terminal in Terminal:
                 yield Checkbox(terminal.name or "", id=f"term-{terminal.name}", compact=True)
         yield Static(
-            "Enter applies a value (in the control API's range); up/down step it. Terminals are the physical inputs.",
-            classes="hint",
+            "Enter applies, up/down step (control API ranges). Terminals: the physical inputs.", classes="hint"
         )
 
     def show(self, bench: Workbench, address: int) -> None:
