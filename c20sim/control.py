@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "CONDITIONS",
+    "CONDITION_RANGES",
     "KEYPAD",
     "ControlApi",
     "ControlError",
@@ -207,14 +208,6 @@ def _hall(key: str, value: object) -> Callable[[Drive], None]:
     return lambda d: d.set_hall_fault(value)
 
 
-def _ai(channel: int) -> Callable[[str, object], Callable[[Drive], None]]:
-    def check(key: str, value: object) -> Callable[[Drive], None]:
-        volts = _number(key, value, 0, 10)
-        return lambda d: d.set_ai(channel, volts)
-
-    return check
-
-
 def _num_setter(
     low: float, high: float, setter: Callable[[Drive, float], None]
 ) -> Callable[[str, object], Callable[[Drive], None]]:
@@ -230,16 +223,27 @@ def _terminals(key: str, value: object) -> Callable[[Drive], None]:
     return lambda d: d.set_terminal_inputs(bits)
 
 
+#: The range of each numeric condition, the one the API, the scenarios and the dashboard all accept.
+CONDITION_RANGES: Mapping[str, tuple[float, float]] = {
+    "supply_v": (0, 2000),
+    "load_torque_nm": (0, 1000),
+    "load_inertia_kg_m2": (0, 100),
+    "ambient_c": (-50, 150),
+    "ai1_v": (0, 10),
+    "ai2_v": (0, 10),
+    "ai3_v": (0, 10),
+}
+
 #: Condition name -> checker of a JSON value -> the change to make.
 CONDITIONS: Mapping[str, Callable[[str, object], Callable[[Drive], None]]] = {
-    "supply_v": _num_setter(0, 2000, lambda d, v: d.set_supply_voltage(v)),
-    "load_torque_nm": _num_setter(0, 1000, lambda d, v: d.set_load_torque(v)),
-    "load_inertia_kg_m2": _num_setter(0, 100, lambda d, v: d.set_load_inertia(v)),
-    "ambient_c": _num_setter(-50, 150, lambda d, v: d.set_ambient(v)),
+    "supply_v": _num_setter(*CONDITION_RANGES["supply_v"], lambda d, v: d.set_supply_voltage(v)),
+    "load_torque_nm": _num_setter(*CONDITION_RANGES["load_torque_nm"], lambda d, v: d.set_load_torque(v)),
+    "load_inertia_kg_m2": _num_setter(*CONDITION_RANGES["load_inertia_kg_m2"], lambda d, v: d.set_load_inertia(v)),
+    "ambient_c": _num_setter(*CONDITION_RANGES["ambient_c"], lambda d, v: d.set_ambient(v)),
     "hall_fault": _hall,
-    "ai1_v": _ai(1),
-    "ai2_v": _ai(2),
-    "ai3_v": _ai(3),
+    "ai1_v": _num_setter(*CONDITION_RANGES["ai1_v"], lambda d, v: d.set_ai(1, v)),
+    "ai2_v": _num_setter(*CONDITION_RANGES["ai2_v"], lambda d, v: d.set_ai(2, v)),
+    "ai3_v": _num_setter(*CONDITION_RANGES["ai3_v"], lambda d, v: d.set_ai(3, v)),
     "terminal_inputs": _terminals,
 }
 
