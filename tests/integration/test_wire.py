@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import os
 import tempfile
 import tty
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -297,7 +300,17 @@ async def test_a_client_leaving_mid_frame_costs_the_others_nothing(serve: ServeF
 # --- real serial port (socat pty pair) and Debian's mbpoll
 
 
-async def test_serial_port_through_a_socat_pair(serve: ServeFactory) -> None:
+@dataclass
+class SerialPair:
+    """Two linked ptys made by socat: the drive's end and the master's, like an RS485 adapter pair."""
+
+    drive: Path
+    master: Path
+    proc: asyncio.subprocess.Process
+
+
+@contextlib.asynccontextmanager
+async def socat_pair() -> AsyncIterator[SerialPair]:
     socat = need("socat")
     with tempfile.TemporaryDirectory() as tmp:
         a, b = Path(tmp) / "drive", Path(tmp) / "master"
@@ -310,37 +323,33 @@ async def test_serial_port_through_a_socat_pair(serve: ServeFactory) -> None:
         )
         try:
             await wait_for(lambda: a.exists() and b.exists())
-            served = await serve(serial=str(a), pty=False)
-            client = AsyncModbusSerialClient(str(b), timeout=1, retries=0)
-            assert await client.connect()
-            try:
-                assert await read(client, 0x2103) == 0x20
-                assert not (await client.write_register(0x2001, 321, device_id=1)).isError()
-                assert served.sim.drive(1).read(0x2001) == 321
-            finally:
-                client.close()
+            yield SerialPair(a, b, proc)
         finally:
-            proc.terminate()
-            await proc.wait()
+            if proc.returncode is None:
+                proc.terminate()
+                await proc.wait()
+
+
+async def test_serial_port_through_a_socat_pair(serve: ServeFactory) -> None:
+    async with socat_pair() as pair:
+        served = await serve(serial=str(pair.drive), pty=False)
+        client = AsyncModbusSerialClient(str(pair.master), timeout=1, retries=0)
+        assert await client.connect()
+        try:
+            assert await read(client, 0x2103) == 0x20
+            assert not (await client.write_register(0x2001, 321, device_id=1)).isError()
+            assert served.sim.drive(1).read(0x2001) == 321
+        finally:
+            client.close()
 
 
 async def test_a_lost_serial_port_is_closed_and_the_rest_keeps_serving(serve: ServeFactory) -> None:
-    socat = need("socat")
-    with tempfile.TemporaryDirectory() as tmp:
-        a, b = Path(tmp) / "drive", Path(tmp) / "master"
-        proc = await asyncio.create_subprocess_exec(
-            socat,
-            f"pty,raw,echo=0,link={a}",
-            f"pty,raw,echo=0,link={b}",
-            stdout=asyncio.subprocess.DEVNULL,
-            stderr=asyncio.subprocess.DEVNULL,
-        )
-        await wait_for(lambda: a.exists() and b.exists())
-        served = await serve(serial=str(a), pty=False)
+    async with socat_pair() as pair:
+        served = await serve(serial=str(pair.drive), pty=False)
         port = served.server.endpoints.serial
         assert port is not None and port.is_open
-        proc.kill()  # the adapter is unplugged: its device hangs up
-        await proc.wait()
+        pair.proc.kill()  # the adapter is unplugged: its device hangs up
+        await pair.proc.wait()
         await wait_for(lambda: not port.is_open)
         client = await served.rtu_tcp_client()
         try:
