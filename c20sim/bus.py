@@ -32,6 +32,7 @@ from .decode import describe
 from .linkfaults import LinkFaults
 from .protocol import (
     BROADCAST,
+    ExceptionCode,
     ExceptionResponse,
     FrameEvent,
     FrameKind,
@@ -105,13 +106,11 @@ class Reply:
 class Bus:
     """Drives sharing one line. ``handle`` serves one framing event."""
 
-    def __init__(
-        self, slaves: Iterable[Slave], *, baud: int | None = None, log_size: int = 2000, seed: int | None = None
-    ) -> None:
+    def __init__(self, slaves: Iterable[Slave], *, log_size: int = 2000, seed: int | None = None) -> None:
         self.slaves: list[Slave] = list(slaves)
         if not self.slaves:
             raise ValueError("a bus needs at least one drive")
-        self.line_baud = baud if baud is not None else self.slaves[0].baud
+        self.line_baud = self.slaves[0].baud
         #: link faults of the whole line, and of each drive's interface (by position in ``slaves``)
         self.link = LinkFaults()
         self.drive_links: list[LinkFaults] = [LinkFaults() for _ in self.slaves]
@@ -144,8 +143,21 @@ class Bus:
 
     # -- serving
 
+    def link_of(self, slave: Slave) -> LinkFaults:
+        """The link faults of one drive's interface."""
+        return self._link_of[slave]
+
     def _links(self, slave: Slave) -> tuple[LinkFaults, LinkFaults]:
         return self._link_of[slave], self.link
+
+    def _offline(self, slave: Slave) -> bool:
+        """The drive hears nothing: its own link, or the whole line, is offline."""
+        return self._link_of[slave].offline or self.link.offline
+
+    def _forced(self, slave: Slave) -> ExceptionCode | None:
+        """The exception forced on the drive's replies (its own link's first, then the line's)."""
+        own = self._link_of[slave].forced_exception
+        return own if own is not None else self.link.forced_exception
 
     def slave_at(self, address: int) -> Slave | None:
         """The drive answering ``address`` at the line's baud, if any."""
@@ -174,7 +186,7 @@ class Bus:
         slave = self.slave_at(slave_address)
         if slave is None or not slave.profile.protocol.reply_to_bad_crc:
             return None
-        if any(link.offline for link in self._links(slave)):
+        if self._offline(slave):
             return None
         return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud)
 
@@ -190,10 +202,10 @@ class Bus:
                 rx("broadcast read: ignored")
                 return None
             rx("broadcast: no reply")
-            for each, link in zip(self.slaves, self.drive_links, strict=True):
-                if each.baud != self.line_baud or link.offline or self.link.offline:
+            for each in self.slaves:
+                if each.baud != self.line_baud or self._offline(each):
                     continue
-                if link.forced_exception is None and self.link.forced_exception is None:
+                if self._forced(each) is None:
                     each.handle(request, t)  # a forced exception means the drive never acts on the request
                 self._follow_baud(each)
             return None
@@ -201,12 +213,11 @@ class Bus:
         if slave is None:
             rx("reserved address: silence" if address in RESERVED else "no drive at this address: silence")
             return None
-        links = self._links(slave)
-        if links[0].offline or links[1].offline:
+        if self._offline(slave):
             rx("drive offline (injected)", slave.registers)
             return None
         rx("", slave.registers)
-        forced = links[0].forced_exception if links[0].forced_exception is not None else links[1].forced_exception
+        forced = self._forced(slave)
         if forced is not None:
             response: Response = ExceptionResponse(address, request.function, forced)
         else:

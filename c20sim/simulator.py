@@ -139,7 +139,7 @@ class Simulator:
         if address is None:
             return self.bus.link
         self.drive(address)  # a clear error for an unknown address
-        return self.bus.drive_links[list(self.drives).index(address)]
+        return self.bus.link_of(self.slaves[address])
 
     def advance(self, seconds: float) -> float:
         """Move virtual time on by ``seconds`` and bring every drive to it; returns the new time."""
