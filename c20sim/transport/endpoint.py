@@ -23,7 +23,7 @@ from ..bus import Reply
 from ..protocol import RtuFramer
 from .line import Line
 
-__all__ = ["UNTIMED_SILENCE", "RtuEndpoint"]
+__all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
 
 #: Silence that ends a broken frame where bytes carry no line timing (TCP, a pty or a USB adapter without
 #: --line-timing): lenient, since operating systems deliver bytes in bursts. A valid frame completes on its
@@ -31,6 +31,13 @@ __all__ = ["UNTIMED_SILENCE", "RtuEndpoint"]
 UNTIMED_SILENCE = 0.02
 
 log = logging.getLogger(__name__)
+
+
+def stream_framer(baud: int, *, line_timing: bool = False) -> RtuFramer:
+    """The framer of a byte stream: held to t1.5/t3.5 with line timing, else completed on length."""
+    if line_timing:
+        return RtuFramer(baud)
+    return RtuFramer(baud, complete_on_length=True, check_gaps=False, silence=UNTIMED_SILENCE)
 
 
 class RtuEndpoint:

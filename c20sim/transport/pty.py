@@ -17,8 +17,8 @@ import tty
 from pathlib import Path
 
 from ..errors import C20SimError
-from ..protocol import RtuFramer, char_time
-from .endpoint import UNTIMED_SILENCE, RtuEndpoint
+from ..protocol import char_time
+from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
 __all__ = ["PtyPort"]
@@ -58,13 +58,7 @@ class PtyPort:
                 raise C20SimError(
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
-        baud = self.line.sim.bus.line_baud
-        framer = RtuFramer(
-            baud,
-            complete_on_length=not self.line_timing,
-            check_gaps=self.line_timing,
-            silence=None if self.line_timing else UNTIMED_SILENCE,
-        )
+        framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
         self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         if self.line_timing:

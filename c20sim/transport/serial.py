@@ -15,8 +15,7 @@ import logging
 import serial
 
 from ..errors import C20SimError
-from ..protocol import RtuFramer
-from .endpoint import UNTIMED_SILENCE, RtuEndpoint
+from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
 log = logging.getLogger(__name__)
@@ -69,12 +68,7 @@ class SerialPort:
             )
         except serial.SerialException as exc:
             raise C20SimError(_explain(self.device, exc)) from None
-        framer = RtuFramer(
-            self.baud,
-            complete_on_length=not self.line_timing,
-            check_gaps=self.line_timing,
-            silence=None if self.line_timing else UNTIMED_SILENCE,
-        )
+        framer = stream_framer(self.baud, line_timing=self.line_timing)
         self._endpoint = RtuEndpoint(
             self.line, framer, self._send, on_baud=self._set_baud, name=f"serial {self.device}"
         )

@@ -27,7 +27,7 @@ from typing import cast
 from ..bus import Reply
 from ..errors import C20SimError
 from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
-from .endpoint import UNTIMED_SILENCE, RtuEndpoint
+from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
 __all__ = ["ModbusTcpServer", "RtuOverTcpServer", "parse_host_port"]
@@ -136,7 +136,7 @@ class _RtuConnection(_Connection):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
         line = self.owner.line
-        framer = RtuFramer(line.sim.bus.line_baud, complete_on_length=True, check_gaps=False, silence=UNTIMED_SILENCE)
+        framer = stream_framer(line.sim.bus.line_baud)  # TCP carries no line timing
         self.endpoint = RtuEndpoint(
             line, framer, lambda data, _baud: self.send(data), name=f"tcp {transport.get_extra_info('peername')}"
         )
