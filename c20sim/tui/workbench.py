@@ -50,7 +50,17 @@ CHANNEL_NAMES = {0: "keypad", 1: "terminals", 2: "communication"}
 SOURCE_NAMES = {0: "keypad", 1: "AI1 knob", 2: "AI2", 3: "Modbus", 4: "multi-speed"}
 
 #: Keypad keys: name -> 2000H command value. JOG toggles between forward jog and jog stop.
-KEYPAD = {"fwd": 1, "rev": 2, "jog": 3, "jogrev": 4, "stop": 5, "reset": 7}
+KEYPAD = {
+    short: control.KEYPAD[name]  # the 2000H command values, named once in the control API
+    for short, name in (
+        ("fwd", "forward"),
+        ("rev", "reverse"),
+        ("jog", "jog_forward"),
+        ("jogrev", "jog_reverse"),
+        ("stop", "stop"),
+        ("reset", "reset"),
+    )
+}
 
 #: Causes the bench injects physically; every other fault of the profile is latched with force_fault.
 PHYSICAL_CAUSES = frozenset(
@@ -259,7 +269,7 @@ class Workbench:
         command = KEYPAD[key]
         state = drive.state.value
         if key in ("jog", "jogrev") and state.startswith("jog"):
-            command = 8  # jog stop: a jog key pressed while jogging is released
+            command = control.KEYPAD["jog_stop"]  # a jog key pressed while jogging is released
         if drive.keypad(command):
             return None
         if key == "reset":
