@@ -34,9 +34,9 @@ from .bus import FrameRecord
 from .drive.model import Telemetry
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, load_profile
-from .protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest, decode_request
+from .protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
 from .serve import ServeOptions, Server
-from .simulator import Simulator, make_clock
+from .simulator import Simulator, check_addresses, make_clock
 
 __all__ = ["C20Sim", "DriveHandle", "Settings"]
 
@@ -238,7 +238,7 @@ class C20Sim:
         for record in records:
             if record.direction != "rx" or record.kind != "request" or record.slave not in (address, 0):
                 continue
-            written = _written(record.data).get(reg)
+            written = _written(record.words).get(reg)
             if written is None:
                 continue
             if written != value:
@@ -279,11 +279,8 @@ class C20Sim:
         self.assert_register("2102H", code, drive)
 
 
-def _written(frame: bytes) -> dict[int, int]:
-    try:
-        request = decode_request(frame)
-    except ValueError:
-        return {}
+def _written(request: object) -> dict[int, int]:
+    """The registers a request record writes (its words are the request the bus decoded)."""
     if isinstance(request, WriteSingleRequest):
         return {request.register: request.value}
     if isinstance(request, WriteMultipleRequest):
@@ -387,14 +384,10 @@ def _drives(value: object) -> tuple[int, ...]:
     addresses = (value,) if isinstance(value, int) else tuple(value) if isinstance(value, Iterable) else ()
     if not addresses or not all(isinstance(a, int) and not isinstance(a, bool) for a in addresses):
         raise pytest.UsageError(f"c20sim: drives {value!r}: give drive addresses 1-247, such as (1, 2)")
-    checked: list[int] = []
-    for address in addresses:
-        if not 1 <= address <= 247:
-            raise pytest.UsageError(f"c20sim: drives {value!r}: address {address} is outside 1-247")
-        if address in checked:
-            raise pytest.UsageError(f"c20sim: drives {value!r}: address {address} is listed twice")
-        checked.append(address)
-    return tuple(checked)
+    try:
+        return tuple(check_addresses(addresses))
+    except ValueError as exc:
+        raise pytest.UsageError(f"c20sim: drives {value!r}: {exc}") from None
 
 
 def _profile(value: object) -> Profile:

@@ -9,7 +9,7 @@ I/O beyond what the drives do with their state files.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from .bus import Bus, Reply
@@ -22,35 +22,54 @@ from .protocol import FrameEvent
 from .registers import BAUD_RATES, Reg
 from .slave import Slave
 
-__all__ = ["DriveFactory", "Simulator", "make_clock", "parse_addresses", "set_address", "set_baud", "state_path_for"]
+__all__ = [
+    "DriveFactory",
+    "Simulator",
+    "check_addresses",
+    "make_clock",
+    "parse_addresses",
+    "set_address",
+    "set_baud",
+    "state_path_for",
+]
 
 #: Builds one drive: (profile, address, state file or None, start time) -> drive.
 DriveFactory = Callable[[Profile, int, "Path | None", float], DrivePort]
 
 
-def parse_addresses(text: str) -> list[int]:
-    """``"1,2,5"`` or ``"1-3,7"`` -> [1, 2, 3, 7]; raises C20SimError with what is wrong."""
-    addresses: list[int] = []
+def check_addresses(addresses: Iterable[int]) -> list[int]:
+    """Drive addresses 1-247, each once; raises ValueError naming the first one that is not."""
+    checked: list[int] = []
+    for address in addresses:
+        if not 1 <= address <= 247:
+            raise ValueError(f"address {address} is outside 1-247")
+        if address in checked:
+            raise ValueError(f"address {address} is listed twice")
+        checked.append(address)
+    return checked
+
+
+def _expand(text: str) -> Iterator[int]:
     for part in text.split(","):
         part = part.strip()
         if not part:
-            raise C20SimError(f"bad drive list {text!r}: empty entry; give addresses such as 1,2,5 or 1-3")
+            raise ValueError("empty entry; give addresses such as 1,2,5 or 1-3")
         low, dash, high = part.partition("-")
         try:
             first, last = (int(low), int(high)) if dash else (int(part), int(part))
         except ValueError:
-            raise C20SimError(
-                f"bad drive list {text!r}: {part!r} is not an address; give addresses such as 1,2,5"
-            ) from None
-        for address in range(first, last + 1):
-            if not 1 <= address <= 247:
-                raise C20SimError(f"bad drive list {text!r}: address {address} is outside 1-247")
-            if address in addresses:
-                raise C20SimError(f"bad drive list {text!r}: address {address} is listed twice")
-            addresses.append(address)
+            raise ValueError(f"{part!r} is not an address; give addresses such as 1,2,5") from None
         if first > last:
-            raise C20SimError(f"bad drive list {text!r}: {part!r} runs backwards")
-    return addresses
+            raise ValueError(f"{part!r} runs backwards")
+        yield from range(first, last + 1)  # lazily: a bad address in 1-1000000 is caught at 248
+
+
+def parse_addresses(text: str) -> list[int]:
+    """``"1,2,5"`` or ``"1-3,7"`` -> [1, 2, 3, 7]; raises C20SimError with what is wrong."""
+    try:
+        return check_addresses(_expand(text))
+    except ValueError as exc:
+        raise C20SimError(f"bad drive list {text!r}: {exc}") from None
 
 
 def state_path_for(state: Path | None, address: int, count: int) -> Path | None:
