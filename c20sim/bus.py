@@ -22,6 +22,7 @@ and is passed to each listener (the JSON-lines writer, the dashboard).
 
 from __future__ import annotations
 
+import enum
 import logging
 import random
 from collections import deque
@@ -45,12 +46,36 @@ from .protocol import (
 from .registers import RegisterMap
 from .slave import Slave
 
-__all__ = ["Bus", "FrameRecord", "Reply"]
+__all__ = ["Bus", "Direction", "FrameRecord", "RecordKind", "Reply"]
 
 log = logging.getLogger(__name__)
 
 #: Addresses the sheet reserves (1.a): no drive answers them.
 RESERVED = range(0xF8, 0x100)
+
+
+class Direction(enum.StrEnum):
+    """Which way a frame went on the line (equal to its JSON string)."""
+
+    RX = "rx"  #: master to drive
+    TX = "tx"  #: drive to master
+
+
+class RecordKind(enum.StrEnum):
+    """What a frame-log record is (equal to its JSON string)."""
+
+    REQUEST = "request"  #: a good frame from the master
+    REPLY = "reply"  #: the drive's normal answer
+    EXCEPTION = "exception"  #: the drive's exception answer
+    DROPPED = "dropped"  #: a reply a link fault kept off the wire
+    CRC_ERROR = FrameKind.CRC_ERROR.value  #: a frame of the right length with a bad CRC
+    LENGTH_ERROR = FrameKind.LENGTH_ERROR.value  #: a known function with the wrong number of bytes
+    NOISE = FrameKind.NOISE.value  #: bytes that are no frame
+
+    @property
+    def error(self) -> bool:
+        """A framing error, a drop or an exception: what an "errors only" view shows."""
+        return self not in (RecordKind.REQUEST, RecordKind.REPLY)
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,9 +88,9 @@ class FrameRecord:
     """
 
     t: float  #: the line's time: arrival of the frame's last byte, or when the reply is due
-    direction: str  #: "rx" (master to drive) or "tx" (drive to master)
+    direction: Direction
     data: bytes
-    kind: str  #: "request", "reply", "exception", "dropped", "crc error", "length error", "noise"
+    kind: RecordKind
     slave: int | None
     words: str | Request | Response
     note: str = ""  #: framing error detail, or an injected link fault
@@ -84,9 +109,9 @@ class FrameRecord:
         return {
             "t": round(self.t, 6),
             "model_t": None if self.model_t is None else round(self.model_t, 6),
-            "dir": self.direction,
+            "dir": str(self.direction),
             "hex": self.data.hex(" ").upper(),
-            "kind": self.kind,
+            "kind": str(self.kind),
             "slave": self.slave,
             "text": self.text,
             "note": self.note,
@@ -179,7 +204,16 @@ class Bus:
             return self._handle_frame(event, t)
         slave_address = event.data[0] if event.data else None
         self.record(
-            FrameRecord(event.t, "rx", event.data, event.kind.value, slave_address, event.kind.value, event.note, t)
+            FrameRecord(
+                event.t,
+                Direction.RX,
+                event.data,
+                RecordKind(event.kind.value),
+                slave_address,
+                event.kind.value,
+                event.note,
+                t,
+            )
         )
         if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
             return None
@@ -195,7 +229,9 @@ class Bus:
         address = request.slave
 
         def rx(note: str = "", registers: RegisterMap | None = self.slaves[0].registers) -> None:
-            self.record(FrameRecord(event.t, "rx", event.data, "request", address, request, note, t, registers))
+            self.record(
+                FrameRecord(event.t, Direction.RX, event.data, RecordKind.REQUEST, address, request, note, t, registers)
+            )
 
         if address == BROADCAST:
             if isinstance(request, ReadRequest):
@@ -235,7 +271,7 @@ class Bus:
         self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None, baud: int
     ) -> Reply | None:
         data: bytes | None = encode(response)
-        kind = "exception" if response.function & 0x80 else "reply"
+        kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
         delay = slave.profile.protocol.turnaround_ms / 1000.0
         notes: list[str] = []
         for link in self._links(slave):
@@ -246,7 +282,7 @@ class Bus:
             data, delay = mangled.data, mangled.delay
             notes += mangled.notes
             if data is None:
-                self._tx(t + delay, b"", "dropped", slave, response, notes, model_t, request)
+                self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request)
                 return None
         assert data is not None
         self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
@@ -256,7 +292,7 @@ class Bus:
         self,
         t: float,
         data: bytes,
-        kind: str,
+        kind: RecordKind,
         slave: Slave,
         response: Response,
         notes: list[str],
@@ -264,4 +300,6 @@ class Bus:
         request: Request | None,
     ) -> None:
         note = "; ".join(notes)
-        self.record(FrameRecord(t, "tx", data, kind, response.slave, response, note, model_t, slave.registers, request))
+        self.record(
+            FrameRecord(t, Direction.TX, data, kind, response.slave, response, note, model_t, slave.registers, request)
+        )

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .control import add_ctl_command
+from .control.ctl import add_ctl_command
 from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile

@@ -1,7 +1,8 @@
 """Link faults: what a bad RS485 line, gateway or drive interface does to replies.
 
 A :class:`LinkFaults` is a set of switches, one per drive and one per bus,
-that the dashboard, the control API and tests flip. The bus consults them
+that the operations (:mod:`c20sim.control.ops`) flip for every front end;
+each switch's :class:`Knob` says how a value is checked and shown. The bus consults them
 around each request: an offline drive or a forced exception means the drive
 never sees the request; the rest (drop, delay, corrupt, truncate, garbage,
 wrong address) act on the reply the drive produced. Randomness comes from a
@@ -11,11 +12,12 @@ wrong address) act on the reply the drive produced. Randomness comes from a
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from .protocol import ExceptionCode, crc16
 
-__all__ = ["LinkFaults", "Mangled"]
+__all__ = ["KNOBS", "Knob", "LinkFaults", "Mangled"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,56 +29,66 @@ class Mangled:
     notes: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True, slots=True)
+class Knob:
+    """How one link fault is set and shown: the one definition every front end reads.
+
+    ``kind`` says what a value is (and so how the operations check one):
+    ``flag``, ``count`` (0-1,000,000), ``percent`` (0-100), ``seconds``
+    (0-60), ``bytes`` (hex such as ``"FF 00"``), ``address`` (0-255 or
+    null) or ``exception`` (a code 0x01-0x08, its name, or null). ``key``,
+    ``label`` and ``on`` are its dashboard switch: pressing it sets ``on``
+    (a count goes up by ``on``, an exception steps through the codes) and
+    pressing it again sets the default back. ``on_reply`` is False for the
+    faults that act before the drive sees the request.
+    """
+
+    kind: str
+    key: str
+    label: str
+    how: str
+    on: object
+    on_reply: bool = True
+
+
+def _knob(default: object, kind: str, key: str, label: str, how: str, on: object, *, on_reply: bool = True) -> Any:
+    return field(default=default, metadata={"knob": Knob(kind, key, label, how, on, on_reply)})
+
+
 @dataclass
 class LinkFaults:
-    """Switches for one drive's link, or the whole bus's."""
+    """Switches for one drive's link, or the whole bus's. To add one: a field here, its effect in :meth:`mangle`."""
 
-    #: the drive hears nothing and says nothing until cleared
-    offline: bool = False
-    #: drop the next N replies (the drive still acts on the requests)
-    drop_next: int = 0
-    #: drop this percentage of replies at random
-    drop_percent: float = 0.0
-    #: extra reply delay in seconds, plus a random 0..delay_jitter
-    delay: float = 0.0
-    delay_jitter: float = 0.0
-    #: flip the reply's CRC
-    corrupt_crc: bool = False
-    #: cut the reply short (send only its first half)
-    truncate: bool = False
-    #: bytes sent before / after the reply
-    garbage_before: bytes = b""
-    garbage_after: bytes = b""
-    #: answer from this address instead of the drive's own
-    wrong_address: int | None = None
+    offline: bool = _knob(False, "flag", "o", "offline", "hears nothing, says nothing", True, on_reply=False)
+    drop_next: int = _knob(0, "count", "d", "drop next", "drop the next reply (press again for more)", 1)
+    drop_percent: float = _knob(0.0, "percent", "a", "drop 50 %", "drop half the replies at random", 50.0)
+    delay: float = _knob(0.0, "seconds", "y", "delay", "reply 500 ms late", 0.5)
+    delay_jitter: float = _knob(0.0, "seconds", "i", "jitter", "up to 200 ms random extra delay", 0.2)
+    corrupt_crc: bool = _knob(False, "flag", "c", "bad CRC", "corrupt the reply's CRC", True)
+    truncate: bool = _knob(False, "flag", "u", "truncate", "send half the reply", True)
+    garbage_before: bytes = _knob(b"", "bytes", "g", "garbage before", "two noise bytes before the reply", b"\x00\xff")
+    garbage_after: bytes = _knob(b"", "bytes", "n", "garbage after", "two noise bytes after the reply", b"\x00\xff")
+    #: answer from this address instead of the drive's own (the switch picks the next address)
+    wrong_address: int | None = _knob(None, "address", "w", "wrong address", "answer from another address", 0x63)
     #: answer every request with this exception code, without acting on it
-    forced_exception: ExceptionCode | None = None
+    forced_exception: ExceptionCode | None = _knob(  # noqa: RUF009 (a dataclasses.field, as the others)
+        None, "exception", "e", "exception", "cycles: force exception 0x01 .. 0x08, off", None, on_reply=False
+    )
 
     def clear(self) -> None:
         """Switch every fault off."""
-        for f in fields(self):
-            setattr(self, f.name, f.default)
+        for name in KNOBS:
+            setattr(self, name, _DEFAULTS[name])
 
     @property
     def active(self) -> list[str]:
         """Names of the faults switched on, for display."""
-        default = LinkFaults()
-        return [f.name for f in fields(self) if getattr(self, f.name) != getattr(default, f.name)]
+        return [name for name in KNOBS if getattr(self, name) != _DEFAULTS[name]]
 
     @property
     def active_reply_faults(self) -> bool:
         """True if :meth:`mangle` would change anything (a cheap test on every reply)."""
-        return bool(
-            self.drop_next
-            or self.drop_percent
-            or self.delay
-            or self.delay_jitter
-            or self.corrupt_crc
-            or self.truncate
-            or self.garbage_before
-            or self.garbage_after
-            or self.wrong_address is not None
-        )
+        return any(getattr(self, name) != default for name, default in _REPLY_DEFAULTS)
 
     def mangle(self, data: bytes, delay: float, rng: random.Random) -> Mangled:
         """Apply the reply faults to ``data`` sent after ``delay`` seconds."""
@@ -104,3 +116,9 @@ class LinkFaults:
             data = self.garbage_before + data + self.garbage_after
             notes.append("garbage added (injected)")
         return Mangled(data, delay, tuple(notes))
+
+
+#: Every link fault: field name -> its knob, in the order of the fields.
+KNOBS: dict[str, Knob] = {f.name: f.metadata["knob"] for f in fields(LinkFaults)}
+_DEFAULTS: dict[str, object] = {f.name: f.default for f in fields(LinkFaults)}
+_REPLY_DEFAULTS: tuple[tuple[str, object], ...] = tuple((n, _DEFAULTS[n]) for n, k in KNOBS.items() if k.on_reply)

@@ -17,11 +17,16 @@ from dataclasses import dataclass, field
 __all__ = [
     "COMMANDS",
     "FIXED_REGISTERS",
+    "RUN_CHANNELS",
+    "SPEED_SOURCES",
     "STATUS_WORDS",
     "Access",
+    "Command",
     "Reg",
     "RegisterMap",
     "RegisterSpec",
+    "RunChannel",
+    "SpeedSource",
     "address_label",
     "fcode_address",
     "format_fcode",
@@ -84,16 +89,82 @@ class Reg(enum.IntEnum):
     AI3_VOLTAGE = 0x3011
 
 
-#: 2000H command values (sheet, section 2).
+class Command(enum.IntEnum):
+    """2000H command values (sheet, section 2); a member's ``key`` is its name in every front end."""
+
+    FORWARD = 1  #: 0001h forward running
+    REVERSE = 2  #: 0002h reverse operation
+    JOG_FORWARD = 3  #: 0003h forward turning inching
+    JOG_REVERSE = 4  #: 0004h reverse jog
+    STOP = 5  #: 0005h shutdown (ramp down)
+    FREE_STOP = 6  #: 0006h free stop (emergency stop): output off, the motor coasts
+    RESET = 7  #: 0007h fault reset
+    JOG_STOP = 8  #: 0008h inching stop
+
+    @property
+    def key(self) -> str:
+        """The name the API, ctl, scenarios, pytest and the dashboard use: ``forward``, ``free_stop``."""
+        return self.name.lower()
+
+
+class RunChannel(enum.IntEnum):
+    """2006H / F00.01 values: where run commands come from (sheet, section 2)."""
+
+    KEYPAD = 0  #: 0: keyboard operation command channel
+    TERMINALS = 1  #: 1: terminal operation command channel
+    COMMUNICATION = 2  #: 2: communication operation command channel
+    DIAL_SWITCH = 3  #: 3: dial switch setting (SW3 valid), model related
+
+    @property
+    def key(self) -> str:
+        return self.name.lower()
+
+
+class SpeedSource(enum.IntEnum):
+    """2007H / F00.02 values: where the speed reference comes from (sheet, section 2)."""
+
+    KEYPAD = 0  #: 0: keyboard number setting
+    AI1 = 1  #: 1: analog quantity AI1 setting (knob potentiometer)
+    AI2 = 2  #: 2: analog quantity AI2 setting (external voltage)
+    MODBUS = 3  #: 3: Modbus communication setting
+    MULTI_SPEED = 4  #: 4: multi segment speed setting
+    DIAL_SWITCH = 5  #: 5: dial switch setting (SW2, SW3 valid), model related
+    SIMPLE_PLC = 6  #: 6: simple PLC setting
+
+    @property
+    def key(self) -> str:
+        return self.name.lower()
+
+
+#: 2000H command values in words.
 COMMANDS: Mapping[int, str] = {
-    1: "forward run",
-    2: "reverse run",
-    3: "forward jog",
-    4: "reverse jog",
-    5: "stop",
-    6: "free stop (coast)",
-    7: "fault reset",
-    8: "jog stop",
+    Command.FORWARD: "forward run",
+    Command.REVERSE: "reverse run",
+    Command.JOG_FORWARD: "forward jog",
+    Command.JOG_REVERSE: "reverse jog",
+    Command.STOP: "stop",
+    Command.FREE_STOP: "free stop (coast)",
+    Command.RESET: "fault reset",
+    Command.JOG_STOP: "jog stop",
+}
+
+#: 2006H / F00.01 values in words.
+RUN_CHANNELS: Mapping[int, str] = {
+    RunChannel.KEYPAD: "keypad",
+    RunChannel.TERMINALS: "terminals",
+    RunChannel.COMMUNICATION: "communication",
+    RunChannel.DIAL_SWITCH: "dial switch (SW3)",
+}
+
+#: 2007H / F00.02 values in words.
+SPEED_SOURCES: Mapping[int, str] = {
+    SpeedSource.KEYPAD: "keypad",
+    SpeedSource.AI1: "AI1 (knob)",
+    SpeedSource.AI2: "AI2 (external voltage)",
+    SpeedSource.MODBUS: "Modbus",
+    SpeedSource.MULTI_SPEED: "multi-segment speed",
+    SpeedSource.DIAL_SWITCH: "dial switch (SW2, SW3)",
+    SpeedSource.SIMPLE_PLC: "simple PLC",
 }
 
 #: 2100H status word 1 values (sheet, section 2).
@@ -112,7 +183,7 @@ def status2_words(raw: int) -> str:
     bus = "bus established" if raw & 0x01 else "bus not established"
     source = {0: "keypad control", 1: "terminal control", 2: "communication control"}.get(
         (raw >> 5) & 0b11, "control source 11 (undefined)"
-    )
+    )  # bits 5-6 name the run channel F00.01 (0-2); 11 is undefined
     words = [bus, source]
     if raw & 0x10:
         words.append("overload")
@@ -221,7 +292,7 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             _RW,
             0,
             3,
-            values={0: "keypad", 1: "terminals", 2: "communication", 3: "dial switch (SW3)"},
+            values=RUN_CHANNELS,
         ),
         _spec(
             Reg.SPEED_SOURCE,
@@ -229,15 +300,7 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             _RW,
             0,
             6,
-            values={
-                0: "keypad",
-                1: "AI1 (knob)",
-                2: "AI2 (external voltage)",
-                3: "Modbus",
-                4: "multi-segment speed",
-                5: "dial switch (SW2, SW3)",
-                6: "simple PLC",
-            },
+            values=SPEED_SOURCES,
         ),
         _spec(Reg.ADDRESS, "communication address", _RWS, 1, 247),
         _spec(

@@ -14,6 +14,12 @@ must read then::
     at = 2.1
     expect = { status1 = 4, fault_code = 0x0A, bus_voltage = { value = 240, tolerance = 10 } }
 
+A fault is given by its cause, as a bench brings it about
+(``fault = { cause = "undervoltage" }``; the names are
+:data:`c20sim.control.causes.CAUSES` and the profile's faults with no physical
+cause), or latched by code (``fault = { code = 16, persistent = true }``);
+``clear_fault = { cause = "undervoltage" }`` ends a cause and presses reset.
+
 Within a step the actions run in a fixed order: ``set``, ``link``,
 ``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
 ``keypad``, then ``expect``. Expected values are raw register values, as a
@@ -37,8 +43,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
-from . import control
+from .control import causes, ops
 from .errors import C20SimError
+from .profile import FaultCause
 from .protocol import FrameEvent, FrameKind, WriteSingleRequest, decode_response, encode
 from .registers import format_fcode
 from .simulator import Simulator
@@ -97,7 +104,9 @@ class Step:
     link: Mapping[str, object] = field(default_factory=dict)
     clear_link: bool = False
     fault: tuple[int, bool] | None = None  #: (code, persistent)
+    cause: str | None = None  #: a fault's cause to bring about (c20sim.control.causes)
     clear_fault: bool = False
+    release: str | None = None  #: a fault's cause to end, before clear_fault's reset
     power_cycle: bool = False
     write: tuple[tuple[str, int, int], ...] = ()  #: (register as written, address, value)
     keypad: str | int | None = None
@@ -150,7 +159,7 @@ def load_scenario(path: str | Path) -> Scenario:
 def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenario:
     for key in data:
         if key not in TOP_KEYS:
-            raise ScenarioError(path, f"key {key!r}", str(control.unknown("key", key, TOP_KEYS)))
+            raise ScenarioError(path, f"key {key!r}", str(ops.unknown("key", key, TOP_KEYS)))
     name = data.get("name", Path(path).stem)
     if not isinstance(name, str):
         raise ScenarioError(path, "key 'name'", "expected a string")
@@ -198,7 +207,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
 
     for key in raw:
         if key not in STEP_KEYS:
-            raise fail(key, str(control.unknown("key", key, STEP_KEYS)))
+            raise fail(key, str(ops.unknown("key", key, STEP_KEYS)))
 
     def table(key: str) -> dict[str, Any]:
         value = raw.get(key, {})
@@ -216,7 +225,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         """Check with control's own checker: one vocabulary, and its message, for the API and the scenarios."""
         try:
             return fn()
-        except control.ControlError as exc:
+        except ops.ControlError as exc:
             raise fail(key, str(exc)) from None
 
     drive = raw.get("drive")
@@ -228,38 +237,58 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
 
     conditions = table("set")
     if conditions:
-        checked("set", lambda: control.check_conditions(conditions))
+        checked("set", lambda: ops.check_conditions(conditions))
     link = table("link")
     if link:
-        checked("link", lambda: control.check_link_faults(link))
+        checked("link", lambda: ops.check_link_faults(link))
 
     fault_value = raw.get("fault")
     fault: tuple[int, bool] | None = None
+    cause: str | None = None
     if fault_value is not None:
-        if isinstance(fault_value, dict):
-            extra = set(fault_value) - {"code", "persistent"}
-            if extra:
-                raise fail("fault", f"unknown key {sorted(extra)[0]!r}; give {{ code = 16, persistent = true }}")
-            code, persistent = fault_value.get("code"), fault_value.get("persistent", False)
+        if isinstance(fault_value, dict) and "cause" in fault_value:
+            if set(fault_value) != {"cause"}:
+                raise fail("fault", 'give a cause alone, such as { cause = "undervoltage" }')
+            cause = _cause(fault_value["cause"], "fault", fail)
         else:
-            code, persistent = fault_value, False
-        fault = checked("fault", lambda: control.check_fault(code, persistent))
+            if isinstance(fault_value, dict):
+                extra = set(fault_value) - {"code", "persistent"}
+                if extra:
+                    raise fail(
+                        "fault",
+                        f'unknown key {sorted(extra)[0]!r}; give {{ cause = "undervoltage" }} '
+                        "or { code = 16, persistent = true }",
+                    )
+                code, persistent = fault_value.get("code"), fault_value.get("persistent", False)
+            else:
+                code, persistent = fault_value, False
+            fault = checked("fault", lambda: ops.check_fault(code, persistent))
+
+    clear_value = raw.get("clear_fault", False)
+    release: str | None = None
+    if isinstance(clear_value, dict):
+        if set(clear_value) != {"cause"}:
+            raise fail("clear_fault", 'give true, or a cause to end, such as { cause = "undervoltage" }')
+        release = _cause(clear_value["cause"], "clear_fault", fail)
+        clear_value = True
+    elif not isinstance(clear_value, bool):
+        raise fail("clear_fault", 'expected true or false, or { cause = "undervoltage" }')
 
     writes: list[tuple[str, int, int]] = []
     for register, value in table("write").items():
-        address = checked("write", functools.partial(control.register_address, register))
+        address = checked("write", functools.partial(ops.register_address, register))
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
             raise fail("write", f"{register}: expected a raw value 0-65535, got {value!r}")
         writes.append((register, address, value))
 
     keypad = raw.get("keypad")
     if keypad is not None:
-        checked("keypad", lambda: control.key_command(keypad))
+        checked("keypad", lambda: ops.key_command(keypad))
 
     expects: list[Expect] = []
     for register, given in table("expect").items():
         value = given
-        address = checked("expect", functools.partial(control.register_address, register))
+        address = checked("expect", functools.partial(ops.register_address, register))
         tolerance: object = 0
         if isinstance(given, dict):
             extra = set(given) - {"value", "tolerance"}
@@ -286,12 +315,25 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         link=link,
         clear_link=flag("clear_link"),
         fault=fault,
-        clear_fault=flag("clear_fault"),
+        cause=cause,
+        clear_fault=clear_value,
+        release=release,
         power_cycle=flag("power_cycle"),
         write=tuple(writes),
         keypad=keypad,
         expect=tuple(expects),
     )
+
+
+#: Every cause a scenario may name; whether the profile has a latched one is checked against the simulator.
+CAUSE_NAMES = (*causes.CAUSES, *(f.value for f in FaultCause if f not in causes.PHYSICAL))
+
+
+def _cause(value: object, key: str, fail: Callable[[str, str], ScenarioError]) -> str:
+    if not isinstance(value, str) or value not in CAUSE_NAMES:
+        message = str(ops.unknown("cause", value, CAUSE_NAMES)) if isinstance(value, str) else "expected a cause's name"
+        raise fail(key, message)
+    return value
 
 
 # --- Playing a scenario.
@@ -337,7 +379,13 @@ class Report:
 def check(scenario: Scenario, sim: Simulator) -> None:
     """Raise ScenarioError if a step names a drive or register the simulator lacks."""
     registers = sim.profile.registers
+    names = causes.cause_names(sim.profile)
     for step in scenario.steps:
+        for key, name in (("fault", step.cause), ("clear_fault", step.release)):
+            if name is not None and name not in names:
+                raise ScenarioError(
+                    scenario.path, f"{step.label}, key {key!r}", f"the profile {sim.profile.name} has no cause {name!r}"
+                )
         if step.drive is not None and step.drive not in sim.drives:
             raise ScenarioError(
                 scenario.path,
@@ -365,27 +413,31 @@ def _drive_of(step: Step, sim: Simulator) -> int:
 def _act(step: Step, sim: Simulator, address: int) -> None:
     """The step's actions before its writes: conditions, link and device faults, power."""
     if step.set:
-        control.set_conditions(sim, address, step.set)
+        ops.set_conditions(sim, address, step.set)
     if step.link:
-        control.set_link_faults(sim, address, step.link)
+        ops.set_link_faults(sim, address, step.link)
     if step.clear_link:
-        control.clear_link_faults(sim, address)
+        ops.clear_link_faults(sim, address)
     if step.fault is not None:
-        control.inject_fault(sim, address, step.fault[0], step.fault[1])
+        ops.inject_fault(sim, address, step.fault[0], step.fault[1])
+    if step.cause is not None:
+        causes.trip(sim, address, step.cause)
+    if step.release is not None:
+        causes.release(sim, address, step.release)
     if step.clear_fault:
-        control.clear_fault(sim, address, True)
+        ops.clear_fault(sim, address, True)
     if step.power_cycle:
-        control.power_cycle(sim, address)
+        ops.power_cycle(sim, address)
 
 
 def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Outcome]:
     """The keypad press and the expectations, after the writes were answered."""
     out: list[Outcome] = []
     if step.keypad is not None:
-        taken = control.press_key(sim, address, step.keypad)
+        taken = ops.press_key(sim, address, step.keypad)
         out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
     for expect in step.expect:
-        info = control.read_register(sim, address, expect.address)
+        info = ops.read_register(sim, address, expect.address)
         ok = abs(info["raw"] - expect.value) <= expect.tolerance
         within = f" +/- {expect.tolerance}" if expect.tolerance else ""
         spec = sim.profile.registers[expect.address]
@@ -473,12 +525,10 @@ def run(scenario: Scenario, sim: Simulator) -> Report:
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:
-        target = start + step.at
-        if target > sim.now():
-            sim.advance(target - sim.now())
+        sim.run_until(start + step.at)
         try:
             outcomes += apply_step(step, sim)
-        except control.ControlError as exc:
+        except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
     return Report(scenario, tuple(outcomes))
 
@@ -491,16 +541,11 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:
-        target = start + step.at
-        if not sim.virtual:
-            speed = float(getattr(sim.clock, "speed", 1.0))  # model seconds per wall second
-            while sim.now() < target:
-                await asyncio.sleep(min(0.5, (target - sim.now()) / speed))
-        if sim.virtual and target > sim.now():
-            sim.advance(target - sim.now())
+        while (wait := sim.wall_seconds_to(start + step.at)) > 0:
+            await asyncio.sleep(min(0.5, wait))
         try:
             results = apply_step(step, sim) if line is None else await apply_step_on_line(step, sim, line)
-        except control.ControlError as exc:
+        except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
         outcomes += results
         if out is not None:

@@ -28,7 +28,7 @@ from .transport.serial import SerialPort
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 
 if TYPE_CHECKING:
-    from .control import ControlApi
+    from .control.http import ControlApi
     from .scenario import Report, Scenario
 
 T = TypeVar("T")
@@ -142,7 +142,7 @@ class Server:
                 self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
             if opts.control:
-                from .control import ControlApi  # imports aiohttp: only when asked for
+                from .control.http import ControlApi  # imports aiohttp: only when asked for
 
                 host, port = parse_host_port(opts.control, "--control")
                 self.control = ControlApi(sim)

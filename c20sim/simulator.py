@@ -9,12 +9,13 @@ I/O beyond what the drives do with their state files.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from .bus import Bus, Reply
 from .clock import Clock, RealtimeClock, VirtualClock
 from .drive.base import DrivePort
+from .drive.model import Drive
 from .errors import C20SimError
 from .linkfaults import LinkFaults
 from .profile import Profile
@@ -23,7 +24,6 @@ from .registers import BAUD_RATES, Reg
 from .slave import Slave
 
 __all__ = [
-    "DriveFactory",
     "Simulator",
     "check_addresses",
     "make_clock",
@@ -32,9 +32,6 @@ __all__ = [
     "set_baud",
     "state_path_for",
 ]
-
-#: Builds one drive: (profile, address, state file or None, start time) -> drive.
-DriveFactory = Callable[[Profile, int, "Path | None", float], DrivePort]
 
 
 def check_addresses(addresses: Iterable[int]) -> list[int]:
@@ -79,14 +76,6 @@ def state_path_for(state: Path | None, address: int, count: int) -> Path | None:
     return state.with_name(f"{state.stem}.{address}{state.suffix or '.json'}")
 
 
-def default_drive_factory(profile: Profile, address: int, state: Path | None, t0: float) -> DrivePort:
-    from .drive.model import Drive
-
-    drive = Drive(profile, t0=t0, state_path=state)
-    set_address(drive, profile, address)
-    return drive
-
-
 def set_baud(drive: DrivePort, profile: Profile, baud: int) -> None:
     """Put a drive at the line speed the command line gave it (F08.01, mirrored by 2009H)."""
     if baud not in BAUD_RATES:
@@ -114,7 +103,6 @@ class Simulator:
         clock: Clock | None = None,
         state: Path | None = None,
         seed: int | None = None,
-        drive_factory: DriveFactory = default_drive_factory,
         log_size: int = 2000,
         baud: int | None = None,
     ) -> None:
@@ -123,10 +111,11 @@ class Simulator:
         self.profile = profile
         self.clock: Clock = clock if clock is not None else VirtualClock()
         t0 = self.clock.now()
-        self.drives: dict[int, DrivePort] = {
-            address: drive_factory(profile, address, state_path_for(state, address, len(addresses)), t0)
-            for address in addresses
-        }
+        self.drives: dict[int, Drive] = {}
+        for address in addresses:
+            drive = Drive(profile, t0=t0, state_path=state_path_for(state, address, len(addresses)))
+            set_address(drive, profile, address)
+            self.drives[address] = drive
         if baud is not None:
             for drive in self.drives.values():
                 set_baud(drive, profile, baud)
@@ -144,7 +133,7 @@ class Simulator:
         """Serve one framing event at the clock's time."""
         return self.bus.handle(event, self.clock.now())
 
-    def drive(self, address: int | None = None) -> DrivePort:
+    def drive(self, address: int | None = None) -> Drive:
         """The drive first configured at ``address`` (the first drive for None)."""
         if address is None:
             return next(iter(self.drives.values()))
@@ -161,14 +150,41 @@ class Simulator:
         return self.bus.link_of(self.slaves[address])
 
     def advance(self, seconds: float) -> float:
-        """Move virtual time on by ``seconds`` and bring every drive to it; returns the new time."""
-        if not isinstance(self.clock, VirtualClock):
-            raise C20SimError("time can only be advanced with the virtual clock (--clock virtual)")
+        """Move virtual time on by ``seconds``; returns the new time (:meth:`run_until` ``now + seconds``)."""
         if not math.isfinite(seconds) or seconds < 0:
             raise C20SimError(f"cannot advance by {seconds} s: time does not run backwards, nor to infinity")
-        t = self.clock.advance(seconds)
+        return self.run_until(self.now() + seconds)
+
+    def run_until(self, t: float) -> float:
+        """Virtual clock: move time on to ``t`` (no earlier than now) and bring every drive to it; returns the time.
+
+        The one way time is moved by hand: the API, ctl, scenarios, pytest and the dashboard all call it.
+        """
+        if not isinstance(self.clock, VirtualClock):
+            raise C20SimError("time can only be advanced with the virtual clock (--clock virtual)")
+        if not math.isfinite(t):
+            raise C20SimError(f"cannot run until t = {t}: time does not run to infinity")
+        now = self.clock.now()
+        if t > now:
+            self.clock.advance(t - now)
         self.sync()
-        return t
+        return self.clock.now()
+
+    def wall_seconds_to(self, t: float) -> float:
+        """Wall seconds until the clock reads ``t``: 0 once there; a virtual clock is run to it first.
+
+        The realtime wait without a clock read in the caller: ``while (s := sim.wall_seconds_to(t)) > 0:
+        await asyncio.sleep(s)``. Pure, as the rest of the core: the caller does the waiting.
+        """
+        if isinstance(self.clock, VirtualClock):
+            self.run_until(t)
+            return 0.0
+        speed = self.clock.speed if isinstance(self.clock, RealtimeClock) else 1.0  # model seconds per wall second
+        left = t - self.clock.now()
+        if left <= 0:
+            self.sync()
+            return 0.0
+        return left / speed
 
     def sync(self) -> None:
         """Bring every drive to the clock's time (for telemetry between requests)."""

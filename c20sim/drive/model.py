@@ -26,7 +26,7 @@ from pathlib import Path
 from ..errors import ModbusError
 from ..profile import FaultCause, Profile
 from ..protocol import ExceptionCode
-from ..registers import FIXED_REGISTERS, Reg, fcode_address
+from ..registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, RunChannel, fcode_address
 from . import physics
 from .params import ParameterStore
 from .physics import ACCEL, CONSTANT, DECEL, RPM, Segment
@@ -52,7 +52,7 @@ F_JOG_SPEED = fcode_address(0, 13)
 F_COMM_TIMEOUT = fcode_address(8, 2)
 F_MULTI_SPEED = fcode_address(5, 0)
 
-CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = 0, 1, 2
+CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION
 RUN_COMMANDS = frozenset({Event.FORWARD, Event.REVERSE, Event.JOG_FORWARD, Event.JOG_REVERSE})
 RUNNING = frozenset({State.FORWARD, State.REVERSE, State.JOG_FORWARD, State.JOG_REVERSE})
 #: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
@@ -216,10 +216,9 @@ class Drive:
         if address == Reg.COMMAND and value in {e.value for e in RUN_COMMANDS}:
             channel = self._cfg.channel
             if channel != CHANNEL_COMM:
-                names = {CHANNEL_KEYPAD: "keypad", CHANNEL_TERMINAL: "terminals"}
                 raise ModbusError(
                     ExceptionCode.OPERATION_FAILED,
-                    f"run commands come from the {names.get(channel, 'dial switch')} (F00.01 = {channel})",
+                    f"run commands come from the {RUN_CHANNELS.get(channel, channel)} (F00.01 = {channel})",
                 )
 
     def write(self, address: int, value: int) -> None:
@@ -263,7 +262,7 @@ class Drive:
 
     @property
     def physical_inputs(self) -> int:
-        """The physical input terminals as set (300DH and telemetry add the virtual ones, 2005H)."""
+        """The physical input terminals as set (300DH and telemetry add the virtual ones, 200AH)."""
         return self._physical_inputs
 
     @property

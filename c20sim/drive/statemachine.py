@@ -13,6 +13,8 @@ from __future__ import annotations
 import enum
 from collections.abc import Mapping
 
+from ..registers import Command
+
 __all__ = [
     "DRIVEN",
     "STATUS_WORD",
@@ -39,16 +41,16 @@ class State(enum.Enum):
 
 
 class Event(enum.Enum):
-    """Commands (values of 2000H) and the model's own events."""
+    """Commands (the 2000H values of :class:`~c20sim.registers.Command`) and the model's own events."""
 
-    FORWARD = 1  #: 0001h forward running
-    REVERSE = 2  #: 0002h reverse running
-    JOG_FORWARD = 3  #: 0003h forward jog (inching)
-    JOG_REVERSE = 4  #: 0004h reverse jog
-    STOP = 5  #: 0005h shutdown: ramp down
-    COAST = 6  #: 0006h free stop (emergency stop): output off at once
-    RESET = 7  #: 0007h fault reset (the model lets it through only once the cause is gone)
-    JOG_STOP = 8  #: 0008h inching stop
+    FORWARD = int(Command.FORWARD)
+    REVERSE = int(Command.REVERSE)
+    JOG_FORWARD = int(Command.JOG_FORWARD)
+    JOG_REVERSE = int(Command.JOG_REVERSE)
+    STOP = int(Command.STOP)  #: ramp down
+    COAST = int(Command.FREE_STOP)  #: output off at once
+    RESET = int(Command.RESET)  #: the model lets it through only once the cause is gone
+    JOG_STOP = int(Command.JOG_STOP)
     POWER_LOST = "power lost"  #: bus fell below the undervoltage level while not running
     POWER_BACK = "power back"  #: bus rose above the undervoltage level while off
     AT_ZERO = "at zero"  #: the rotor (and the ramp) reached zero speed

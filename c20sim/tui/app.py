@@ -28,9 +28,10 @@ from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, 
 from textual.widgets.option_list import Option
 
 from ..errors import C20SimError
+from ..registers import RUN_CHANNELS
 from ..serve import ServeOptions, Server
 from ..simulator import Simulator
-from .messages import ConditionsChanged, TelemetryUpdated
+from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .widgets import (
     STATUS_STYLES,
     ConditionsPanel,
@@ -126,8 +127,8 @@ class MainScreen(Screen[None]):
         s, p, m = bench.profile.supply, bench.profile.protection, bench.profile.motor
         yield Static(id="title")
         with Horizontal(id="top"):
-            drives = OptionList(*[Option(str(a), id=str(a)) for a in bench.drives], id="drives")
-            drives.display = len(bench.drives) > 1
+            drives = OptionList(*[Option(str(a), id=str(a)) for a in bench.addresses], id="drives")
+            drives.display = len(bench.addresses) > 1
             yield drives
             yield DriveStatus(id="status")
             with Vertical(id="plots"):
@@ -136,9 +137,9 @@ class MainScreen(Screen[None]):
                 yield TrendPlot("bus", "V", s.overvoltage_v, digits=1, id="plot-bus")
         with TabbedContent(id="tabs", initial="frames"):
             with TabPane("Frames F2", id="frames"):
-                yield FrameLog(bench.sim.bus, list(bench.drives), id="framelog")
+                yield FrameLog(bench.sim.bus, list(bench.addresses), id="framelog")
             with TabPane("Conditions F3", id="conditions"):
-                yield ConditionsPanel(id="conditions-panel")
+                yield ConditionsPanel(bench, id="conditions-panel")
             with TabPane("Device faults F4", id="faults"):
                 yield DeviceFaultsPanel(bench, id="faults-panel")
             with TabPane("Link faults F5", id="link"):
@@ -194,7 +195,7 @@ class Dashboard(App[int]):
         self.views: dict[int, DriveView] = {}
         self._plotted: tuple[int, int] | None = None
         self._drive_labels: dict[int, str] = {}
-        self.set_reactive(Dashboard.selected, next(iter(self.bench.drives)))
+        self.set_reactive(Dashboard.selected, next(iter(self.bench.addresses)))
         self._unsubscribe: list[Callable[[], None]] = []
         self._started = False
 
@@ -212,6 +213,7 @@ class Dashboard(App[int]):
             self.exit(return_code=2)
             return
         self._started = True
+        self.watch_selected(self.selected)
         framelog = screen.query_one(FrameLog)
         self._unsubscribe.append(self.sim.bus.subscribe(framelog.add))
         screen.query_one("#title", Static).update(self._title())
@@ -307,7 +309,7 @@ class Dashboard(App[int]):
                     drives.replace_option_prompt_at_index(index, label)
         active = screen.query_one(TabbedContent).active  # only the panel on show is kept up to date
         if active == "conditions":
-            screen.query_one(ConditionsPanel).show(self.bench, self.selected)
+            screen.query_one(ConditionsPanel).show()
         elif active == "faults":
             screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
         elif active == "link":
@@ -329,8 +331,7 @@ class Dashboard(App[int]):
 
     def action_channel(self) -> None:
         channel = self.bench.cycle_channel(self.selected)
-        names = {0: "keypad", 1: "terminals", 2: "communication"}
-        self.notify(f"drive {self.selected}: run channel {names[channel]} (F00.01 = {channel})", timeout=3)
+        self.notify(f"drive {self.selected}: run channel {RUN_CHANNELS[channel]} (F00.01 = {channel})", timeout=3)
         self.refresh_views()
 
     def action_power_cycle(self) -> None:
@@ -349,7 +350,7 @@ class Dashboard(App[int]):
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if action == "advance" and not self.sim.virtual:
             return None
-        if action == "drive" and len(self.bench.drives) < 2:
+        if action == "drive" and len(self.bench.addresses) < 2:
             return None
         return True
 
@@ -358,7 +359,7 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     def action_drive(self, step: int) -> None:
-        addresses = list(self.bench.drives)
+        addresses = list(self.bench.addresses)
         self.selected = addresses[(addresses.index(self.selected) + step) % len(addresses)]
         self.get_screen_main().query_one("#drives", OptionList).highlighted = addresses.index(self.selected)
 
@@ -367,9 +368,18 @@ class Dashboard(App[int]):
         if event.option.id is not None:
             self.selected = int(event.option.id)
 
-    def watch_selected(self) -> None:
+    def watch_selected(self, address: int) -> None:
+        with contextlib.suppress(NoMatches, LookupError):  # push the drive down to the panels that act on it
+            screen = self.get_screen_main()
+            screen.query_one(ConditionsPanel).selected = address
+            screen.query_one(DeviceFaultsPanel).selected = address
+            screen.query_one(LinkFaultsPanel).selected = address
         if self.views:
             self._show()
+
+    @on(SaveLogRequested)
+    def _save_requested(self) -> None:
+        self.action_save_log()
 
     def action_tab(self, tab: str) -> None:
         screen = self.get_screen_main()

@@ -13,7 +13,7 @@ from textual.message import Message
 
 from .workbench import DriveView
 
-__all__ = ["ConditionsChanged", "FramesLogged", "TelemetryUpdated"]
+__all__ = ["ConditionsChanged", "FramesLogged", "SaveLogRequested", "TelemetryUpdated"]
 
 
 @dataclass
@@ -39,3 +39,8 @@ class ConditionsChanged(Message):
     """A panel changed a drive's conditions or faults: refresh the views now."""
 
     note: str = ""
+
+
+@dataclass
+class SaveLogRequested(Message):
+    """The frame log asks for its records to be saved (the dashboard asks where)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar, cast
+from typing import ClassVar
 
 from rich.text import Text
 from textual import events, on
@@ -22,24 +22,19 @@ from textual.reactive import reactive
 from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
-from ..bus import Bus, FrameRecord
-from ..control import ControlError
+from ..bus import Bus, Direction, FrameRecord, RecordKind
+from ..control.ops import ControlError
 from ..drive.terminals import Input as Terminal
 from ..drive.terminals import Output
-from ..registers import STATUS_WORDS
-from .messages import ConditionsChanged, FramesLogged
+from ..registers import RUN_CHANNELS, SPEED_SOURCES, STATUS_WORDS
+from .messages import ConditionsChanged, FramesLogged, SaveLogRequested
 from .workbench import (
-    CHANNEL_NAMES,
     DEVICE_SWITCHES,
     LINK_SWITCHES,
-    SOURCE_NAMES,
     DriveView,
     Workbench,
     condition_range,
 )
-
-if TYPE_CHECKING:
-    from .app import Dashboard
 
 __all__ = [
     "ConditionsPanel",
@@ -61,13 +56,8 @@ STATUS_STYLES = {
     5: "bold black on yellow",
     6: "bold white on magenta",
 }
-ERROR_KINDS = frozenset({"exception", "crc error", "length error", "noise", "dropped"})
 FUNCTIONS = {0x03: "read", 0x06: "write", 0x10: "write multiple"}
 BLOCKS = " ▁▂▃▄▅▆▇█"
-
-
-def _dashboard(widget: Widget) -> Dashboard:
-    return cast("Dashboard", widget.app)
 
 
 def _bits(value: int, names: Iterable[tuple[str, int]]) -> Text:
@@ -102,8 +92,8 @@ class DriveStatus(Static):
         rows: list[tuple[str, Text | str]] = [
             (
                 "channel",
-                f"{CHANNEL_NAMES.get(tel.run_channel, tel.run_channel)} · speed from "
-                f"{SOURCE_NAMES.get(tel.speed_source, tel.speed_source)}",
+                f"{RUN_CHANNELS.get(tel.run_channel, tel.run_channel)} · speed from "
+                f"{SPEED_SOURCES.get(tel.speed_source, tel.speed_source)}",
             ),
             ("speed", f"{tel.speed_rpm:.0f} rpm of {tel.set_speed_rpm:.0f} · ramp {tel.ramp_rpm:.0f}"),
             ("freq", f"{view.output_hz:.2f} Hz of {view.set_hz:.2f} · {tel.output_voltage_v:.1f} V"),
@@ -187,23 +177,23 @@ def record_matches(record: FrameRecord, drive: int | None, function: int | None,
         return False
     if function is not None and (len(record.data) < 2 or record.data[1] & 0x7F != function):
         return False
-    return not errors_only or record.kind in ERROR_KINDS or bool(record.note)
+    return not errors_only or record.kind.error or bool(record.note)
 
 
 def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
     """One frame log line: time, direction, drive, words (highlighted if wrong), hex."""
-    arrow = "→" if record.direction == "rx" else "←"
+    arrow = "→" if record.direction is Direction.RX else "←"
     slave = "-" if record.slave is None else str(record.slave)
     line = Text(f"{record.t:9.3f} {arrow} {slave:>3} ", style="dim")
     style = ""
-    if record.kind == "exception":
+    if record.kind is RecordKind.EXCEPTION:
         style = "bold yellow"
-    elif record.kind in ERROR_KINDS:
+    elif record.kind.error:
         style = "bold red"
-    if record.kind not in ("request", "reply"):
+    if record.kind.error:
         line.append(f"[{record.kind}]", style=style or "bold")
     if record.text != record.kind:
-        line.append(f" {record.text}" if record.kind not in ("request", "reply") else record.text, style=style)
+        line.append(f" {record.text}" if record.kind.error else record.text, style=style)
     if record.note:
         line.append(f"  ! {record.note}", style="bold red")
     if hex_bytes and record.data:
@@ -344,7 +334,7 @@ class FrameLog(Vertical, can_focus=True):
         self._show_status()
 
     def action_save(self) -> None:
-        _dashboard(self).action_save_log()
+        self.post_message(SaveLogRequested())
 
     def save(self, path: Path) -> int:
         """Write the records the filter shows, one line each with hex; returns how many."""
@@ -410,6 +400,13 @@ CONDITION_FIELDS = {
 class ConditionsPanel(Vertical):
     """The physical conditions: supply, load, ambient, the analog inputs and the input terminals."""
 
+    #: the drive shown (the dashboard pushes it down)
+    selected = reactive(0)
+
+    def __init__(self, bench: Workbench, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.bench = bench
+
     def compose(self) -> ComposeResult:
         with Horizontal(classes="fields"):
             for name, (label, unit, step, condition) in CONDITION_FIELDS.items():
@@ -423,9 +420,9 @@ class ConditionsPanel(Vertical):
             "Enter applies, up/down step (control API ranges). Terminals: the physical inputs.", classes="hint"
         )
 
-    def show(self, bench: Workbench, address: int) -> None:
-        """Show the conditions of drive ``address`` (fields being edited are left alone)."""
-        cond = bench.conditions(address)
+    def show(self) -> None:
+        """Show the conditions of the selected drive (fields being edited are left alone)."""
+        cond = self.bench.conditions(self.selected)
         values = {
             "supply": cond.supply_v,
             "load": cond.load_torque_nm,
@@ -447,16 +444,15 @@ class ConditionsPanel(Vertical):
     @on(Input.Submitted)
     def _apply(self, event: Input.Submitted) -> None:
         event.stop()
-        dash = _dashboard(self)
         name = (event.input.id or "").removeprefix("cond-")
         try:
             value = float(event.value)
         except ValueError:
             self.notify(f"{name}: not a number: {event.value!r}", severity="error")
             return
-        address = dash.selected
+        address = self.selected
         try:
-            dash.bench.set_conditions(address, {CONDITION_FIELDS[name][3]: value})
+            self.bench.set_conditions(address, {CONDITION_FIELDS[name][3]: value})
         except ControlError as exc:
             self.notify(f"drive {address}: {exc}", severity="error", timeout=5)
             return
@@ -465,15 +461,14 @@ class ConditionsPanel(Vertical):
     @on(Checkbox.Changed)
     def _terminal(self, event: Checkbox.Changed) -> None:
         event.stop()
-        dash = _dashboard(self)
         bits = 0
         for terminal in Terminal:
             if self.query_one(f"#term-{terminal.name}", Checkbox).value:
                 bits |= terminal
         try:
-            dash.bench.set_inputs(dash.selected, bits)
+            self.bench.set_inputs(self.selected, bits)
         except ControlError as exc:
-            self.notify(f"drive {dash.selected}: {exc}", severity="error", timeout=5)
+            self.notify(f"drive {self.selected}: {exc}", severity="error", timeout=5)
         self.post_message(ConditionsChanged())
 
 
@@ -481,6 +476,8 @@ class _SwitchPanel(Vertical, can_focus=True):
     """A grid of one-key fault switches."""
 
     prefix = ""
+    #: the drive they act on (the dashboard pushes it down)
+    selected = reactive(0)
 
     def switches(self) -> list[tuple[str, str]]:
         """(key, label) of each switch."""
@@ -536,11 +533,10 @@ class DeviceFaultsPanel(_SwitchPanel):
     def toggle(self, key: str) -> None:
         if key.isdigit() and key not in self.bench.forced:
             return
-        dash = _dashboard(self)
         try:
-            note = self.bench.toggle_device_fault(dash.selected, key)
+            note = self.bench.toggle_device_fault(self.selected, key)
         except ControlError as exc:
-            self.notify(f"drive {dash.selected}: {exc}", severity="error", timeout=5)
+            self.notify(f"drive {self.selected}: {exc}", severity="error", timeout=5)
             return
         self.post_message(ConditionsChanged(note))
 
@@ -566,7 +562,7 @@ class LinkFaultsPanel(_SwitchPanel):
         return [(s.key, s.label) for s in LINK_SWITCHES] + [("z", "clear all"), ("b", "drive/bus")]
 
     def scope(self) -> int | None:
-        return None if self.on_bus else _dashboard(self).selected
+        return None if self.on_bus else self.selected
 
     def toggle(self, key: str) -> None:
         if key == "b":
@@ -584,7 +580,7 @@ class LinkFaultsPanel(_SwitchPanel):
         scope = self.scope()
         self.mark({s.key: self.bench.link_fault_active(scope, s.key) for s in LINK_SWITCHES})
         self.query_one("#link-b", Button).set_class(self.on_bus, "-on")
-        active = self.bench.link(scope).active
+        active = self.bench.link_active(scope)
         hint = f"On {self._where()} (b switches): " + (", ".join(active) if active else "no link fault")
         if hint != self._hint:
             self._hint = hint

@@ -1,16 +1,14 @@
 """The bench around the drives: the keypad, the physical conditions, the fault switches.
 
-Everything the dashboard does to a drive goes through here, so it is tested
-without a screen. Device faults are injected as their *causes*: an
-undervoltage trip is a supply switched low, an overheat is a hot ambient, an
-external fault is the EF terminal. Conditions are set through
-:func:`c20sim.control.set_conditions`, so they are checked as the control API
-and the scenarios check them and a dashboard session can be replayed there;
-they are read back from the drive, never copied, so what the control API
-changes on the same loop shows here. Only faults the model has no physical
-cause for (a power stage, the EEPROM, ...) are latched with ``force_fault``.
-Link faults are the :class:`~c20sim.linkfaults.LinkFaults` switches of one
-drive or of the whole bus. No textual import here.
+Everything the dashboard does to a drive goes through here, and everything
+here is an operation of :mod:`c20sim.control` (the same checks as the control
+API, the scenarios and pytest), so it is tested without a screen and a
+dashboard session means what a script would mean. Device faults are switched
+as their causes (:mod:`c20sim.control.causes`); conditions and link faults are
+read back through the operations, never copied, so what another front end
+changes shows here. The switches come from the operations' own tables: a new
+cause or link fault has its key here without a line of this file changing.
+No textual import here.
 """
 
 from __future__ import annotations
@@ -21,18 +19,16 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
-from .. import control
-from ..drive.model import Drive, HallFault, Telemetry
-from ..drive.terminals import Input
+from ..control import causes, ops
+from ..drive.model import HallFault, Telemetry
 from ..errors import C20SimError
-from ..linkfaults import LinkFaults
-from ..profile import FaultCause, Profile
+from ..linkfaults import KNOBS
+from ..profile import Profile
 from ..protocol import ExceptionCode
-from ..registers import Reg
-from ..simulator import Simulator, set_address
+from ..registers import RUN_CHANNELS, Command, Reg, RunChannel
+from ..simulator import Simulator
 
 __all__ = [
-    "CHANNEL_NAMES",
     "DEVICE_SWITCHES",
     "KEYPAD",
     "LINK_SWITCHES",
@@ -44,41 +40,15 @@ __all__ = [
     "condition_range",
 ]
 
-#: F00.01 values in words.
-CHANNEL_NAMES = {0: "keypad", 1: "terminals", 2: "communication"}
-#: F00.02 values in words.
-SOURCE_NAMES = {0: "keypad", 1: "AI1 knob", 2: "AI2", 3: "Modbus", 4: "multi-speed"}
-
-#: Keypad keys: name -> 2000H command value. JOG toggles between forward jog and jog stop.
-KEYPAD = {
-    short: control.KEYPAD[name]  # the 2000H command values, named once in the control API
-    for short, name in (
-        ("fwd", "forward"),
-        ("rev", "reverse"),
-        ("jog", "jog_forward"),
-        ("jogrev", "jog_reverse"),
-        ("stop", "stop"),
-        ("reset", "reset"),
-    )
+#: Keypad keys: the panel's key name -> 2000H command. JOG toggles between a jog and jog stop.
+KEYPAD: Mapping[str, Command] = {
+    "fwd": Command.FORWARD,
+    "rev": Command.REVERSE,
+    "jog": Command.JOG_FORWARD,
+    "jogrev": Command.JOG_REVERSE,
+    "stop": Command.STOP,
+    "reset": Command.RESET,
 }
-
-#: Causes the bench injects physically; every other fault of the profile is latched with force_fault.
-PHYSICAL_CAUSES = frozenset(
-    {
-        FaultCause.UNDERVOLTAGE,
-        FaultCause.OVERVOLTAGE_ACCEL,
-        FaultCause.OVERVOLTAGE_DECEL,
-        FaultCause.OVERVOLTAGE_CONSTANT,
-        FaultCause.OVERCURRENT_ACCEL,
-        FaultCause.OVERCURRENT_DECEL,
-        FaultCause.OVERCURRENT_CONSTANT,
-        FaultCause.MOTOR_OVERLOAD,
-        FaultCause.OVERHEAT,
-        FaultCause.EXTERNAL,
-        FaultCause.HALL,
-        FaultCause.STALL,
-    }
-)
 
 HALL_CYCLE: tuple[HallFault | None, ...] = (None, HallFault.STUCK0, HallFault.STUCK7, HallFault.SEQUENCE)
 
@@ -92,38 +62,20 @@ class Switch:
     how: str
 
 
-#: Device fault switches with a physical cause (forced ones are added per profile: keys 1-9).
-DEVICE_SWITCHES: tuple[Switch, ...] = (
-    Switch("u", "undervoltage", "supply switched low (UV while running, off while stopped)"),
-    Switch("v", "overvoltage", "supply switched high (OV1-3 by phase)"),
-    Switch("c", "overcurrent", "load torque past the overcurrent level (OC1-3 by phase, while running)"),
-    Switch("l", "overload", "load torque near the current limit (OL1 after about 30 s running)"),
-    Switch("k", "locked rotor", "load torque past the current limit (stall while running)"),
-    Switch("o", "overheat", "ambient at the control API's maximum (the trip time is the profile's)"),
-    Switch("h", "Hall sensor", "cycles: stuck at 0, stuck at 7, out of sequence, mended"),
-    Switch("e", "external fault", "the EF input terminal"),
-)
+#: Device fault switches, one per physical cause (latched faults are added per profile: keys 1-9).
+DEVICE_SWITCHES: tuple[Switch, ...] = tuple(Switch(c.key, c.label, c.how) for c in causes.CAUSES.values())
+#: The cause behind each device switch key.
+CAUSE_OF_KEY: Mapping[str, str] = {c.key: c.name for c in causes.CAUSES.values()}
 
-LINK_SWITCHES: tuple[Switch, ...] = (
-    Switch("o", "offline", "hears nothing, says nothing"),
-    Switch("d", "drop next", "drop the next reply (press again for more)"),
-    Switch("a", "drop 50 %", "drop half the replies at random"),
-    Switch("y", "delay", "reply 500 ms late"),
-    Switch("i", "jitter", "up to 200 ms random extra delay"),
-    Switch("c", "bad CRC", "corrupt the reply's CRC"),
-    Switch("u", "truncate", "send half the reply"),
-    Switch("g", "garbage before", "two noise bytes before the reply"),
-    Switch("n", "garbage after", "two noise bytes after the reply"),
-    Switch("w", "wrong address", "answer from another address"),
-    Switch("e", "exception", "cycles: force exception 0x01 .. 0x08, off"),
-)
-
-GARBAGE = b"\x00\xff"
+#: Link fault switches, one per link fault, from the link faults' own knobs.
+LINK_SWITCHES: tuple[Switch, ...] = tuple(Switch(k.key, k.label, k.how) for k in KNOBS.values())
+#: The link fault behind each link switch key.
+LINK_OF_KEY: Mapping[str, str] = {knob.key: name for name, knob in KNOBS.items()}
 
 
 @dataclass(frozen=True, slots=True)
 class Conditions:
-    """The physical conditions a drive is in now, as read from the drive."""
+    """The physical conditions a drive is in now, as read through the operations."""
 
     supply_v: float
     load_torque_nm: float
@@ -131,31 +83,38 @@ class Conditions:
     ambient_c: float
     ai1_v: float
     ai2_v: float
-    inputs: int  #: the physical input terminals (not the virtual ones of 2005H)
+    inputs: int  #: the physical input terminals (not the virtual ones of 200AH)
     hall: HallFault | None
-    held_fault: int | None  #: a fault latched with force_fault(persistent=True), not yet released
+    held_fault: int | None  #: a fault latched persistently, not yet released
 
     @classmethod
-    def of(cls, drive: Drive) -> Conditions:
-        tel = drive.telemetry()
+    def of(cls, values: Mapping[str, object], held_fault: int | None) -> Conditions:
+        def num(name: str) -> float:
+            value = values[name]
+            assert isinstance(value, int | float)
+            return float(value)
+
+        hall, inputs = values["hall_fault"], values["terminal_inputs"]
+        assert isinstance(inputs, int)
         return cls(
-            supply_v=tel.supply_v,
-            load_torque_nm=tel.load_torque_nm,
-            load_inertia_kg_m2=tel.load_inertia_kg_m2,
-            ambient_c=tel.ambient_c,
-            ai1_v=drive.ai(1),
-            ai2_v=drive.ai(2),
-            inputs=drive.physical_inputs,
-            hall=drive.hall_fault,
-            held_fault=drive.held_fault,
+            supply_v=num("supply_v"),
+            load_torque_nm=num("load_torque_nm"),
+            load_inertia_kg_m2=num("load_inertia_kg_m2"),
+            ambient_c=num("ambient_c"),
+            ai1_v=num("ai1_v"),
+            ai2_v=num("ai2_v"),
+            inputs=inputs,
+            hall=None if hall is None else HallFault(hall),
+            held_fault=held_fault,
         )
 
 
 @functools.cache
 def condition_range(name: str) -> tuple[float, float]:
-    """The range :data:`c20sim.control.CONDITION_RANGES` gives the numeric condition ``name``."""
-    low, high = control.CONDITION_RANGES[name]
-    return float(low), float(high)
+    """The range the operations accept for the numeric condition ``name``."""
+    condition = ops.CONDITIONS[name]
+    assert condition.low is not None and condition.high is not None
+    return float(condition.low), float(condition.high)
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,22 +156,22 @@ class History:
 
 
 class Workbench:
-    """A simulator's drives on the bench: what the dashboard (and its tests) do to them."""
+    """A simulator's drives on the bench: what the dashboard (and its tests) do to them, through the operations."""
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
         self.profile: Profile = sim.profile
-        self.drives: dict[int, Drive] = {}
-        for address, drive in sim.drives.items():
-            if not isinstance(drive, Drive):
-                raise C20SimError("the dashboard needs the behavioural drive model (c20sim.drive.model.Drive)")
-            self.drives[address] = drive
-        self.history = {a: History() for a in self.drives}
-        #: forced faults: key -> (code, name), the profile's faults with no physical cause, keys 1-9
+        self.addresses: tuple[int, ...] = tuple(sim.drives)
+        self.history = {a: History() for a in self.addresses}
+        #: latched faults: key -> (code, name), the profile's faults with no physical cause, keys 1-9
         self.forced: dict[str, tuple[int, str]] = {}
+        self._latched_cause: dict[str, str] = {}
+        latched = causes.latched(self.profile)
         for spec in self.profile.faults.values():
-            if spec.cause not in PHYSICAL_CAUSES and len(self.forced) < 9:
-                self.forced[str(len(self.forced) + 1)] = (spec.code, spec.name)
+            if spec.cause is not None and spec.cause.value in latched and len(self.forced) < 9:
+                key = str(len(self.forced) + 1)
+                self.forced[key] = (spec.code, spec.name)
+                self._latched_cause[key] = spec.cause.value
         #: the device fault switches, the overheat's trip time worked out for this profile
         self.device_switches = tuple(
             replace(s, how=self._overheat_how()) if s.key == "o" else s for s in DEVICE_SWITCHES
@@ -220,96 +179,88 @@ class Workbench:
 
     # --- reading
 
-    def drive(self, address: int) -> Drive:
-        try:
-            return self.drives[address]
-        except KeyError:
-            raise C20SimError(f"no drive at address {address}") from None
+    def _check(self, address: int) -> int:
+        if address not in self.sim.drives:
+            raise C20SimError(f"no drive at address {address}")
+        return address
 
     def telemetry(self, address: int) -> Telemetry:
-        return self.drive(address).telemetry()
+        return ops.telemetry(self.sim, self._check(address))
 
     def conditions(self, address: int) -> Conditions:
         """The conditions drive ``address`` is in now, whoever set them."""
-        return Conditions.of(self.drive(address))
+        return Conditions.of(ops.conditions(self.sim, address), ops.held_fault(self.sim, address))
+
+    def register(self, address: int, register: Reg) -> int:
+        raw: int = ops.read_register(self.sim, address, register)["raw"]
+        return raw
 
     def sample(self) -> dict[int, DriveView]:
         """Bring the drives to the clock's time; what each shows, its telemetry added to the plot history."""
-        self.sim.sync()
         out = {}
-        for address, drive in self.drives.items():
-            tel = drive.telemetry()
+        for address in self.addresses:
+            tel = ops.telemetry(self.sim, address)
             self.history[address].add(tel)
             out[address] = DriveView(
                 address,
                 tel,
-                drive.read(Reg.STATUS2),
-                drive.read(Reg.OUTPUT_FREQUENCY) / 100.0,
-                drive.read(Reg.SET_FREQUENCY) / 100.0,
+                self.register(address, Reg.STATUS2),
+                self.register(address, Reg.OUTPUT_FREQUENCY) / 100.0,
+                self.register(address, Reg.SET_FREQUENCY) / 100.0,
             )
         return out
 
     def advance(self, seconds: float) -> None:
         """Virtual clock only: move time on, sampling the plot history on the way."""
         every = min(h.every for h in self.history.values())
-        left = seconds
-        while left > 1e-12:
-            step = min(every, left)
-            self.sim.advance(step)
-            left -= step
-            for address, drive in self.drives.items():
-                self.history[address].add(drive.telemetry())
+        end = self.sim.now() + seconds
+        while self.sim.now() < end - 1e-12:
+            ops.advance(self.sim, min(every, end - self.sim.now()))
+            for address in self.addresses:
+                self.history[address].add(ops.telemetry(self.sim, address))
 
     # --- the keypad
 
     def keypad(self, address: int, key: str) -> str | None:
         """Press a keypad key; None if taken, else why it was refused."""
-        self.sim.sync()
-        drive = self.drive(address)
         command = KEYPAD[key]
-        state = drive.state.value
+        tel = self.telemetry(address)
+        state = tel.state
         if key in ("jog", "jogrev") and state.startswith("jog"):
-            command = control.KEYPAD["jog_stop"]  # a jog key pressed while jogging is released
-        if drive.keypad(command):
+            command = Command.JOG_STOP  # a jog key pressed while jogging is released
+        if ops.press_key(self.sim, address, command):
             return None
         if key == "reset":
             if state != "fault":
                 return "RESET: no fault to reset"
             return "RESET refused: the fault's cause is still present"
-        channel = drive.telemetry().run_channel
+        channel = tel.run_channel
         return (
             f"{key.upper()} refused: run commands come from the "
-            f"{CHANNEL_NAMES.get(channel, str(channel))} (F00.01 = {channel}); press m to change the channel"
+            f"{RUN_CHANNELS.get(channel, str(channel))} (F00.01 = {channel}); press m to change the channel"
         )
 
     def cycle_channel(self, address: int) -> int:
         """The keypad's own parameter edit: F00.01 keypad -> terminals -> communication -> keypad."""
-        self.sim.sync()
-        drive = self.drive(address)
-        cell = self.profile.registers.canonical(Reg.RUN_CHANNEL)
-        value = (drive.read(cell) + 1) % 3
-        drive.write(cell, value)
-        return value
+        now = self.register(address, Reg.RUN_CHANNEL)
+        return int(ops.set_run_channel(self.sim, address, (now + 1) % (RunChannel.COMMUNICATION + 1)))
 
     def power_cycle(self, address: int) -> None:
-        self.sim.sync()
-        self.drive(address).power_cycle()
+        ops.power_cycle(self.sim, address)
 
     def restore_defaults(self, address: int) -> str | None:
         """200FH = 1, as the keypad does it: only while stopped. Keeps the bus address given on the command line."""
-        self.sim.sync()
-        drive = self.drive(address)
-        if drive.running:
-            return "restore defaults refused: stop the motor first (200FH is W/R*)"
-        drive.write(Reg.RESTORE_DEFAULTS, 1)
-        set_address(drive, self.profile, address)
+        try:
+            ops.restore_defaults(self.sim, address)
+        except ops.ControlError as exc:
+            return str(exc)
         return None
 
-    # --- physical conditions, checked by the control API's one validation (ControlError if refused)
+    # --- physical conditions, checked by the operations (ControlError if refused)
 
     def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
-        """Set conditions by their :data:`c20sim.control.CONDITIONS` names; none is set if one is refused."""
-        control.set_conditions(self.sim, address, values)
+        """Set conditions by their :data:`c20sim.control.ops.CONDITIONS` names; none is set if one is refused."""
+        ops.set_conditions(self.sim, address, values)
 
     def set_supply(self, address: int, volts: float) -> None:
         self.set_conditions(address, {"supply_v": volts})
@@ -327,188 +278,102 @@ class Workbench:
         """The physical input terminals."""
         self.set_conditions(address, {"terminal_inputs": bits})
 
-    def set_hall(self, address: int, fault: HallFault | None) -> None:
-        self.set_conditions(address, {"hall_fault": None if fault is None else fault.value})
-
     # --- device faults, as causes
 
-    def levels(self) -> dict[str, float]:
-        """The condition each physical fault switch sets."""
-        s, p, m = self.profile.supply, self.profile.protection, self.profile.motor
-        return {
-            "u": round(s.undervoltage_v * 0.5, 1),
-            "v": round(s.overvoltage_v * 1.1, 1),
-            "c": round(p.overcurrent_a * m.kt_nm_per_a * 1.25, 2),
-            "l": round(p.current_limit_a * m.kt_nm_per_a * 0.9, 2),
-            "k": round(p.current_limit_a * m.kt_nm_per_a * 1.5, 2),
-        }
-
-    def overheat_ambient(self) -> float:
-        """The ambient the overheat switch sets: the highest the control API accepts."""
-        return condition_range("ambient_c")[1]
-
     def overheat_seconds(self, from_c: float | None = None) -> float:
-        """Seconds to the overheat trip at :meth:`overheat_ambient`, from ``from_c`` (the profile's ambient).
-
-        Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
-        """
-        th = self.profile.thermal
-        start = th.ambient_c if from_c is None else from_c
-        ambient = self.overheat_ambient()
-        if start > th.overheat_c:
-            return 0.0
-        if ambient <= th.overheat_c:
-            return math.inf
-        return th.time_constant_s * math.log((ambient - start) / (ambient - th.overheat_c))
+        """Seconds to the overheat trip with the overheat cause on, from ``from_c`` (the profile's ambient)."""
+        return causes.overheat_seconds(self.profile, from_c)
 
     def _overheat_how(self) -> str:
         seconds = self.overheat_seconds()
         when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
-        return f"ambient {self.overheat_ambient():g} °C, the control API's maximum: {when}; T/t advances virtual time"
+        return f"ambient {causes.HOT_AMBIENT:g} °C, the highest accepted: {when}; T/t advances virtual time"
+
+    def _cause(self, key: str) -> str:
+        if key in CAUSE_OF_KEY:
+            return CAUSE_OF_KEY[key]
+        if key in self._latched_cause:
+            return self._latched_cause[key]
+        raise KeyError(key)
 
     def device_fault_active(self, address: int, key: str) -> bool:
-        """Whether the cause of a device fault is there now, whoever put it there.
-
-        Supply and ambient are lit past their trip levels; the load switches when the load is their own level.
-        """
-        cond, levels = self.conditions(address), self.levels()
-        s = self.profile.supply
-        if key == "u":
-            return cond.supply_v < s.undervoltage_v
-        if key == "v":
-            return cond.supply_v > s.overvoltage_v
-        if key in ("c", "l", "k"):
-            return math.isclose(cond.load_torque_nm, levels[key])
-        if key == "o":
-            return cond.ambient_c > self.profile.thermal.overheat_c
-        if key == "h":
-            return cond.hall is not None
-        if key == "e":
-            return bool(cond.inputs & Input.EF)
-        if key in self.forced:
-            return cond.held_fault == self.forced[key][0]
-        return False
+        """Whether the cause behind switch ``key`` is there now, whoever brought it about."""
+        try:
+            return causes.active(self.sim, address)[self._cause(key)]
+        except KeyError:
+            return False
 
     def toggle_device_fault(self, address: int, key: str) -> str:
         """Switch a device fault's cause on or off; returns what was done, in words."""
-        cond, levels = self.conditions(address), self.levels()
-        active = self.device_fault_active(address, key)
-        s, th = self.profile.supply, self.profile.thermal
-        if key in ("u", "v"):
-            volts = s.voltage_v if active else levels[key]
-            self.set_supply(address, volts)
-            return f"drive {address}: supply {volts:g} V"
-        if key in ("c", "l", "k"):
-            nm = 0.0 if active else levels[key]
-            self.set_load(address, nm)
-            return f"drive {address}: load torque {nm:g} N m"
-        if key == "o":
-            if active:
-                self.set_ambient(address, th.ambient_c)
-                return f"drive {address}: ambient {th.ambient_c:g} °C"
-            celsius = self.overheat_ambient()
-            self.set_ambient(address, celsius)
-            seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
-            when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
-            return f"drive {address}: ambient {celsius:g} °C ({when})"
-        if key == "h":
-            fault = HALL_CYCLE[(HALL_CYCLE.index(cond.hall) + 1) % len(HALL_CYCLE)]
-            self.set_hall(address, fault)
-            return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
-        if key == "e":
-            self.set_inputs(address, cond.inputs ^ Input.EF)
-            return f"drive {address}: EF terminal {'off' if active else 'on'}"
-        if key in self.forced:
-            code, name = self.forced[key]
-            self.sim.sync()
-            drive = self.drive(address)
-            if active:
-                drive.release_fault()
-                return f"drive {address}: {name} cause gone (reset to clear)"
-            drive.force_fault(code, persistent=True)
-            return f"drive {address}: {name} (0x{code:02X}) latched"
         if key == "z":
-            self.clear_device_faults(address)
+            causes.clear_all(self.sim, address)
             return f"drive {address}: every fault cause cleared"
-        raise KeyError(key)
-
-    def clear_device_faults(self, address: int) -> None:
-        s, th = self.profile.supply, self.profile.thermal
-        self.set_conditions(
-            address,
-            {
-                "supply_v": s.voltage_v,
-                "load_torque_nm": 0.0,
-                "ambient_c": th.ambient_c,
-                "hall_fault": None,
-                "terminal_inputs": self.drive(address).physical_inputs & ~Input.EF,
-            },
-        )
-        self.drive(address).release_fault()
+        if key == "h":  # the Hall sensor cycles through its faults
+            now = self.conditions(address).hall
+            fault = HALL_CYCLE[(HALL_CYCLE.index(now) + 1) % len(HALL_CYCLE)]
+            self.set_conditions(address, {"hall_fault": None if fault is None else fault.value})
+            return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
+        cause = self._cause(key)
+        if self.device_fault_active(address, key):
+            return causes.release(self.sim, address, cause)
+        note = causes.trip(self.sim, address, cause)
+        if cause == "overheat":
+            seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
+            note += " (never trips)" if math.isinf(seconds) else f" (trips in about {seconds:.0f} s)"
+        return note
 
     # --- link faults
 
-    def link(self, scope: int | None) -> LinkFaults:
-        """The link faults of one drive, or of the whole bus (None)."""
-        return self.sim.link_faults(scope)
+    def link(self, scope: int | None) -> dict[str, object]:
+        """The link faults of one drive, or of the whole bus (None), as the operations show them."""
+        return ops.link_state(ops.links(self.sim, scope))
+
+    def link_active(self, scope: int | None) -> list[str]:
+        """The names of the link faults switched on."""
+        return ops.links(self.sim, scope).active
 
     def link_fault_active(self, scope: int | None, key: str) -> bool:
-        link = self.link(scope)
-        return {
-            "o": link.offline,
-            "d": link.drop_next > 0,
-            "a": link.drop_percent > 0,
-            "y": link.delay > 0,
-            "i": link.delay_jitter > 0,
-            "c": link.corrupt_crc,
-            "u": link.truncate,
-            "g": bool(link.garbage_before),
-            "n": bool(link.garbage_after),
-            "w": link.wrong_address is not None,
-            "e": link.forced_exception is not None,
-        }.get(key, False)
+        name = LINK_OF_KEY.get(key)
+        return name is not None and name in self.link_active(scope)
 
     def toggle_link_fault(self, scope: int | None, key: str) -> str:
-        link = self.link(scope)
+        """Press a link fault's switch: on, off, or (a count, an exception) the next step; returns it in words."""
         where = "bus" if scope is None else f"drive {scope} link"
-        if key == "o":
-            link.offline = not link.offline
-            return f"{where}: {'offline' if link.offline else 'online'}"
-        if key == "d":
-            link.drop_next += 1
-            return f"{where}: dropping the next {link.drop_next} repl{'y' if link.drop_next == 1 else 'ies'}"
-        if key == "a":
-            link.drop_percent = 0.0 if link.drop_percent else 50.0
-            return f"{where}: random drops {link.drop_percent:g} %"
-        if key == "y":
-            link.delay = 0.0 if link.delay else 0.5
-            return f"{where}: reply delay {link.delay * 1000:.0f} ms"
-        if key == "i":
-            link.delay_jitter = 0.0 if link.delay_jitter else 0.2
-            return f"{where}: jitter {link.delay_jitter * 1000:.0f} ms"
-        if key == "c":
-            link.corrupt_crc = not link.corrupt_crc
-            return f"{where}: bad CRC {'on' if link.corrupt_crc else 'off'}"
-        if key == "u":
-            link.truncate = not link.truncate
-            return f"{where}: truncated replies {'on' if link.truncate else 'off'}"
-        if key == "g":
-            link.garbage_before = b"" if link.garbage_before else GARBAGE
-            return f"{where}: garbage before replies {'on' if link.garbage_before else 'off'}"
-        if key == "n":
-            link.garbage_after = b"" if link.garbage_after else GARBAGE
-            return f"{where}: garbage after replies {'on' if link.garbage_after else 'off'}"
-        if key == "w":
-            wrong = 0x63 if scope is None else scope % 247 + 1
-            link.wrong_address = None if link.wrong_address is not None else wrong
-            return f"{where}: wrong address {'off' if link.wrong_address is None else link.wrong_address}"
-        if key == "e":
-            codes = [None, *ExceptionCode]
-            current = codes.index(link.forced_exception)
-            link.forced_exception = codes[(current + 1) % len(codes)]
-            fe = link.forced_exception
-            return f"{where}: forced exception {'off' if fe is None else f'0x{int(fe):02X} {fe.meaning}'}"
         if key == "z":
-            link.clear()
+            ops.clear_link_faults(self.sim, scope)
             return f"{where}: every link fault cleared"
-        raise KeyError(key)
+        name = LINK_OF_KEY[key]
+        knob = KNOBS[name]
+        state = self.link(scope)
+        now = state[name]
+        value: object
+        if knob.kind == "count":
+            value = int(now) + int(knob.on) if isinstance(now, int) and isinstance(knob.on, int) else knob.on
+        elif knob.kind == "exception":
+            codes: list[int | None] = [None, *(int(c) for c in ExceptionCode)]
+            value = codes[(codes.index(now if isinstance(now, int) else None) + 1) % len(codes)]
+        elif name in self.link_active(scope):
+            value = None if knob.kind == "address" else {"flag": False, "bytes": ""}.get(knob.kind, 0.0)
+        elif knob.kind == "address":
+            value = knob.on if scope is None else scope % 247 + 1
+        elif knob.kind == "bytes":
+            assert isinstance(knob.on, bytes)
+            value = knob.on.hex(" ")
+        else:
+            value = knob.on
+        ops.set_link_faults(self.sim, scope, {name: value})
+        return f"{where}: {knob.label} {self._words(name, self.link(scope)[name])}"
+
+    @staticmethod
+    def _words(name: str, value: object) -> str:
+        if value in (None, False, 0, 0.0, ""):
+            return "off"
+        if value is True:
+            return "on"
+        if name == "forced_exception" and isinstance(value, int):
+            return f"0x{value:02X} {ExceptionCode(value).meaning}"
+        if name in ("delay", "delay_jitter") and isinstance(value, float):
+            return f"{value * 1000:.0f} ms"
+        if name == "drop_percent" and isinstance(value, float):
+            return f"{value:g} %"
+        return f"{value}"

@@ -9,7 +9,7 @@ import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
 from c20sim.clock import RealtimeClock, VirtualClock
-from c20sim.control import ControlApi, make_app
+from c20sim.control.http import ControlApi, make_app
 from c20sim.profile import load_profile
 from c20sim.simulator import Simulator
 
@@ -202,7 +202,7 @@ async def test_a_bug_answers_json_500_and_logs_the_traceback(
     def broken(sim: Simulator, address: int) -> dict[str, Any]:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(control, "drive_state", broken)
+    monkeypatch.setattr(control.ops, "drive_state", broken)
     assert await api("GET", "/drives/1") == (
         500,
         {"error": "GET /drives/1: internal error (RuntimeError: boom); see the server's log"},

@@ -14,7 +14,7 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-from c20sim.control import call
+from c20sim.control.ctl import call
 from c20sim.errors import C20SimError
 from tests.conftest import wait_for_ready_file
 

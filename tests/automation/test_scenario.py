@@ -263,7 +263,7 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
             "scenario communication timeout: ok   step 4 (at 2.5 s): 2102H (fault code) = 18 (0x0012), expected 18\n"
             in lines
         )
-        from c20sim.control import call
+        from c20sim.control.ctl import call
 
         state = call(json.loads(ready.read_text())["control"], "GET", "/drives/1")
         assert (state["t"], state["fault_code"]) == (2.5, 0x12)  # the scenario drove the clock

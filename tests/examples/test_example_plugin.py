@@ -14,7 +14,7 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
-from c20sim.pytest_plugin import C20Sim
+from c20sim.testing import C20Sim
 
 
 class Conveyor:

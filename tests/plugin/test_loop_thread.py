@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from c20sim.pytest_plugin import _LoopThread
+from c20sim.testing import _LoopThread
 
 
 def test_a_loop_that_does_not_stop_is_reported_not_closed() -> None:

@@ -202,7 +202,7 @@ async def test_every_link_switch_key_switches_its_fault(bench: Bench) -> None:
         await bench.press(key)
         assert workbench.link_fault_active(1, key) != before, f"link switch {key!r}"
     await bench.press("z")
-    assert not workbench.link(1).active
+    assert not workbench.link_active(1)
     await bench.press("b", "c")
     assert panel.on_bus
     assert workbench.link_fault_active(None, "c")

@@ -33,7 +33,7 @@ def send(app: Dashboard, *frames: str) -> None:
 async def running_at_1500(pilot: Pilot[Any]) -> None:
     app = pilot.app
     assert isinstance(app, Dashboard)
-    drive = app.bench.drive(1)
+    drive = app.bench.sim.drive(1)
     drive.write(Reg.SPEED_SETPOINT, 1500)
     drive.write(Reg.COMMAND, 1)
     app.bench.set_load(1, 0.8)

@@ -16,7 +16,7 @@ from c20sim.tui.workbench import History, Workbench, condition_range
 
 def running_bench() -> Workbench:
     bench = Workbench(Simulator(load_profile(), (1,), clock=VirtualClock()))
-    drive = bench.drive(1)
+    drive = bench.sim.drive(1)
     drive.write(Reg.SPEED_SETPOINT, 1500)
     drive.write(Reg.COMMAND, 1)
     bench.advance(1.0)
@@ -41,7 +41,7 @@ def running_bench() -> Workbench:
 )
 def test_each_device_fault_trips_its_code_and_clears(key: str, seconds: float, code: int) -> None:
     bench = running_bench()
-    drive = bench.drive(1)
+    drive = bench.sim.drive(1)
     bench.toggle_device_fault(1, key)
     assert bench.device_fault_active(1, key)
     bench.advance(max(seconds, 0.001))
@@ -76,7 +76,7 @@ def test_switches_follow_conditions_set_by_the_control_api() -> None:
     control.set_conditions(sim, 1, {"ambient_c": 150, "hall_fault": "stuck0", "terminal_inputs": int(Input.EF)})
     assert [bench.device_fault_active(1, key) for key in "ohe"] == [True, True, True]
     bench.toggle_device_fault(1, "e")
-    assert bench.drive(1).telemetry().input_terminals & Input.EF == 0
+    assert bench.sim.drive(1).telemetry().input_terminals & Input.EF == 0
     key = next(k for k, (code, _) in bench.forced.items() if code == 0x15)
     control.inject_fault(sim, 1, 0x15, persistent=True)
     assert bench.device_fault_active(1, key)
@@ -113,9 +113,9 @@ def test_overheat_is_an_ambient_the_control_api_accepts() -> None:
     assert f"trips in about {seconds:.0f} s" in how
     assert "T/t advances virtual time" in how
     bench.advance(seconds - 3)
-    assert bench.drive(1).read(Reg.FAULT_CODE) == 0
+    assert bench.sim.drive(1).read(Reg.FAULT_CODE) == 0
     bench.advance(6.0)
-    assert bench.drive(1).read(Reg.FAULT_CODE) == 0x10
+    assert bench.sim.drive(1).read(Reg.FAULT_CODE) == 0x10
 
 
 @pytest.mark.parametrize(("key", "state"), [("jog", "jog forward"), ("jogrev", "jog reverse")])
@@ -124,8 +124,8 @@ def test_each_jog_key_releases_its_jog(key: str, state: str) -> None:
     assert bench.cycle_channel(1) == 0  # communication -> keypad
     assert bench.keypad(1, key) is None
     bench.advance(1.0)
-    assert bench.drive(1).state.value == state
+    assert bench.sim.drive(1).state.value == state
     assert bench.keypad(1, key) is None  # pressed again: released
     bench.advance(2.0)
-    assert bench.drive(1).state.value == "stopped"
-    assert bench.drive(1).read(Reg.MOTOR_SPEED) == 0
+    assert bench.sim.drive(1).state.value == "stopped"
+    assert bench.sim.drive(1).read(Reg.MOTOR_SPEED) == 0

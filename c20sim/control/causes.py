@@ -1,0 +1,256 @@
+"""Device faults as causes: what a bench does to a drive to make it trip, with levels from its profile.
+
+A real drive trips on what happens to it: a sagging supply, a jammed load, a
+hot cabinet, a broken Hall sensor. :data:`CAUSES` names each such cause and
+the conditions (:data:`~c20sim.control.ops.CONDITIONS`) that bring it about,
+worked out from the profile's own trip levels, so ``trip("undervoltage")``
+means the same on every profile and in every front end (scenario
+``fault = { cause = "undervoltage" }``, ``POST .../fault {"cause": ...}``,
+pytest ``.trip("undervoltage")``, ``c20sim ctl fault --cause``, the
+dashboard's fault keys). The drive then trips by its own physics, when and
+how its model says: the cause is set, never the fault code.
+
+The profile's faults that the model has no physical cause for (a power stage,
+the EEPROM, ...) are causes too, by their profile name (``eeprom``): those
+are latched, and stay until released.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from ..drive.terminals import Input
+from ..profile import FaultCause, Profile
+from ..simulator import Simulator
+from . import ops
+
+__all__ = ["CAUSES", "Cause", "active", "cause_names", "clear_all", "overheat_seconds", "release", "trip"]
+
+Conditions = Mapping[str, object]
+
+
+@dataclass(frozen=True)
+class Cause:
+    """A physical cause of device faults: the conditions that bring it about and those that end it."""
+
+    name: str
+    #: its key on the dashboard's fault panel
+    key: str
+    label: str
+    #: what it does, in words, for help texts
+    how: str
+    #: the profile's faults it can trip
+    faults: tuple[FaultCause, ...]
+    #: (profile, conditions now) -> the conditions that bring it about
+    on: Callable[[Profile, Conditions], dict[str, object]]
+    #: (profile, conditions now) -> the conditions that end it
+    off: Callable[[Profile, Conditions], dict[str, object]]
+    #: (profile, conditions now) -> whether it is there now, whoever set the conditions
+    present: Callable[[Profile, Conditions], bool]
+
+
+def _load_levels(p: Profile) -> dict[str, float]:
+    kt, prot = p.motor.kt_nm_per_a, p.protection
+    return {
+        "overcurrent": round(prot.overcurrent_a * kt * 1.25, 2),
+        "overload": round(prot.current_limit_a * kt * 0.9, 2),
+        "stall": round(prot.current_limit_a * kt * 1.5, 2),
+    }
+
+
+def _load(name: str, key: str, label: str, how: str, faults: tuple[FaultCause, ...]) -> Cause:
+    return Cause(
+        name,
+        key,
+        label,
+        how,
+        faults,
+        lambda p, c: {"load_torque_nm": _load_levels(p)[name]},
+        lambda p, c: {"load_torque_nm": 0.0},
+        lambda p, c: math.isclose(float(c["load_torque_nm"]), _load_levels(p)[name]),  # type: ignore[arg-type]
+    )
+
+
+def _inputs(c: Conditions) -> int:
+    value = c["terminal_inputs"]
+    assert isinstance(value, int)
+    return value
+
+
+def _float(c: Conditions, name: str) -> float:
+    value = c[name]
+    assert isinstance(value, int | float)
+    return float(value)
+
+
+#: The hottest ambient any front end may set: the overheat cause's.
+HOT_AMBIENT = float(ops.CONDITIONS["ambient_c"].high or 0.0)
+
+#: Every physical cause, by the name all front ends use. To add one: a row here.
+CAUSES: Mapping[str, Cause] = {
+    c.name: c
+    for c in (
+        Cause(
+            "undervoltage",
+            "u",
+            "undervoltage",
+            "supply switched low (UV while running, off while stopped)",
+            (FaultCause.UNDERVOLTAGE,),
+            lambda p, c: {"supply_v": round(p.supply.undervoltage_v * 0.5, 1)},
+            lambda p, c: {"supply_v": p.supply.voltage_v},
+            lambda p, c: _float(c, "supply_v") < p.supply.undervoltage_v,
+        ),
+        Cause(
+            "overvoltage",
+            "v",
+            "overvoltage",
+            "supply switched high (OV1-3 by phase)",
+            (FaultCause.OVERVOLTAGE_ACCEL, FaultCause.OVERVOLTAGE_DECEL, FaultCause.OVERVOLTAGE_CONSTANT),
+            lambda p, c: {"supply_v": round(p.supply.overvoltage_v * 1.1, 1)},
+            lambda p, c: {"supply_v": p.supply.voltage_v},
+            lambda p, c: _float(c, "supply_v") > p.supply.overvoltage_v,
+        ),
+        _load(
+            "overcurrent",
+            "c",
+            "overcurrent",
+            "load torque past the overcurrent level (OC1-3 by phase, while running)",
+            (FaultCause.OVERCURRENT_ACCEL, FaultCause.OVERCURRENT_DECEL, FaultCause.OVERCURRENT_CONSTANT),
+        ),
+        _load(
+            "overload",
+            "l",
+            "overload",
+            "load torque near the current limit (motor overload by its inverse-time curve)",
+            (FaultCause.MOTOR_OVERLOAD,),
+        ),
+        _load(
+            "stall",
+            "k",
+            "locked rotor",
+            "load torque past the current limit (stall while running)",
+            (FaultCause.STALL,),
+        ),
+        Cause(
+            "overheat",
+            "o",
+            "overheat",
+            f"ambient at {HOT_AMBIENT:g} °C, the highest accepted (the trip time is the profile's)",
+            (FaultCause.OVERHEAT,),
+            lambda p, c: {"ambient_c": HOT_AMBIENT},
+            lambda p, c: {"ambient_c": p.thermal.ambient_c},
+            lambda p, c: _float(c, "ambient_c") > p.thermal.overheat_c,
+        ),
+        Cause(
+            "hall",
+            "h",
+            "Hall sensor",
+            "the Hall sensor stuck at 0 (the dashboard cycles: stuck 0, stuck 7, out of sequence, mended)",
+            (FaultCause.HALL,),
+            lambda p, c: {"hall_fault": "stuck0"},
+            lambda p, c: {"hall_fault": None},
+            lambda p, c: c["hall_fault"] is not None,
+        ),
+        Cause(
+            "external",
+            "e",
+            "external fault",
+            "the EF input terminal",
+            (FaultCause.EXTERNAL,),
+            lambda p, c: {"terminal_inputs": _inputs(c) | Input.EF},
+            lambda p, c: {"terminal_inputs": _inputs(c) & ~Input.EF},
+            lambda p, c: bool(_inputs(c) & Input.EF),
+        ),
+    )
+}
+
+#: The profile's fault causes that a physical cause above brings about.
+PHYSICAL = frozenset(f for cause in CAUSES.values() for f in cause.faults)
+
+
+def latched(profile: Profile) -> dict[str, int]:
+    """The profile's faults with no physical cause: name -> wire code (they are latched, not caused)."""
+    return {
+        spec.cause.value: spec.code
+        for spec in profile.faults.values()
+        if spec.cause is not None and spec.cause not in PHYSICAL
+    }
+
+
+def cause_names(profile: Profile) -> list[str]:
+    """Every cause a drive of ``profile`` can be given: the physical ones, then the latched faults."""
+    return [*CAUSES, *latched(profile)]
+
+
+def _check(sim: Simulator, cause: object) -> str:
+    if not isinstance(cause, str) or cause not in cause_names(sim.profile):
+        if isinstance(cause, str):
+            raise ops.unknown("cause", cause, cause_names(sim.profile))
+        raise ops.ControlError(f"cause: expected a name such as 'undervoltage', got {cause!r}")
+    return cause
+
+
+def trip(sim: Simulator, address: int, cause: object) -> str:
+    """Bring ``cause`` about on the drive at ``address`` now; returns what was done, in words."""
+    name = _check(sim, cause)
+    if name in CAUSES:
+        now = ops.conditions(sim, address)
+        change = CAUSES[name].on(sim.profile, now)
+        ops.set_conditions(sim, address, change)
+        return f"drive {address}: {name}: {_words(change)}"
+    code = latched(sim.profile)[name]
+    ops.inject_fault(sim, address, code, True)
+    return f"drive {address}: {name} (0x{code:02X}) latched"
+
+
+def release(sim: Simulator, address: int, cause: object) -> str:
+    """End ``cause`` on the drive at ``address`` (the fault stays until reset); returns what was done."""
+    name = _check(sim, cause)
+    if name in CAUSES:
+        now = ops.conditions(sim, address)
+        change = CAUSES[name].off(sim.profile, now)
+        ops.set_conditions(sim, address, change)
+        return f"drive {address}: {name} gone: {_words(change)} (reset to clear the fault)"
+    ops.clear_fault(sim, address, reset=False)
+    return f"drive {address}: {name} released (reset to clear the fault)"
+
+
+def active(sim: Simulator, address: int) -> dict[str, bool]:
+    """Every cause of the profile and whether it is there now, whoever brought it about."""
+    now = ops.conditions(sim, address)
+    held = ops.held_fault(sim, address)
+    out = {name: cause.present(sim.profile, now) for name, cause in CAUSES.items()}
+    out.update({name: held == code for name, code in latched(sim.profile).items()})
+    return out
+
+
+def clear_all(sim: Simulator, address: int) -> None:
+    """End every cause at once (the nominal supply, no load, the profile's ambient, ...); faults stay until reset."""
+    now = ops.conditions(sim, address)
+    change: dict[str, object] = {}
+    for cause in CAUSES.values():
+        change.update(cause.off(sim.profile, {**now, **change}))
+    ops.set_conditions(sim, address, change)
+    ops.clear_fault(sim, address, reset=False)
+
+
+def overheat_seconds(profile: Profile, from_c: float | None = None) -> float:
+    """Seconds to the overheat trip at :data:`HOT_AMBIENT` from ``from_c`` (the profile's ambient).
+
+    Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
+    """
+    th = profile.thermal
+    start = th.ambient_c if from_c is None else from_c
+    if start > th.overheat_c:
+        return 0.0
+    if th.overheat_c >= HOT_AMBIENT:
+        return math.inf
+    return th.time_constant_s * math.log((HOT_AMBIENT - start) / (HOT_AMBIENT - th.overheat_c))
+
+
+def _words(change: Mapping[str, object]) -> str:
+    return ", ".join(
+        f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}" for key, value in change.items()
+    )

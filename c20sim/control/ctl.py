@@ -1,0 +1,193 @@
+"""``c20sim ctl``: the control API from a shell, with the standard library only.
+
+Every action is one route of :mod:`c20sim.control.http`; an error answer is
+one line on stderr and exit 2, as for every other command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from ..errors import C20SimError
+from .ops import CONDITIONS, KEYS
+
+__all__ = ["add_ctl_command", "call"]
+
+
+def _ctl_url(args: argparse.Namespace) -> str:
+    if args.url:
+        return str(args.url).rstrip("/")
+    if args.ready_file:
+        try:
+            data = json.loads(Path(args.ready_file).read_text())
+        except OSError as exc:
+            raise C20SimError(f"--ready-file {args.ready_file}: cannot read: {exc.strerror}") from None
+        except json.JSONDecodeError:
+            raise C20SimError(f"--ready-file {args.ready_file}: not JSON; is it the file serve wrote?") from None
+        url = data.get("control") if isinstance(data, dict) else None
+        if not isinstance(url, str):
+            raise C20SimError(
+                f"--ready-file {args.ready_file}: no control address; start the server with --control 127.0.0.1:0"
+            )
+        return url.rstrip("/")
+    raise C20SimError("give the API's address: --url http://HOST:PORT or --ready-file PATH (from serve --ready-file)")
+
+
+def call(url: str, method: str, path: str, data: object = None, timeout: float = 10.0) -> Any:
+    """One API request with urllib; a 4xx/5xx answer raises C20SimError with the API's error message."""
+    import urllib.error
+    import urllib.request
+
+    payload = json.dumps(data).encode() if data is not None else None
+    request = urllib.request.Request(url + path, data=payload, method=method)
+    if payload is not None:
+        request.add_header("Content-Type", "application/json")
+    try:
+        with urllib.request.urlopen(request, timeout=timeout) as response:
+            return json.loads(response.read() or b"null")
+    except urllib.error.HTTPError as exc:
+        text = exc.read().decode(errors="replace")
+        try:
+            message = json.loads(text)["error"]
+        except (ValueError, KeyError, TypeError):
+            message = text.strip() or exc.reason
+        raise C20SimError(f"{method} {path}: {exc.code}: {message}") from None
+    except urllib.error.URLError as exc:
+        raise C20SimError(
+            f"{url}: cannot reach the control API ({exc.reason}); is c20sim serve --control running?"
+        ) from None
+
+
+def _pairs(words: list[str]) -> dict[str, object]:
+    """``supply_v=30 hall_fault=stuck0 offline=true`` -> values, each read as JSON where it parses."""
+    out: dict[str, object] = {}
+    for word in words:
+        key, eq, text = word.partition("=")
+        if not eq or not key:
+            raise C20SimError(f"{word!r}: give KEY=VALUE, such as supply_v=30")
+        try:
+            out[key] = json.loads(text)
+        except json.JSONDecodeError:
+            out[key] = text
+    return out
+
+
+def _at_least_one(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
+def cmd_ctl(args: argparse.Namespace) -> int:
+    url = _ctl_url(args)
+    action: str = args.action
+    drive = args.drive
+    if drive is None and action not in ("time", "advance", "frames", "info", "link"):
+        drive = call(url, "GET", "/")["drives"][0]
+    at = f"/drives/{drive}"
+    result: Any
+    if action == "info":
+        result = call(url, "GET", "/")
+    elif action == "state":
+        result = call(url, "GET", at if args.drive is not None else "/drives")
+    elif action == "read":
+        result = call(url, "GET", f"{at}/registers/{args.register}")
+    elif action == "set":
+        result = call(url, "PUT", f"{at}/conditions", _pairs(args.values))
+    elif action == "fault":
+        if (args.code is None) == (args.cause is None):
+            raise C20SimError("ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)")
+        if args.cause is not None:
+            result = call(url, "POST", f"{at}/fault", {"cause": args.cause})
+        else:
+            result = call(url, "POST", f"{at}/fault", {"code": args.code, "persistent": args.persistent})
+    elif action == "clear":
+        body: dict[str, object] = {"reset": not args.no_reset}
+        if args.cause is not None:
+            body["cause"] = args.cause
+        result = call(url, "DELETE", f"{at}/fault", body)
+    elif action == "causes":
+        result = call(url, "GET", f"{at}/causes")
+    elif action == "key":
+        key: object = int(args.key) if args.key.isdigit() else args.key
+        result = call(url, "POST", f"{at}/keypad", {"key": key})
+    elif action == "power-cycle":
+        result = call(url, "POST", f"{at}/power-cycle")
+    elif action == "link":
+        where = f"/drives/{drive}/link" if drive is not None else "/link"
+        if args.clear:
+            result = call(url, "DELETE", where)
+        elif args.values:
+            result = call(url, "PATCH", where, _pairs(args.values))
+        else:
+            result = call(url, "GET", where)
+    elif action == "advance":
+        result = call(url, "POST", "/time/advance", {"seconds": args.seconds})
+    elif action == "time":
+        result = call(url, "GET", "/time")
+    else:  # frames
+        query = "&".join(f"{k}={v}" for k, v in (("last", args.last), ("slave", args.slave)) if v is not None)
+        result = call(url, "GET", "/frames" + (f"?{query}" if query else ""))
+        if not args.json:
+            for record in result["frames"]:
+                note = f"  ({record['note']})" if record["note"] else ""
+                print(f"{record['t']:>12.6f} {record['dir']} {record['hex']:<26} {record['text']}{note}")
+            return 0
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """``c20sim ctl``: the subcommand and its actions."""
+    ctl = sub.add_parser(
+        "ctl",
+        help="call a running server's control API (serve --control)",
+        description="Call the control API of c20sim serve --control HOST:PORT; prints the JSON answer.",
+    )
+    where = ctl.add_mutually_exclusive_group()
+    where.add_argument("--url", help="the API's address, such as http://127.0.0.1:8020")
+    where.add_argument("--ready-file", metavar="PATH", help="read the API's address from serve's ready file")
+    ctl.add_argument("--drive", type=int, metavar="N", help="drive address (default: the first drive)")
+    # --drive is taken before or after the action; after, it must not reset the value given before
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--drive", type=int, metavar="N", default=argparse.SUPPRESS, help="drive address")
+    actions = ctl.add_subparsers(dest="action", metavar="ACTION", required=True)
+
+    def action(name: str, help: str) -> argparse.ArgumentParser:
+        return actions.add_parser(name, help=help, parents=[common])
+
+    action("info", help="profile, drives, clock and the API's routes")
+    action("state", help="a drive's telemetry (every drive without --drive)")
+    read = action("read", help="read a register: 2100H, 0x2100, F00.10 or status1")
+    read.add_argument("register")
+    conditions = action("set", help=f"set conditions: {', '.join(CONDITIONS)}")
+    conditions.add_argument("values", nargs="+", metavar="KEY=VALUE")
+    fault = action("fault", help="bring about a fault's cause (--cause undervoltage), or latch a fault by code")
+    fault.add_argument("code", type=int, nargs="?", help="a fault code to latch, such as 16")
+    fault.add_argument("--cause", metavar="NAME", help="a cause, such as undervoltage (see: ctl causes)")
+    fault.add_argument("--persistent", action="store_true", help="a reset fails until the fault is cleared")
+    clear = action("clear", help="end a fault's cause (--cause NAME; default: the latched fault) and press reset")
+    clear.add_argument("--cause", metavar="NAME", help="the cause to end, such as undervoltage")
+    clear.add_argument("--no-reset", action="store_true", help="release the cause only")
+    action("causes", help="every fault cause of the profile, and whether it is there now")
+    key = action("key", help=f"press a keypad key: {', '.join(KEYS)}")
+    key.add_argument("key")
+    action("power-cycle", help="switch the drive off and on")
+    link = action("link", help="show, set (KEY=VALUE) or --clear link faults (the bus without --drive)")
+    link.add_argument("values", nargs="*", metavar="KEY=VALUE")
+    link.add_argument("--clear", action="store_true")
+    advance = action("advance", help="advance virtual time (serve --clock virtual)")
+    advance.add_argument("seconds", type=float)
+    action("time", help="the model's time")
+    log = action("frames", help="the frame log")
+    log.add_argument("--last", type=_at_least_one, metavar="N", help="only the newest N frames (N >= 1)")
+    log.add_argument("--slave", type=int, metavar="N")
+    log.add_argument("--json", action="store_true", help="print JSON, not one line per frame")
+    ctl.set_defaults(func=cmd_ctl)

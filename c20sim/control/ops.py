@@ -1,0 +1,531 @@
+"""The operations: everything a front end may do to a running simulator, checked, in one vocabulary.
+
+The dashboard, the HTTP API, ``c20sim ctl``, the scenarios and the pytest
+handle all call these functions and nothing below them: none of them touches
+a :class:`~c20sim.drive.model.Drive` or a
+:class:`~c20sim.linkfaults.LinkFaults` itself. Each function checks its
+inputs (JSON-like values: the same check whoever asks) and raises
+:class:`ControlError` with an HTTP status and a sentence saying what is wrong;
+nothing is changed unless every input is right. The names come from the
+register map (:class:`~c20sim.registers.Command`, ...), the link faults'
+:data:`~c20sim.linkfaults.KNOBS`, the :data:`CONDITIONS` table here and the
+:mod:`~c20sim.control.causes` table: a new condition or link fault is defined
+in one of those places and every front end has it.
+
+Pure: no I/O, no clock of its own; time is the simulator's.
+"""
+
+from __future__ import annotations
+
+import difflib
+import itertools
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from ..drive.model import Drive, HallFault, Telemetry
+from ..errors import C20SimError
+from ..linkfaults import KNOBS, LinkFaults
+from ..protocol import ExceptionCode
+from ..registers import Command, Reg, RunChannel, parse_fcode
+from ..simulator import Simulator, set_address
+
+__all__ = [
+    "CONDITIONS",
+    "KEYS",
+    "LINK_CHECKS",
+    "MAX_ADVANCE",
+    "Condition",
+    "ControlError",
+    "advance",
+    "check_conditions",
+    "check_fault",
+    "check_link_faults",
+    "clear_fault",
+    "clear_link_faults",
+    "conditions",
+    "drive",
+    "drive_state",
+    "frames",
+    "inject_fault",
+    "key_command",
+    "link_state",
+    "parse_register",
+    "power_cycle",
+    "press_key",
+    "read_register",
+    "register_address",
+    "restore_defaults",
+    "set_conditions",
+    "set_link_faults",
+    "set_run_channel",
+    "telemetry",
+    "unknown",
+]
+
+
+class ControlError(C20SimError):
+    """An operation that cannot be done: ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, message: str, status: int = 400) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+# --- Checking JSON-like values.
+
+
+def number(key: str, value: object, low: float | None = None, high: float | None = None) -> float:
+    """A finite number, within ``low``-``high`` where given."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ControlError(f"{key}: expected a number, got {json.dumps(value)}")
+    if not math.isfinite(value):
+        raise ControlError(f"{key}: expected a finite number, got {value}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}"
+        raise ControlError(f"{key}: {value:g} is outside {bounds}")
+    return float(value)
+
+
+def integer(key: str, value: object, low: int, high: int) -> int:
+    """A whole number within ``low``-``high``."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ControlError(f"{key}: expected an integer, got {json.dumps(value)}")
+    if not low <= value <= high:
+        raise ControlError(f"{key}: {value} is outside {low}-{high}")
+    return value
+
+
+def flag(key: str, value: object) -> bool:
+    if not isinstance(value, bool):
+        raise ControlError(f"{key}: expected true or false, got {json.dumps(value)}")
+    return value
+
+
+def unknown(kind: str, key: str, known: Mapping[str, object] | Sequence[str]) -> ControlError:
+    """The error for an unknown name: the closest known one, and all of them."""
+    names = list(known)
+    close = difflib.get_close_matches(key, names, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return ControlError(f"unknown {kind} {key!r}{hint} (known: {', '.join(names)})")
+
+
+# --- The drives.
+
+
+def drive(sim: Simulator, address: int) -> Drive:
+    """The drive at ``address``; 404 if there is none."""
+    try:
+        return sim.drives[address]
+    except KeyError:
+        raise ControlError(
+            f"no drive at address {address}; drives: {', '.join(map(str, sim.drives))}", status=404
+        ) from None
+
+
+def _synced(sim: Simulator, address: int) -> Drive:
+    """The drive at ``address``, brought to the clock's time: every change happens at 'now'."""
+    found = drive(sim, address)
+    sim.sync()
+    return found
+
+
+def telemetry(sim: Simulator, address: int) -> Telemetry:
+    """The drive's telemetry now."""
+    return _synced(sim, address).telemetry()
+
+
+def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
+    """The drive's telemetry now, as JSON-ready values, with its conditions and link faults."""
+    found = _synced(sim, address)
+    state = asdict(found.telemetry())
+    state["address"] = address
+    state["conditions"] = _read_conditions(found)
+    state["link_faults"] = link_state(sim.link_faults(address))
+    return state
+
+
+# --- Registers.
+
+
+def register_address(text: object) -> int:
+    """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` (or ``fault code``) or an int -> an address 0-FFFFH.
+
+    The spelling only: whether a profile has the register is :func:`parse_register`'s question.
+    """
+    if isinstance(text, bool) or not isinstance(text, str | int):
+        raise ControlError(f"register: expected a name or an address, got {json.dumps(text)}")
+    if isinstance(text, int):
+        address = text
+    else:
+        body = text.strip()
+        name = body.upper().replace("-", "_").replace(" ", "_")
+        if name in Reg.__members__:
+            return int(Reg[name])
+        if body.upper().startswith("F") and "." in body:
+            try:
+                return parse_fcode(body)
+            except ValueError as exc:
+                raise ControlError(f"register {text!r}: {exc}") from None
+        digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
+        try:
+            address = int(digits, 16)
+        except ValueError:
+            raise ControlError(
+                f"register {text!r}: give an address such as 2100H or 0x2100, a function code such as F00.10, "
+                f"or a name such as status1"
+            ) from None
+    if not 0 <= address <= 0xFFFF:
+        raise ControlError(f"register {text!r}: an address is 0000H-FFFFH")
+    return address
+
+
+def parse_register(sim: Simulator, text: str | int) -> int:
+    """A register as :func:`register_address` reads it, which the simulator's profile must have."""
+    address = register_address(text)
+    if address not in sim.profile.registers:
+        raise ControlError(f"register {text!r}: the profile {sim.profile.name} has no register {address:04X}H")
+    return address
+
+
+def read_register(sim: Simulator, address: int, register: str | int) -> dict[str, Any]:
+    """A register's value as a master would read it, without counting as communication."""
+    found = drive(sim, address)
+    reg = parse_register(sim, register)
+    spec = sim.profile.registers[reg]
+    sim.sync()
+    raw = found.read(sim.profile.registers.canonical(reg))
+    return {
+        "register": spec.label,
+        "address": reg,
+        "name": spec.name,
+        "raw": raw,
+        "value": spec.engineering(raw),
+        "unit": spec.unit,
+        "text": spec.describe(raw),
+    }
+
+
+# --- Conditions: the drive's physical surroundings.
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One physical condition: how a value is checked, set on a drive and read back from it."""
+
+    name: str
+    unit: str
+    #: the range of a numeric condition (None for the others)
+    low: float | None
+    high: float | None
+    read: Callable[[Drive], object]
+    write: Callable[[Drive, Any], None]
+    check: Callable[[str, object], object]
+    help: str = ""
+
+
+def _ranged(
+    name: str, unit: str, low: float, high: float, read: Callable[[Drive], float], write: Callable[[Drive, float], None]
+) -> Condition:
+    return Condition(name, unit, low, high, read, write, lambda k, v: number(k, v, low, high))
+
+
+def _hall(key: str, value: object) -> str | None:
+    choices = [f.value for f in HallFault]
+    if value is not None and value not in choices:
+        names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
+        raise ControlError(f"{key}: expected null, {names}, got {json.dumps(value)}")
+    return None if value is None else str(value)
+
+
+def _hall_now(d: Drive) -> str | None:
+    fault = d.hall_fault
+    return None if fault is None else fault.value
+
+
+#: Every condition, by the name all front ends use. To add one: a row here (and its setter on the Drive).
+CONDITIONS: Mapping[str, Condition] = {
+    c.name: c
+    for c in (
+        _ranged("supply_v", "V", 0, 2000, lambda d: d.telemetry().supply_v, lambda d, v: d.set_supply_voltage(v)),
+        _ranged(
+            "load_torque_nm", "N m", 0, 1000, lambda d: d.telemetry().load_torque_nm, lambda d, v: d.set_load_torque(v)
+        ),
+        _ranged(
+            "load_inertia_kg_m2",
+            "kg m2",
+            0,
+            100,
+            lambda d: d.telemetry().load_inertia_kg_m2,
+            lambda d, v: d.set_load_inertia(v),
+        ),
+        _ranged("ambient_c", "°C", -50, 150, lambda d: d.telemetry().ambient_c, lambda d, v: d.set_ambient(v)),
+        Condition(
+            "hall_fault",
+            "",
+            None,
+            None,
+            _hall_now,
+            lambda d, v: d.set_hall_fault(v),
+            _hall,
+            help="null, 'stuck0', 'stuck7' or 'sequence'",
+        ),
+        _ranged("ai1_v", "V", 0, 10, lambda d: d.ai(1), lambda d, v: d.set_ai(1, v)),
+        _ranged("ai2_v", "V", 0, 10, lambda d: d.ai(2), lambda d, v: d.set_ai(2, v)),
+        _ranged("ai3_v", "V", 0, 10, lambda d: d.ai(3), lambda d, v: d.set_ai(3, v)),
+        Condition(
+            "terminal_inputs",
+            "",
+            0,
+            0x1FF,
+            lambda d: d.physical_inputs,
+            lambda d, v: d.set_terminal_inputs(v),
+            lambda k, v: integer(k, v, 0, 0x1FF),
+            help="the physical input terminals, bits 0-8",
+        ),
+    )
+}
+
+
+def check_conditions(values: object) -> dict[str, object]:
+    """Check conditions by their :data:`CONDITIONS` names; returns the checked values."""
+    if not isinstance(values, Mapping) or not values:
+        raise ControlError(f'give conditions as an object, such as {{"supply_v": 30}}; known: {", ".join(CONDITIONS)}')
+    checked: dict[str, object] = {}
+    for key, value in values.items():
+        condition = CONDITIONS.get(key)
+        if condition is None:
+            raise unknown("condition", key, CONDITIONS)
+        checked[key] = condition.check(key, value)
+    return checked
+
+
+def set_conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> None:
+    """Set conditions at the drive's current time; all are checked before any is applied."""
+    found = drive(sim, address)
+    checked = check_conditions(values)
+    sim.sync()
+    for key, value in checked.items():
+        CONDITIONS[key].write(found, value)
+
+
+def _read_conditions(found: Drive) -> dict[str, object]:
+    return {name: condition.read(found) for name, condition in CONDITIONS.items()}
+
+
+def conditions(sim: Simulator, address: int) -> dict[str, object]:
+    """The conditions the drive is in now, whoever set them, by their :data:`CONDITIONS` names."""
+    return _read_conditions(_synced(sim, address))
+
+
+# --- Device faults by code (by cause: c20sim.control.causes).
+
+
+def check_fault(code: object, persistent: object = False) -> tuple[int, bool]:
+    """A device fault to inject: ``code`` 1-255, and whether it is ``persistent``."""
+    return integer("code", code, 1, 0xFF), flag("persistent", persistent)
+
+
+def inject_fault(sim: Simulator, address: int, code: object, persistent: object = False) -> None:
+    """Latch device fault ``code`` now; ``persistent`` makes resets fail until :func:`clear_fault`."""
+    found = drive(sim, address)
+    number_, hold = check_fault(code, persistent)
+    sim.sync()
+    found.force_fault(number_, persistent=hold)
+
+
+def held_fault(sim: Simulator, address: int) -> int | None:
+    """The code of a fault latched persistently and not yet released, or None."""
+    return _synced(sim, address).held_fault
+
+
+def clear_fault(sim: Simulator, address: int, reset: object = True) -> bool:
+    """Release an injected fault's cause and (with ``reset``) press fault reset; True if the drive left the fault."""
+    found = drive(sim, address)
+    press = flag("reset", reset)
+    sim.sync()
+    found.release_fault()
+    return found.keypad(Command.RESET) if press else False
+
+
+# --- The keypad.
+
+#: Keypad key name -> 2000H command, as the register map names them (``forward`` ... ``jog_stop``).
+KEYS: Mapping[str, Command] = {command.key: command for command in Command}
+
+
+def key_command(key: object) -> Command:
+    """A keypad key (a name of :data:`KEYS` or a 2000H value 1-8) -> its 2000H command."""
+    if isinstance(key, str):
+        if key not in KEYS:
+            raise unknown("key", key, KEYS)
+        return KEYS[key]
+    return Command(integer("key", key, 1, 8))
+
+
+def press_key(sim: Simulator, address: int, key: object) -> bool:
+    """Press a keypad key (a name of :data:`KEYS` or a 2000H value 1-8); False if the drive refused it."""
+    found = drive(sim, address)
+    command = key_command(key)
+    sim.sync()
+    return found.keypad(command)
+
+
+def set_run_channel(sim: Simulator, address: int, channel: object) -> RunChannel:
+    """Set F00.01 (2006H) from the drive's own panel, as its keypad edits it: any state, no write enable."""
+    found = drive(sim, address)
+    if isinstance(channel, str):
+        names = {c.key: c for c in RunChannel}
+        if channel not in names:
+            raise unknown("run channel", channel, names)
+        value = names[channel]
+    else:
+        value = RunChannel(integer("channel", channel, 0, max(RunChannel)))
+    sim.sync()
+    found.write(sim.profile.registers.canonical(Reg.RUN_CHANNEL), int(value))
+    return value
+
+
+def restore_defaults(sim: Simulator, address: int) -> None:
+    """200FH = 1 from the panel: only while stopped (409 otherwise); the drive keeps its bus address."""
+    found = _synced(sim, address)
+    if found.running:
+        raise ControlError("restore defaults refused: stop the motor first (200FH is W/R*)", status=409)
+    found.write(Reg.RESTORE_DEFAULTS, 1)
+    set_address(found, sim.profile, address)
+
+
+def power_cycle(sim: Simulator, address: int) -> None:
+    """Switch the drive's supply off and on."""
+    _synced(sim, address).power_cycle()
+
+
+# --- Time.
+
+#: The longest step :func:`advance` takes: ten years of model time.
+MAX_ADVANCE = 10 * 365 * 86400
+
+
+def advance(sim: Simulator, seconds: object) -> float:
+    """Move a virtual clock on by ``seconds`` (finite, 0 to ten years); returns the new time."""
+    step = number("seconds", seconds, 0, MAX_ADVANCE)
+    if not sim.virtual:
+        raise ControlError("time runs on the wall clock; start the server with --clock virtual to advance it", 409)
+    return sim.run_until(sim.now() + step)
+
+
+# --- Link faults.
+
+
+def links(sim: Simulator, address: int | None) -> LinkFaults:
+    """The link faults of one drive (404 if there is none), or of the whole bus for None."""
+    if address is not None:
+        drive(sim, address)
+    return sim.link_faults(address)
+
+
+def link_state(link: LinkFaults) -> dict[str, Any]:
+    """Link faults as JSON-ready values, with ``active``: the names of those switched on."""
+    out: dict[str, Any] = {}
+    for name in KNOBS:
+        value = getattr(link, name)
+        if isinstance(value, bytes):
+            value = value.hex(" ").upper()
+        elif isinstance(value, ExceptionCode):
+            value = int(value)
+        out[name] = value
+    out["active"] = link.active
+    return out
+
+
+def _hex_bytes(key: str, value: object) -> bytes:
+    if not isinstance(value, str):
+        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {json.dumps(value)}')
+    try:
+        return bytes.fromhex(value)
+    except ValueError:
+        raise ControlError(f'{key}: {value!r} is not hex bytes such as "FF 00"') from None
+
+
+def _exception_code(key: str, value: object) -> ExceptionCode | None:
+    if value is None:
+        return None
+    if isinstance(value, str) and value.upper() in ExceptionCode.__members__:
+        return ExceptionCode[value.upper()]
+    code = integer(key, value, 1, 0xFF) if not isinstance(value, str) else -1
+    try:
+        return ExceptionCode(code)
+    except ValueError:
+        codes = ", ".join(f"{c.name} ({int(c)})" for c in ExceptionCode)
+        raise ControlError(f"{key}: {json.dumps(value)} is not an exception code; use one of {codes}") from None
+
+
+#: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.linkfaults.Knob`).
+KIND_CHECKS: Mapping[str, Callable[[str, object], object]] = {
+    "flag": flag,
+    "count": lambda k, v: integer(k, v, 0, 1_000_000),
+    "percent": lambda k, v: number(k, v, 0, 100),
+    "seconds": lambda k, v: number(k, v, 0, 60),
+    "bytes": _hex_bytes,
+    "address": lambda k, v: None if v is None else integer(k, v, 0, 255),
+    "exception": _exception_code,
+}
+
+#: Link fault name -> its checker, from the link faults' own knobs.
+LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
+    name: KIND_CHECKS[knob.kind] for name, knob in KNOBS.items()
+}
+
+
+def check_link_faults(values: object) -> dict[str, object]:
+    """Check link faults by their :data:`~c20sim.linkfaults.KNOBS` names; returns the values to set."""
+    if not isinstance(values, Mapping) or not values:
+        raise ControlError(f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(KNOBS)}')
+    checked = {}
+    for key, value in values.items():
+        check = LINK_CHECKS.get(key)
+        if check is None:
+            raise unknown("link fault", key, KNOBS)
+        checked[key] = check(key, value)
+    return checked
+
+
+def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, object]) -> LinkFaults:
+    """Switch link faults of one drive (or the bus for None); all are checked before any is set."""
+    link = links(sim, address)
+    for key, value in check_link_faults(values).items():
+        setattr(link, key, value)
+    return link
+
+
+def clear_link_faults(sim: Simulator, address: int | None) -> LinkFaults:
+    link = links(sim, address)
+    link.clear()
+    return link
+
+
+# --- The frame log.
+
+
+def frames(
+    sim: Simulator, *, last: int | None = None, slave: int | None = None, since: int = 0, first_seq: int = 0
+) -> list[dict[str, Any]]:
+    """The frame log, oldest first, each record with its sequence number ``seq`` (from ``first_seq``).
+
+    ``last`` keeps the newest N (N >= 1) of the records left after ``since`` and ``slave``;
+    only the records kept are put in words, which is what costs.
+    """
+    if last is not None and (isinstance(last, bool) or last < 1):
+        raise ControlError(f"last={last} must be at least 1")
+    records = sim.bus.records
+    skip = min(max(0, since - first_seq), len(records))
+    kept = [
+        (first_seq + i, record)
+        for i, record in enumerate(itertools.islice(records, skip, None), start=skip)
+        if slave is None or record.slave == slave
+    ]
+    if last is not None:
+        kept = kept[-last:]
+    return [{"seq": seq, **record.as_dict()} for seq, record in kept]

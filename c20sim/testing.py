@@ -1,0 +1,505 @@
+"""The test handle: a running C20 on real ports, driven from a test, a script or a unittest, no pytest needed.
+
+:class:`C20Sim` serves a :class:`~c20sim.simulator.Simulator` with
+:class:`~c20sim.serve.Server` on an event loop of its own, in a background
+thread: the test's client (sync or async, any library) talks to a real port,
+and the test's own loop is never asked to run the server. Every call from
+the test into the simulator (advance time, set conditions, trip, read) is an
+operation of :mod:`c20sim.control` run on that loop's thread, between frames,
+never half-way through one::
+
+    with C20Sim.start(transport="tcp") as sim:
+        ...  # point a Modbus client at sim.host, sim.port
+        sim.advance(1.0)
+        sim.trip("undervoltage")
+        sim.assert_fault(0x0A)
+
+The clock is virtual unless asked otherwise: time stands still until
+:meth:`C20Sim.advance`. A client that waits on timers of its own (a poll
+every 100 ms, a response timeout) sees time stand still too: advance the
+model from the test while the client works, or start with ``clock="realtime"``.
+The pytest fixture (:mod:`c20sim.pytest_plugin`) is this handle, one per test.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import threading
+from collections.abc import Callable, Coroutine, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from .bus import Direction, FrameRecord, RecordKind
+from .control import causes, ops
+from .drive.model import Telemetry
+from .errors import C20SimError
+from .profile import DEFAULT_PROFILE, Profile, load_profile
+from .protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
+from .serve import ServeOptions, Server
+from .simulator import Simulator, check_addresses, make_clock
+
+__all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start"]
+
+T = TypeVar("T")
+
+#: Transports the fixture can open; ``tcp`` is RTU over TCP.
+TRANSPORTS = ("tcp", "pty", "modbus-tcp")
+#: Clocks the marker can ask for.
+CLOCKS = ("virtual", "realtime")
+#: Frames shown in an assertion's message.
+SHOWN_FRAMES = 20
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What the fixture starts: profile, transports, drive addresses and clock."""
+
+    profile: str | Profile = DEFAULT_PROFILE
+    transport: tuple[str, ...] = ("tcp",)
+    drives: tuple[int, ...] = (1,)
+    clock: str = "virtual"
+    speed: float = 1.0
+    seed: int = 1
+
+
+class _LoopThread:
+    """An asyncio loop running in a daemon thread; ``run`` executes a coroutine there and waits."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._main, name="c20sim", daemon=True)
+        self._thread.start()
+
+    def _main(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.loop.run_forever()
+
+    def run(self, coro: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
+        if threading.current_thread() is self._thread:
+            raise RuntimeError("c20sim: called from the simulator's own thread")
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the loop and close it; if its thread does not end within ``timeout``, say so and leave it."""
+        if self.loop.is_closed():
+            return
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise RuntimeError(
+                f"c20sim: the simulator's event loop did not stop within {timeout:g} s "
+                "(something running on it blocks); its thread is left running"
+            )
+        self.loop.close()
+
+
+def format_frames(records: Sequence[FrameRecord], limit: int = SHOWN_FRAMES) -> str:
+    """The last ``limit`` frames, one per line, for assertion messages."""
+    if not records:
+        return "no frames on the line"
+    shown = list(records)[-limit:]
+    head = (
+        f"frames on the line (last {len(shown)} of {len(records)}):" if len(records) > limit else "frames on the line:"
+    )
+    lines = [head]
+    t0 = shown[0].t  # frames carry the line's arrival times: show them from the first one shown
+    for r in shown:
+        note = f"  ({r.note})" if r.note else ""
+        lines.append(f"  +{r.t - t0:8.4f} s {r.direction} {r.data.hex(' ').upper():<26} {r.text}{note}")
+    return "\n".join(lines)
+
+
+class C20Sim:
+    """A running simulator: its ports, its clock, its drives, and assertions on its frame log.
+
+    ``host``/``port`` are the RTU-over-TCP endpoint, ``pty`` the virtual serial
+    port's path, ``modbus_tcp_port`` the Modbus TCP port; each is None unless
+    that transport was asked for. Methods that take ``drive`` act on the first
+    drive when it is None.
+    """
+
+    def __init__(self, server: Server, thread: _LoopThread, stop: Callable[[], None] | None = None) -> None:
+        self._server = server
+        self._thread = thread
+        self._stop = stop
+        #: the simulator itself: touch it only through :meth:`call`
+        self.sim: Simulator = server.sim
+        self.profile: Profile = server.sim.profile
+        self.addresses: tuple[int, ...] = tuple(server.sim.drives)
+        ends = server.endpoints
+        self.host: str | None = ends.tcp.host if ends.tcp is not None else None
+        self.port: int | None = ends.tcp.port if ends.tcp is not None else None
+        self.pty: str | None = ends.pty.path if ends.pty is not None else None
+        self.modbus_tcp_port: int | None = ends.modbus_tcp.port if ends.modbus_tcp is not None else None
+
+    @classmethod
+    def start(
+        cls,
+        profile: str | os.PathLike[str] | Profile = DEFAULT_PROFILE,
+        *,
+        transport: str | Sequence[str] = "tcp",
+        drives: int | Sequence[int] = (1,),
+        clock: str = "virtual",
+        speed: float = 1.0,
+        seed: int = 1,
+    ) -> C20Sim:
+        """Start a simulator; use it as a context manager (``with C20Sim.start() as sim:``) or call :meth:`close`.
+
+        Works from any script or unittest, no pytest needed. Bad settings raise C20SimError saying what is wrong.
+        """
+        settings = check_settings(
+            {"profile": profile, "transport": transport, "drives": drives, "clock": clock, "speed": speed, "seed": seed}
+        )
+        return start(settings)
+
+    def close(self) -> None:
+        """Stop the server and its thread (again is harmless)."""
+        stop, self._stop = self._stop, None
+        if stop is not None:
+            stop()
+
+    def __enter__(self) -> C20Sim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- Running code next to the server.
+
+    def call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """Run ``fn(*args, **kwargs)`` on the simulator's thread, between frames; returns its result."""
+
+        async def run() -> T:
+            return fn(*args, **kwargs)
+
+        return self._thread.run(run())
+
+    def _op(self, fn: Callable[..., T], *args: Any) -> T:
+        try:
+            return self.call(fn, self.sim, *args)
+        except ops.ControlError as exc:
+            raise C20SimError(str(exc)) from None
+
+    def _address(self, drive: int | None) -> int:
+        if drive is None:
+            return self.addresses[0]
+        if drive not in self.addresses:
+            raise C20SimError(f"no drive at address {drive}; drives: {', '.join(map(str, self.addresses))}")
+        return drive
+
+    # --- Time.
+
+    def now(self) -> float:
+        return self.call(self.sim.now)
+
+    def advance(self, seconds: float) -> float:
+        """Move virtual time on by ``seconds`` (instantly); returns the new time."""
+        if not self.sim.virtual:
+            raise C20SimError(
+                "time can only be advanced with the virtual clock; the c20sim marker says clock='realtime'"
+            )
+        return self._op(ops.advance, seconds)
+
+    def run_until(self, t: float) -> float:
+        """Move virtual time on to ``t`` (seconds of model time); returns the time."""
+        if not self.sim.virtual:
+            raise C20SimError(
+                "time can only be advanced with the virtual clock; the c20sim marker says clock='realtime'"
+            )
+        return self.call(self.sim.run_until, t)
+
+    # --- Drives.
+
+    def drive(self, address: int | None = None) -> DriveHandle:
+        """One drive, for state, conditions and faults."""
+        return DriveHandle(self, self._address(address))
+
+    @property
+    def drives(self) -> list[DriveHandle]:
+        return [DriveHandle(self, a) for a in self.addresses]
+
+    def state(self, drive: int | None = None) -> Telemetry:
+        return self.drive(drive).state()
+
+    def read(self, register: str | int, drive: int | None = None) -> int:
+        return self.drive(drive).read(register)
+
+    def set(self, drive: int | None = None, **conditions: object) -> None:
+        self.drive(drive).set(**conditions)
+
+    def inject_fault(self, code: int, drive: int | None = None, *, persistent: bool = False) -> None:
+        self.drive(drive).inject_fault(code, persistent=persistent)
+
+    def clear_fault(self, drive: int | None = None, *, reset: bool = True) -> bool:
+        return self.drive(drive).clear_fault(reset=reset)
+
+    def trip(self, cause: str, drive: int | None = None) -> None:
+        """Bring a fault's cause about (``undervoltage``, ``overheat``, ``eeprom``, ...); the drive trips by its model."""
+        self.drive(drive).trip(cause)
+
+    def release(self, cause: str, drive: int | None = None) -> None:
+        """End a fault's cause; the fault stays until reset."""
+        self.drive(drive).release(cause)
+
+    def press(self, key: str | int, drive: int | None = None) -> bool:
+        return self.drive(drive).press(key)
+
+    def power_cycle(self, drive: int | None = None) -> None:
+        self.drive(drive).power_cycle()
+
+    # --- The line.
+
+    def link_faults(self, drive: int | None = None, **switches: object) -> dict[str, Any]:
+        """Switch link faults of ``drive`` (the whole bus if None); with no switches, read them."""
+        if drive is not None:
+            self._address(drive)
+        if switches:
+            self._op(ops.set_link_faults, drive, switches)
+        return self._op(lambda sim: ops.link_state(ops.links(sim, drive)))
+
+    def clear_link_faults(self, drive: int | None = None) -> None:
+        if drive is not None:
+            self._address(drive)
+        self._op(ops.clear_link_faults, drive)
+
+    def frames(self, drive: int | None = None) -> list[FrameRecord]:
+        """The frame log, oldest first (only ``drive``'s frames if given)."""
+        records = self.call(lambda: list(self.sim.bus.records))
+        return [r for r in records if drive is None or r.slave == drive]
+
+    def clear_frames(self) -> None:
+        self.call(self.sim.bus.records.clear)
+
+    # --- Assertions.
+
+    def assert_written(
+        self, register: str | int, value: int | None = None, drive: int | None = None, *, count: int | None = None
+    ) -> None:
+        """Fail unless a master wrote ``value`` (any value for None) to ``register`` of ``drive`` and it was taken.
+
+        ``count`` asks for exactly that many taken writes (``count=0``: never written); None for at least one.
+        Taken means the drive received the request (0x06 or 0x10) and its reply (matched to that request,
+        even if a link fault then dropped it) was not an exception; a broadcast write, which
+        is never answered, counts as taken.
+        """
+        __tracebackhide__ = True
+        address = self._address(drive)
+        reg = self._op(ops.parse_register, register)
+        records = self.frames()
+        seen: list[str] = []
+        taken = 0
+        for record in records:
+            if record.direction is not Direction.RX or record.kind is not RecordKind.REQUEST:
+                continue
+            if record.slave not in (address, 0):
+                continue
+            written = _written(record.words).get(reg)
+            if written is None:
+                continue
+            if value is not None and written != value:
+                seen.append(f"{written}")
+                continue
+            if record.slave == 0:
+                taken += 1  # broadcast: every listening drive acts on it, none answers
+                continue
+            reply = next((r for r in records if r.direction is Direction.TX and r.request is record.words), None)
+            if reply is None:  # the drive never got it: offline, absent, a reserved address
+                seen.append(f"{written}, not received ({record.note or 'no reply'})")
+                continue
+            if isinstance(reply.words, ExceptionResponse):
+                seen.append(f"{written}, refused: {reply.text}")
+                continue
+            taken += 1
+        if (count is None and taken) or taken == count:
+            return
+        label = self.profile.registers[reg].label
+        what = "any value" if value is None else f"{value} (0x{value:04X})"
+        others = f"; writes to {label} seen: {', '.join(seen)}" if seen else f"; no write to {label} at all"
+        if count is None:
+            problem = f"no accepted write of {what} to {label}{others}"
+        else:
+            problem = f"{taken} accepted write(s) of {what} to {label}, expected {count}{others}"
+        raise AssertionError(f"drive {address}: {problem}\n" + format_frames(records))
+
+    def assert_register(self, register: str | int, expected: int, drive: int | None = None, tolerance: int = 0) -> None:
+        """Fail unless ``register`` of ``drive`` reads ``expected`` (within ``tolerance``) now."""
+        __tracebackhide__ = True
+        address = self._address(drive)
+        info = self._op(ops.read_register, address, register)
+        if abs(info["raw"] - expected) > tolerance:
+            within = f" +/- {tolerance}" if tolerance else ""
+            raise AssertionError(
+                f"drive {address}: {info['register']} ({info['name']}) reads {info['raw']} ({info['text']}), "
+                f"expected {expected}{within}; t = {self.now():g} s\n" + format_frames(self.frames())
+            )
+
+    def assert_fault(self, code: int, drive: int | None = None) -> None:
+        """Fail unless ``drive`` reports fault ``code`` (0 for none) in 2102H."""
+        __tracebackhide__ = True
+        self.assert_register("2102H", code, drive)
+
+
+def _written(request: object) -> dict[int, int]:
+    """The registers a request record writes (its words are the request the bus decoded)."""
+    if isinstance(request, WriteSingleRequest):
+        return {request.register: request.value}
+    if isinstance(request, WriteMultipleRequest):
+        return {request.start + i: v for i, v in enumerate(request.values)}
+    return {}
+
+
+class DriveHandle:
+    """One drive of a :class:`C20Sim`: its state, registers, conditions and device faults."""
+
+    def __init__(self, owner: C20Sim, address: int) -> None:
+        self._owner = owner
+        self.address = address
+
+    def __repr__(self) -> str:
+        return f"<c20sim drive {self.address}>"
+
+    def state(self) -> Telemetry:
+        """Telemetry now (speed, bus voltage, state, fault, ...)."""
+
+        def telemetry(sim: Simulator) -> Telemetry:
+            found = ops.drive(sim, self.address)
+            sim.sync()
+            return found.telemetry()
+
+        return self._owner._op(telemetry)
+
+    def read(self, register: str | int) -> int:
+        """A register's raw value, as a master reads it (``2100H``, ``0x2100``, ``F00.10`` or ``status1``)."""
+        value: int = self._owner._op(ops.read_register, self.address, register)["raw"]
+        return value
+
+    def set(self, **conditions: object) -> None:
+        """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ..."""
+        self._owner._op(ops.set_conditions, self.address, conditions)
+
+    def inject_fault(self, code: int, *, persistent: bool = False) -> None:
+        self._owner._op(ops.inject_fault, self.address, code, persistent)
+
+    def clear_fault(self, *, reset: bool = True) -> bool:
+        """Release an injected fault and (with ``reset``) press reset; True if the drive left the fault."""
+        return self._owner._op(ops.clear_fault, self.address, reset)
+
+    def trip(self, cause: str) -> None:
+        """Bring a fault's cause about (``undervoltage``, ``overheat``, ``eeprom``, ...); the drive trips by its model."""
+        self._owner._op(causes.trip, self.address, cause)
+
+    def release(self, cause: str) -> None:
+        """End a fault's cause; the fault stays until reset."""
+        self._owner._op(causes.release, self.address, cause)
+
+    def conditions(self) -> dict[str, object]:
+        """The conditions the drive is in now, by the names :meth:`set` takes."""
+        return self._owner._op(ops.conditions, self.address)
+
+    def press(self, key: str | int) -> bool:
+        """Press a keypad key (``forward``, ``stop``, ``reset``, ... or a 2000H value); False if refused."""
+        return self._owner._op(ops.press_key, self.address, key)
+
+    def power_cycle(self) -> None:
+        self._owner._op(ops.power_cycle, self.address)
+
+    def link_faults(self, **switches: object) -> dict[str, Any]:
+        return self._owner.link_faults(self.address, **switches)
+
+
+def _transports(value: object) -> tuple[str, ...]:
+    if isinstance(value, str):
+        names: tuple[object, ...] = (value,)
+    elif isinstance(value, Iterable):
+        names = tuple(value)
+    else:
+        raise C20SimError(f"c20sim: transport {value!r}: give a name or a sequence of {', '.join(TRANSPORTS)}")
+    for name in names:
+        if name not in TRANSPORTS:
+            raise C20SimError(f"c20sim: unknown transport {name!r}; use one or more of {', '.join(TRANSPORTS)}")
+    if not names:
+        raise C20SimError("c20sim: give at least one transport")
+    return tuple(str(name) for name in names)
+
+
+def _drives(value: object) -> tuple[int, ...]:
+    """Drive addresses, checked as ``--drives`` is: 1-247, each once."""
+    addresses = (value,) if isinstance(value, int) else tuple(value) if isinstance(value, Iterable) else ()
+    if not addresses or not all(isinstance(a, int) and not isinstance(a, bool) for a in addresses):
+        raise C20SimError(f"c20sim: drives {value!r}: give drive addresses 1-247, such as (1, 2)")
+    try:
+        return tuple(check_addresses(addresses))
+    except ValueError as exc:
+        raise C20SimError(f"c20sim: drives {value!r}: {exc}") from None
+
+
+def _profile(value: object) -> Profile:
+    if isinstance(value, Profile):
+        return value
+    if not isinstance(value, str | os.PathLike):
+        raise C20SimError(f"c20sim: profile {value!r}: give a profile name, a path or a Profile")
+    try:
+        return load_profile(os.fspath(value))
+    except C20SimError as exc:
+        raise C20SimError(f"c20sim: profile: {exc}") from None
+
+
+#: The settings a marker or :meth:`C20Sim.start` may give.
+SETTINGS = ("profile", "transport", "drives", "clock", "speed", "seed")
+
+
+def check_settings(given: Mapping[str, Any]) -> Settings:
+    """Settings from keywords (a missing one takes its default); a bad one is a C20SimError saying what is wrong."""
+    unknown = set(given) - set(SETTINGS)
+    if unknown:
+        raise C20SimError(f"c20sim: unknown setting {', '.join(sorted(unknown))}; use {', '.join(SETTINGS)}")
+    clock = given.get("clock", "virtual")
+    if clock not in CLOCKS:
+        raise C20SimError(f"c20sim: unknown clock {clock!r}; use {' or '.join(map(repr, CLOCKS))}")
+    speed = given.get("speed", 1.0)
+    if isinstance(speed, bool) or not isinstance(speed, int | float) or not math.isfinite(speed) or speed <= 0:
+        raise C20SimError(f"c20sim: speed {speed!r}: give a positive number of model seconds per wall second")
+    seed = given.get("seed", 1)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise C20SimError(f"c20sim: seed {seed!r}: give a whole number")
+    return Settings(
+        profile=_profile(given.get("profile", DEFAULT_PROFILE)),
+        transport=_transports(given.get("transport", "tcp")),
+        drives=_drives(given.get("drives", (1,))),
+        clock=clock,
+        speed=float(speed),
+        seed=seed,
+    )
+
+
+def start(settings: Settings) -> C20Sim:
+    """Start a simulator for ``settings`` in a background thread; :meth:`C20Sim.close` stops it."""
+    profile = settings.profile if isinstance(settings.profile, Profile) else load_profile(settings.profile)
+    sim = Simulator(profile, settings.drives, clock=make_clock(settings.clock, settings.speed), seed=settings.seed)
+    options = ServeOptions(
+        pty="pty" in settings.transport,
+        tcp="127.0.0.1:0" if "tcp" in settings.transport else None,
+        modbus_tcp="127.0.0.1:0" if "modbus-tcp" in settings.transport else None,
+    )
+    thread = _LoopThread()
+
+    async def serve() -> Server:
+        server = Server(sim, options)
+        await server.start()
+        return server
+
+    try:
+        server = thread.run(serve())
+    except BaseException:
+        thread.stop()
+        raise
+
+    def stop() -> None:
+        try:
+            thread.run(server.aclose())
+        finally:
+            thread.stop()
+
+    return C20Sim(server, thread, stop)
