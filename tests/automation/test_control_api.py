@@ -245,3 +245,22 @@ async def test_last_frames_are_the_newest_and_only_they_are_put_in_words(
     assert len(rendered) == 3
     status, log = await api("GET", "/frames?since=20")
     assert (status, log["frames"], rendered[3:]) == (200, [], [])
+
+
+async def test_fault_by_cause(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    sim = virtual()
+    api = await client(sim)
+    sim.drive(1).write(0x2001, 1500)  # as a master would, over the communication channel
+    sim.drive(1).write(0x2000, 1)
+    await api("POST", "/time/advance", {"seconds": 2})
+    status, state = await api("POST", "/drives/1/fault", {"cause": "overheat"})
+    assert (status, state["conditions"]["ambient_c"], state["fault_code"]) == (200, 150.0, 0)
+    assert (await api("GET", "/drives/1/causes"))[1]["causes"]["overheat"] is True
+    await api("POST", "/time/advance", {"seconds": 160})
+    assert (await api("GET", "/drives/1"))[1]["fault_code"] == 0x10
+    status, state = await api("DELETE", "/drives/1/fault", {"cause": "overheat", "reset": False})
+    assert (status, state["conditions"]["ambient_c"], state["reset"]) == (200, 25.0, False)
+    status, body = await api("POST", "/drives/1/fault", {"cause": "overheat", "code": 3})
+    assert (status, body) == (400, {"error": "unknown field 'code' (known: cause)"})
+    status, body = await api("POST", "/drives/1/fault", {})
+    assert status == 400 and body["error"].startswith('give the fault by cause, such as {"cause": "undervoltage"}')

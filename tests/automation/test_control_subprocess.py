@@ -128,3 +128,37 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "frames", "--last", "0")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr.endswith("error: argument --last: 0 must be at least 1\n")
+
+
+def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
+    """``ctl fault --cause`` brings the cause about; the drive trips by its own physics, as the bench would."""
+    info, ready = served
+    host, port = info["tcp"].rsplit(":", 1)
+    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
+    assert client.connect()
+    try:
+        write(client, 0x2001, 1500)
+        write(client, 0x2000, 1)
+        assert ctl(ready, "advance", "2").returncode == 0
+        result = ctl(ready, "fault", "--cause", "undervoltage")
+        assert result.returncode == 0, result.stderr
+        assert json.loads(result.stdout)["conditions"]["supply_v"] == 18.0  # half the 36 V trip level
+        assert read(client, 0x2102) == 0  # not yet: the bus takes its time to fall
+        ctl(ready, "advance", "0.5")
+        assert read(client, 0x2102) == 0x0A
+        causes = json.loads(ctl(ready, "causes").stdout)["causes"]
+        assert (causes["undervoltage"], causes["overheat"]) == (True, False)
+        result = ctl(ready, "clear", "--cause", "undervoltage", "--no-reset")
+        assert json.loads(result.stdout)["conditions"]["supply_v"] == 48.0
+        ctl(ready, "advance", "1")
+        assert json.loads(ctl(ready, "key", "reset").stdout)["accepted"] is True
+        assert read(client, 0x2102) == 0
+    finally:
+        client.close()
+    result = ctl(ready, "fault", "--cause", "undervoltag")
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr.startswith(
+        "c20sim: POST /drives/1/fault: 400: unknown cause 'undervoltag'; did you mean 'undervoltage'? (known: "
+    )
+    result = ctl(ready, "fault")
+    assert result.stderr == "c20sim: ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)\n"

@@ -353,3 +353,39 @@ async def test_closing_the_server_waits_for_the_scenario_to_stop(tmp_path: Path)
     assert task is not None and not task.done()
     await server.aclose()
     assert task.cancelled()
+
+
+def test_a_fault_by_cause_trips_by_the_drives_physics() -> None:
+    scenario = parse_scenario(
+        {
+            "step": [
+                {"at": 0, "write": {"2001H": 1500, "2000H": 1}},
+                {"at": 2, "fault": {"cause": "undervoltage"}, "expect": {"fault_code": 0}},
+                {"at": 2.5, "expect": {"fault_code": 0x0A, "status1": 4}},
+                {"at": 3, "clear_fault": {"cause": "undervoltage"}},
+                {"at": 4, "keypad": "reset", "expect": {"fault_code": 0}},
+                {"at": 5, "fault": {"cause": "eeprom"}, "expect": {"fault_code": 0x15}},
+            ]
+        },
+        "cause.toml",
+    )
+    assert (scenario.steps[1].cause, scenario.steps[3].release) == ("undervoltage", "undervoltage")
+    report = run(scenario, Simulator(load_profile()))
+    assert report.ok, report.render()
+    assert len(report.outcomes) == 8
+
+
+@pytest.mark.parametrize(
+    ("fault", "message"),
+    [
+        (
+            {"cause": "undervolt"},
+            "c.toml: step 1 (at 0 s), key 'fault': unknown cause 'undervolt'; did you mean 'undervoltage'?",
+        ),
+        ({"cause": "overheat", "code": 16}, "c.toml: step 1 (at 0 s), key 'fault': give a cause alone"),
+    ],
+)
+def test_a_bad_cause_names_the_key(fault: dict[str, object], message: str) -> None:
+    with pytest.raises(ScenarioError) as caught:
+        parse_scenario({"step": [{"at": 0, "fault": fault}]}, "c.toml")
+    assert str(caught.value).startswith(message)

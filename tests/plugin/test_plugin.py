@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+
+from c20sim.testing import C20Sim
 
 pytest_plugins = ["pytester"]
 
@@ -368,3 +372,23 @@ def test_a_bad_marker_setting_says_what_is_wrong(pytester: pytest.Pytester, mark
     )
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines([f"E *UsageError: {message}"])
+
+
+def test_trip_by_cause_and_never_written(c20sim: C20Sim) -> None:
+    client = ModbusTcpClient(c20sim.host or "", port=c20sim.port or 0, framer=FramerType.RTU, timeout=2, retries=0)
+    assert client.connect()
+    try:
+        assert not client.write_register(0x2001, 1500, device_id=1).isError()
+        assert not client.write_register(0x2000, 1, device_id=1).isError()
+    finally:
+        client.close()
+    c20sim.advance(2.0)
+    c20sim.trip("overvoltage")
+    assert c20sim.drive().conditions()["supply_v"] == 68.2  # 110 % of the 62 V trip level
+    c20sim.advance(0.5)
+    c20sim.assert_fault(0x09)  # OV3: at constant speed
+    c20sim.assert_written("2001H", 1500, count=1)
+    c20sim.assert_written("2000H", count=1)
+    c20sim.assert_written("F00.10", count=0)
+    with pytest.raises(AssertionError, match=r"^drive 1: 1 accepted write\(s\) of any value to 2001H, expected 0"):
+        c20sim.assert_written("2001H", count=0)

@@ -1,4 +1,4 @@
-"""The sheet's command table (spec/NOTES.md, corrected frames), byte for byte.
+"""The sheet's command table (docs/protocol.md, corrected frames), byte for byte.
 
 Each row is sent as a master would send it, to the behavioural model built
 from the default profile; where a row needs a state (write enable for a
@@ -18,7 +18,7 @@ from tests.conftest import Line
 
 ECHO = "echo"
 
-# (operation, request, response), in the order of NOTES.md.
+# (operation, request, response), in the order of docs/protocol.md.
 STATELESS_ROWS = [
     ("forward run", "01 06 20 00 00 01 43 CA", ECHO),
     ("reverse run", "01 06 20 00 00 02 03 CB", ECHO),

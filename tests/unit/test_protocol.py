@@ -33,7 +33,7 @@ CHAR = 11 / 19200
 
 
 def test_crc_of_the_sheets_frames() -> None:
-    # Every CRC of the sheet's command table, low byte first (NOTES.md).
+    # Every CRC of the sheet's command table, low byte first (docs/protocol.md).
     assert with_crc(H("01 06 20 00 00 01")) == H("01 06 20 00 00 01 43 CA")
     assert with_crc(H("01 06 20 01 0B B8")) == H("01 06 20 01 0B B8 D4 88")
     assert with_crc(H("01 03 00 0A 00 01")) == H("01 03 00 0A 00 01 A4 08")

@@ -1,0 +1,167 @@
+"""The operations (c20sim.control) as every front end meets them: one vocabulary, one check, one table each."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import fields
+
+import pytest
+
+from c20sim import control
+from c20sim.clock import VirtualClock
+from c20sim.control import causes, ops
+from c20sim.linkfaults import KNOBS, LinkFaults
+from c20sim.profile import load_profile
+from c20sim.registers import Command, Reg
+from c20sim.simulator import Simulator
+from c20sim.tui.workbench import DEVICE_SWITCHES, LINK_SWITCHES
+
+
+def running(profile: str = "c20-400hr") -> Simulator:
+    sim = Simulator(load_profile(profile), (1,), clock=VirtualClock())
+    drive = sim.drive(1)
+    drive.write(Reg.SPEED_SETPOINT, 1500)
+    drive.write(Reg.COMMAND, Command.FORWARD)
+    sim.run_until(2.0)
+    assert drive.read(Reg.MOTOR_SPEED) == 1500
+    return sim
+
+
+@pytest.mark.parametrize(
+    ("cause", "seconds", "code", "holds"),
+    [
+        ("undervoltage", 0.5, 0x0A, True),
+        ("overvoltage", 0.5, 0x09, True),  # OV3: at constant speed
+        ("overcurrent", 0.5, 0x06, False),  # the load cannot overcurrent a stopped drive: reset taken
+        ("stall", 4.0, 27, False),  # likewise
+        ("overheat", 160.0, 0x10, True),
+        ("hall", 0.5, 26, True),
+        ("external", 0.1, 0x11, True),
+        ("eeprom", 0.0, 0x15, True),  # no physical cause in the model: latched until released
+    ],
+)
+def test_each_cause_trips_its_fault_and_releases(cause: str, seconds: float, code: int, holds: bool) -> None:
+    sim = running()
+    note = causes.trip(sim, 1, cause)
+    assert note.startswith(f"drive 1: {cause}")
+    assert causes.active(sim, 1)[cause]
+    sim.run_until(sim.now() + seconds + 0.001)
+    assert ops.read_register(sim, 1, "fault_code")["raw"] == code
+    if holds:
+        assert ops.press_key(sim, 1, "reset") is False  # the cause is still there: the drive refuses the reset
+    causes.release(sim, 1, cause)
+    assert not causes.active(sim, 1)[cause]
+    sim.run_until(sim.now() + 120.0)  # the drive cools, the bus settles
+    assert ops.press_key(sim, 1, "reset") is True
+    assert ops.read_register(sim, 1, "fault_code")["raw"] == 0
+
+
+def test_cause_levels_come_from_each_profile() -> None:
+    for name in ("c20-400hr", "c20-2200hv"):
+        sim = running(name)
+        causes.trip(sim, 1, "undervoltage")
+        assert ops.conditions(sim, 1)["supply_v"] == round(sim.profile.supply.undervoltage_v * 0.5, 1)
+
+
+def test_unknown_cause_and_bad_values_are_refused_with_the_known_names() -> None:
+    sim = running()
+    with pytest.raises(ops.ControlError, match=r"^unknown cause 'overheet'; did you mean 'overheat'\? \(known: "):
+        causes.trip(sim, 1, "overheet")
+    with pytest.raises(ops.ControlError, match=r"^cause: expected a name such as 'undervoltage', got 3$"):
+        causes.trip(sim, 1, 3)
+    with pytest.raises(ops.ControlError, match=r"^no drive at address 7; drives: 1$") as caught:
+        causes.trip(sim, 7, "overheat")
+    assert caught.value.status == 404
+
+
+def test_conditions_are_one_table_read_back_as_set() -> None:
+    sim = running()
+    values = {"supply_v": 40.0, "load_torque_nm": 0.1, "ambient_c": 30.0, "ai1_v": 2.5, "hall_fault": "stuck7"}
+    ops.set_conditions(sim, 1, values)
+    now = ops.conditions(sim, 1)
+    assert set(now) == set(ops.CONDITIONS)
+    assert {key: now[key] for key in values} == values
+    with pytest.raises(ops.ControlError, match=r"^ai2_v: 11 is outside 0-10$"):
+        ops.set_conditions(sim, 1, {"supply_v": 30.0, "ai2_v": 11})
+    assert ops.conditions(sim, 1)["supply_v"] == 40.0  # nothing applied when one is refused
+
+
+def test_link_faults_are_defined_once() -> None:
+    """Every field of LinkFaults has its knob; the checks and the dashboard's switches are made from them."""
+    names = [f.name for f in fields(LinkFaults)]
+    assert list(KNOBS) == names == list(ops.LINK_CHECKS)
+    assert [s.key for s in LINK_SWITCHES] == [k.key for k in KNOBS.values()]
+    assert len({s.key for s in LINK_SWITCHES} | {"z", "b"}) == len(names) + 2  # keys unique, none taken by z or b
+    assert [s.key for s in DEVICE_SWITCHES] == [c.key for c in causes.CAUSES.values()]
+    sim = running()
+    link = ops.set_link_faults(sim, 1, {"garbage_before": "FF 00", "forced_exception": "NOT_WHILE_RUNNING"})
+    assert ops.link_state(link)["active"] == ["garbage_before", "forced_exception"]
+    assert ops.link_state(link)["garbage_before"] == "FF 00"
+    with pytest.raises(ops.ControlError, match=r"^drop_percent: 101 is outside 0-100$"):
+        ops.set_link_faults(sim, None, {"drop_percent": 101})
+
+
+def test_commands_have_one_name() -> None:
+    assert list(ops.KEYS) == [
+        "forward",
+        "reverse",
+        "jog_forward",
+        "jog_reverse",
+        "stop",
+        "free_stop",
+        "reset",
+        "jog_stop",
+    ]
+    assert ops.key_command("free_stop") is Command.FREE_STOP
+    assert ops.key_command(6) is Command.FREE_STOP
+    assert control.KEYS is ops.KEYS
+
+
+def test_run_until_is_the_one_way_time_moves() -> None:
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    assert sim.run_until(1.5) == 1.5
+    assert sim.run_until(1.0) == 1.5  # never backwards
+    assert sim.wall_seconds_to(3.0) == 0.0 and sim.now() == 3.0  # a virtual clock is run to it
+    assert ops.advance(sim, 0.5) == 3.5
+
+
+def test_the_test_handle_needs_no_pytest() -> None:
+    """c20sim.testing from a plain script: a context manager, a real port, and pytest never imported."""
+    script = """
+import sys
+from pymodbus.client import ModbusTcpClient
+from pymodbus import FramerType
+from c20sim.testing import C20Sim
+with C20Sim.start(transport="tcp") as sim:
+    client = ModbusTcpClient(sim.host, port=sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+    assert client.connect()
+    assert client.write_register(0x2001, 1500, device_id=1).isError() is False
+    assert client.write_register(0x2000, 1, device_id=1).isError() is False
+    client.close()
+    sim.advance(2.0)
+    sim.assert_written("2001H", 1500, count=1)
+    sim.assert_written("F00.10", count=0)
+    sim.trip("undervoltage")
+    sim.advance(0.5)
+    sim.assert_fault(0x0A)
+print("pytest" in sys.modules)
+"""
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False)
+    assert (result.returncode, result.stdout, result.stderr) == (0, "False\n", "")
+
+
+def test_the_tui_has_no_import_circle() -> None:
+    """Only the package's __init__ imports the app: widgets, messages and the bench know nothing of it."""
+    import ast
+    from pathlib import Path
+
+    import c20sim.tui
+
+    folder = Path(c20sim.tui.__file__).parent
+    importers = set()
+    for path in folder.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module == "app":
+                importers.add(path.name)
+    assert importers == {"__init__.py"}
