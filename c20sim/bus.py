@@ -46,7 +46,7 @@ from .protocol import (
 from .registers import RegisterMap
 from .slave import Slave
 
-__all__ = ["Bus", "Direction", "FrameRecord", "RecordKind", "Reply"]
+__all__ = ["Bus", "Counters", "Direction", "FrameRecord", "RecordKind", "Reply"]
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,30 @@ class FrameRecord:
         }
 
 
+@dataclass
+class Counters:
+    """Traffic of one drive address, as a master's diagnostics would count it."""
+
+    requests: int = 0  #: good frames addressed to it (broadcasts count at address 0)
+    replies: int = 0  #: normal answers sent
+    exceptions: dict[int, int] = field(default_factory=dict)  #: exception code -> answers sent
+    crc_errors: int = 0  #: frames with its address and a bad CRC
+    length_errors: int = 0  #: frames with its address and the wrong length
+    silences: int = 0  #: requests left unanswered (absent, offline, reply dropped); not broadcasts
+    injected: int = 0  #: requests and replies a link fault acted on
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "requests": self.requests,
+            "replies": self.replies,
+            "exceptions": {f"0x{code:02X}": n for code, n in sorted(self.exceptions.items())},
+            "crc_errors": self.crc_errors,
+            "length_errors": self.length_errors,
+            "silences": self.silences,
+            "injected": self.injected,
+        }
+
+
 @dataclass(frozen=True, slots=True)
 class Reply:
     """Bytes to send back, after ``delay`` seconds of turnaround."""
@@ -144,6 +168,16 @@ class Bus:
         self.rng = random.Random(seed)
         self.records: deque[FrameRecord] = deque(maxlen=log_size)
         self._listeners: list[Callable[[FrameRecord], None]] = []
+        #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
+        self.counters: dict[int, Counters] = {}
+        self.noise = 0
+
+    def counters_of(self, address: int) -> Counters:
+        """The traffic counters of ``address`` (zeros until a frame names it)."""
+        found = self.counters.get(address)
+        if found is None:
+            found = self.counters[address] = Counters()
+        return found
 
     # -- the frame log
 
@@ -216,7 +250,13 @@ class Bus:
             )
         )
         if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
+            self.noise += 1
             return None
+        counters = self.counters_of(slave_address)
+        if event.kind is FrameKind.CRC_ERROR:
+            counters.crc_errors += 1
+        else:
+            counters.length_errors += 1
         slave = self.slave_at(slave_address)
         if slave is None or not slave.profile.protocol.reply_to_bad_crc:
             return None
@@ -233,6 +273,8 @@ class Bus:
                 FrameRecord(event.t, Direction.RX, event.data, RecordKind.REQUEST, address, request, note, t, registers)
             )
 
+        counters = self.counters_of(address)
+        counters.requests += 1
         if address == BROADCAST:
             if isinstance(request, ReadRequest):
                 rx("broadcast read: ignored")
@@ -248,13 +290,17 @@ class Bus:
         slave = self.slave_at(address) if address not in RESERVED else None
         if slave is None:
             rx("reserved address: silence" if address in RESERVED else "no drive at this address: silence")
+            counters.silences += 1
             return None
         if self._offline(slave):
             rx("drive offline (injected)", slave.registers)
+            counters.silences += 1
+            counters.injected += 1
             return None
         rx("", slave.registers)
         forced = self._forced(slave)
         if forced is not None:
+            counters.injected += 1
             response: Response = ExceptionResponse(address, request.function, forced)
         else:
             response = slave.handle(request, t)
@@ -282,9 +328,19 @@ class Bus:
             data, delay = mangled.data, mangled.delay
             notes += mangled.notes
             if data is None:
+                counters = self.counters_of(response.slave)
+                counters.silences += 1
+                counters.injected += 1
                 self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request)
                 return None
         assert data is not None
+        counters = self.counters_of(response.slave)
+        if notes:
+            counters.injected += 1
+        if isinstance(response, ExceptionResponse):
+            counters.exceptions[int(response.code)] = counters.exceptions.get(int(response.code), 0) + 1
+        else:
+            counters.replies += 1
         self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
         return Reply(data, delay, response.slave, baud)
 

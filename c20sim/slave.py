@@ -66,14 +66,19 @@ class Slave:
         """True when no password is set, or the right one has been written."""
         return self._unlocked
 
-    def handle(self, request: Request, t: float) -> Response:
-        """Serve ``request`` at time ``t``; refusals come back as exception replies."""
+    def handle(self, request: Request, t: float, *, communicated: bool = True) -> Response:
+        """Serve ``request`` at time ``t``; refusals come back as exception replies.
+
+        ``communicated=False`` applies the same rules without feeding the communication timeout:
+        an edit from the bench, not a master's frame.
+        """
         self.drive.advance_to(t)
         try:
             response = self._serve(request)
         except ModbusError as exc:
             response = ExceptionResponse(request.slave, request.function, exc.code)
-        self.drive.communicated(t)
+        if communicated:
+            self.drive.communicated(t)
         return response
 
     def frame_error(self, slave: int, function: int) -> ExceptionResponse:

@@ -75,6 +75,13 @@ def _pairs(words: list[str]) -> dict[str, object]:
     return out
 
 
+def _raw(text: str) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a raw value such as 1500 or 0x5DC") from None
+
+
 def _at_least_one(text: str) -> int:
     try:
         value = int(text)
@@ -99,6 +106,12 @@ def cmd_ctl(args: argparse.Namespace) -> int:
         result = call(url, "GET", at if args.drive is not None else "/drives")
     elif action == "read":
         result = call(url, "GET", f"{at}/registers/{args.register}")
+    elif action == "write":
+        result = call(url, "PUT", f"{at}/registers/{args.register}", {"value": args.value})
+    elif action == "registers":
+        result = call(url, "GET", f"{at}/registers")
+    elif action == "counters":
+        result = call(url, "GET", f"{at}/counters")
     elif action == "set":
         result = call(url, "PUT", f"{at}/conditions", _pairs(args.values))
     elif action == "fault":
@@ -167,6 +180,11 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     action("state", help="a drive's telemetry (every drive without --drive)")
     read = action("read", help="read a register: 2100H, 0x2100, F00.10 or status1")
     read.add_argument("register")
+    write = action("write", help="write a register by a master's rules (a refusal names its exception code)")
+    write.add_argument("register")
+    write.add_argument("value", type=_raw, help="the raw value: 1500, 0x5DC")
+    action("registers", help="every register and function code with its value, access and group")
+    action("counters", help="the drive's traffic: requests, replies, exceptions by code, CRC errors, silences")
     conditions = action("set", help=f"set conditions: {', '.join(CONDITIONS)}")
     conditions.add_argument("values", nargs="+", metavar="KEY=VALUE")
     fault = action("fault", help="bring about a fault's cause (--cause undervoltage), or latch a fault by code")

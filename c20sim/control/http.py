@@ -84,7 +84,10 @@ def make_app(api: ControlApi) -> web.Application:
             response: web.StreamResponse = await handler(request)
             return response
         except ControlError as exc:
-            return reply({"error": str(exc)}, exc.status)
+            body: dict[str, object] = {"error": str(exc)}
+            if exc.exception is not None:
+                body["exception"] = exc.exception
+            return reply(body, exc.status)
         except C20SimError as exc:
             return reply({"error": str(exc)}, 400)
         except web.HTTPException as exc:
@@ -162,6 +165,20 @@ def make_app(api: ControlApi) -> web.Application:
 
     async def get_register(request: web.Request) -> web.Response:
         return reply(ops.read_register(sim, address(request), request.match_info["register"]))
+
+    async def put_register(request: web.Request) -> web.Response:
+        where = address(request)
+        data = await body(request)
+        only(data, "value")
+        if "value" not in data:
+            raise ControlError('give the raw value, such as {"value": 1500}')
+        return reply(ops.write_register(sim, where, request.match_info["register"], data["value"]))
+
+    async def list_registers(request: web.Request) -> web.Response:
+        return reply({"registers": ops.registers(sim, address(request))})
+
+    async def get_counters(request: web.Request) -> web.Response:
+        return reply(ops.counters(sim, address(request)))
 
     async def put_conditions(request: web.Request) -> web.Response:
         where = address(request)
@@ -263,7 +280,10 @@ def make_app(api: ControlApi) -> web.Application:
     r.add_post("/time/advance", post_advance)
     r.add_get("/drives", list_drives)
     r.add_get("/drives/{address}", get_drive)
+    r.add_get("/drives/{address}/registers", list_registers)
     r.add_get("/drives/{address}/registers/{register}", get_register)
+    r.add_put("/drives/{address}/registers/{register}", put_register)
+    r.add_get("/drives/{address}/counters", get_counters)
     r.add_put("/drives/{address}/conditions", put_conditions)
     r.add_patch("/drives/{address}/conditions", put_conditions)
     r.add_post("/drives/{address}/fault", post_fault)
@@ -289,7 +309,10 @@ ROUTES: Mapping[str, str] = {
     "POST /time/advance": '{"seconds": 1.5} (virtual clock only; 409 otherwise)',
     "GET /drives": "-",
     "GET /drives/{address}": "-",
+    "GET /drives/{address}/registers": "- (every register and function code, grouped as the sheet groups them)",
     "GET /drives/{address}/registers/{register}": "- (register: 2100H, 0x2100, F00.10 or status1)",
+    "PUT /drives/{address}/registers/{register}": '{"value": 1500} (a master\'s rules; a refusal is 409 with its exception)',
+    "GET /drives/{address}/counters": "- (requests, replies, exceptions by code, CRC errors, silences, injected)",
     "PUT /drives/{address}/conditions": '{"supply_v": 30, "load_torque_nm": 2, ...} (PATCH too)',
     "POST /drives/{address}/fault": '{"cause": "undervoltage"} or {"code": 16, "persistent": false}',
     "DELETE /drives/{address}/fault": '{"reset": true, "cause": "undervoltage"} (both optional)',

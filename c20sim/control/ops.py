@@ -28,8 +28,8 @@ from typing import Any
 from ..drive.model import Drive, HallFault, Telemetry
 from ..errors import C20SimError
 from ..linkfaults import KNOBS, LinkFaults
-from ..protocol import ExceptionCode
-from ..registers import Command, Reg, RunChannel, parse_fcode
+from ..protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
+from ..registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
 from ..simulator import Simulator, set_address
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "clear_fault",
     "clear_link_faults",
     "conditions",
+    "counters",
     "drive",
     "drive_state",
     "frames",
@@ -57,21 +58,28 @@ __all__ = [
     "press_key",
     "read_register",
     "register_address",
+    "registers",
     "restore_defaults",
     "set_conditions",
     "set_link_faults",
     "set_run_channel",
     "telemetry",
     "unknown",
+    "write_register",
 ]
 
 
 class ControlError(C20SimError):
-    """An operation that cannot be done: ``status`` is the HTTP status to answer with."""
+    """An operation that cannot be done: ``status`` is the HTTP status to answer with.
 
-    def __init__(self, message: str, status: int = 400) -> None:
+    ``exception`` is the Modbus exception code a master would have got for the same thing (a refused
+    register edit), or None.
+    """
+
+    def __init__(self, message: str, status: int = 400, *, exception: int | None = None) -> None:
         super().__init__(message)
         self.status = status
+        self.exception = exception
 
 
 # --- Checking JSON-like values.
@@ -206,6 +214,81 @@ def read_register(sim: Simulator, address: int, register: str | int) -> dict[str
         "unit": spec.unit,
         "text": spec.describe(raw),
     }
+
+
+#: How the sheet groups its registers (section 2), in its order; function codes go by group, Fgg.
+SHEET_GROUPS: tuple[tuple[str, range], ...] = (
+    ("communication control command", range(0x2000, 0x2001)),
+    ("communication set points", range(0x2001, 0x2100)),
+    ("drive status", range(0x2100, 0x2200)),
+    ("monitoring", range(0x3000, 0x3100)),
+)
+
+
+def register_group(address: int) -> str:
+    """The sheet's group of a register: ``drive status``, ``monitoring``, ..., or ``function codes F08``."""
+    for name, span in SHEET_GROUPS:
+        if address in span:
+            return name
+    return f"function codes F{address >> 8:02d}"
+
+
+def registers(sim: Simulator, address: int) -> list[dict[str, Any]]:
+    """Every register of the drive's map (fixed registers, then the profile's function codes) with its value now:
+    group, access class, whether it is locked now (W/R* while running), range, source, value in words."""
+    found = _synced(sim, address)
+    out = []
+    regs = sim.profile.registers
+    fixed = [s for s in regs.specs() if not is_fcode(s.address)]
+    for spec in fixed + regs.parameters():
+        raw = found.read(spec.storage) & 0xFFFF
+        out.append(
+            {
+                "register": spec.label,
+                "address": int(spec.address),
+                "group": register_group(spec.address),
+                "name": spec.name,
+                "access": spec.access.value,
+                "locked": spec.access is Access.RW_STOPPED and found.running,
+                "minimum": spec.minimum,
+                "maximum": spec.maximum,
+                "raw": raw,
+                "text": spec.describe(raw),
+                "unit": spec.unit,
+                "source": spec.source,
+                "mirrors": address_label(regs.mirrors[spec.address]) if spec.address in regs.mirrors else None,
+            }
+        )
+    return out
+
+
+def write_register(sim: Simulator, address: int, register: str | int, value: object) -> dict[str, Any]:
+    """Write a register from the bench by the rules a master meets (access, range, 200EH, password, W/R*).
+
+    A refusal raises ControlError (409) whose ``exception`` is the code a master would have got. Not a frame on the
+    line: nothing in the frame log, and the communication timeout is not fed.
+    """
+    drive(sim, address)
+    reg = parse_register(sim, register)
+    raw = integer("value", value, 0, 0xFFFF)
+    sim.sync()
+    response = sim.slaves[address].handle(WriteSingleRequest(address, reg, raw), sim.now(), communicated=False)
+    if isinstance(response, ExceptionResponse):
+        code = response.code
+        label = sim.profile.registers[reg].label
+        raise ControlError(
+            f"{label} = {raw} refused: exception 0x{int(code):02X} ({code.meaning}), as a master would get it",
+            status=409,
+            exception=int(code),
+        )
+    return read_register(sim, address, reg)
+
+
+def counters(sim: Simulator, address: int) -> dict[str, object]:
+    """The drive's traffic counters: requests, replies, exceptions by code, CRC and length errors, silences,
+    and what link faults acted on."""
+    drive(sim, address)
+    return sim.bus.counters_of(address).as_dict()
 
 
 # --- Conditions: the drive's physical surroundings.

@@ -264,3 +264,31 @@ async def test_fault_by_cause(client: Callable[[Simulator], Awaitable[Api]]) -> 
     assert (status, body) == (400, {"error": "unknown field 'code' (known: cause)"})
     status, body = await api("POST", "/drives/1/fault", {})
     assert status == 400 and body["error"].startswith('give the fault by cause, such as {"cause": "undervoltage"}')
+
+
+async def test_register_table_edit_and_counters(client: Callable[[Simulator], Awaitable[Api]]) -> None:
+    api = await client(virtual())
+    status, table = await api("GET", "/drives/1/registers")
+    assert status == 200 and len(table["registers"]) == 56
+    assert await api("PUT", "/drives/1/registers/F00.10", {"value": 2500}) == (
+        409,
+        {
+            "error": "F00.10 = 2500 refused: exception 0x04 (operation failed), as a master would get it",
+            "exception": 4,
+        },
+    )
+    assert (await api("PUT", "/drives/1/registers/200EH", {"value": 1}))[1]["text"] == "function codes writable"
+    status, info = await api("PUT", "/drives/1/registers/F00.10", {"value": 2500})
+    assert (status, info["text"]) == (200, "25.00 Hz")
+    assert await api("GET", "/drives/1/counters") == (
+        200,
+        {
+            "requests": 0,
+            "replies": 0,
+            "exceptions": {},
+            "crc_errors": 0,
+            "length_errors": 0,
+            "silences": 0,
+            "injected": 0,
+        },
+    )

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ModbusIOException
 
 from c20sim.control.ctl import call
 from c20sim.errors import C20SimError
@@ -162,3 +163,39 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
     )
     result = ctl(ready, "fault")
     assert result.stderr == "c20sim: ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)\n"
+
+
+def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -> None:
+    info, ready = served
+    host, port = info["tcp"].rsplit(":", 1)
+    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=0.3, retries=0)
+    assert client.connect()
+    try:
+        for _ in range(3):
+            read(client, 0x2100)
+        assert client.read_holding_registers(0x0032, count=1, device_id=1).exception_code == 0x02
+        assert client.write_register(0x2100, 1, device_id=1).exception_code == 0x07
+        assert ctl(ready, "link", "offline=true", "--drive", "1").returncode == 0
+        with pytest.raises(ModbusIOException):  # silence: no reply
+            client.read_holding_registers(0x2100, count=1, device_id=1)
+        ctl(ready, "link", "--clear", "--drive", "1")
+        client.send(bytes.fromhex("01 03 21 00 00 01 00 00"))  # a bad CRC: the drive answers 0x06
+        assert client.recv(5) == bytes.fromhex("01 83 06 C1 32")
+    finally:
+        client.close()
+    counters = json.loads(ctl(ready, "counters").stdout)
+    assert counters == {
+        "requests": 6,
+        "replies": 3,
+        "exceptions": {"0x02": 1, "0x06": 1, "0x07": 1},
+        "crc_errors": 1,
+        "length_errors": 0,
+        "silences": 1,
+        "injected": 1,
+    }
+    result = ctl(ready, "write", "F00.10", "2500")
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == (
+        "c20sim: PUT /drives/1/registers/F00.10: 409: F00.10 = 2500 refused: exception 0x04 (operation failed), "
+        "as a master would get it\n"
+    )

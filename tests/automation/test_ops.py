@@ -165,3 +165,34 @@ def test_the_tui_has_no_import_circle() -> None:
             if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module == "app":
                 importers.add(path.name)
     assert importers == {"__init__.py"}
+
+
+def test_registers_are_listed_as_the_sheet_groups_them() -> None:
+    sim = running()
+    table = {row["register"]: row for row in ops.registers(sim, 1)}
+    assert [table[r]["group"] for r in ("2000H", "2005H", "2100H", "3006H", "F00.10", "F08.00")] == [
+        "communication control command",
+        "communication set points",
+        "drive status",
+        "monitoring",
+        "function codes F00",
+        "function codes F08",
+    ]
+    assert (table["2002H"]["access"], table["2002H"]["locked"]) == ("W/R*", True)  # pole pairs, while running
+    assert (table["3006H"]["raw"], table["3006H"]["text"]) == (1500, "1500 rpm")
+    assert (table["2005H"]["mirrors"], table["2100H"]["text"]) == ("F00.00", "forward running")
+
+
+@pytest.mark.parametrize(
+    ("register", "value", "code"),
+    [("2100H", 1, 0x07), ("2001H", 3001, 0x03), ("F00.10", 2500, 0x04), ("2002H", 4, 0x08)],
+)
+def test_a_bench_edit_meets_the_masters_rules(register: str, value: int, code: int) -> None:
+    sim = running()
+    before = len(sim.bus.records)
+    with pytest.raises(ops.ControlError) as caught:
+        ops.write_register(sim, 1, register, value)
+    assert (caught.value.status, caught.value.exception) == (409, code)
+    assert str(caught.value).startswith(f"{register} = {value} refused: exception 0x{code:02X} (")
+    assert len(sim.bus.records) == before  # a bench edit is not a frame on the line
+    assert ops.write_register(sim, 1, "2001H", 1000)["text"] == "1000 rpm"
