@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from .control.ctl import add_ctl_command
@@ -228,11 +228,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def with_default_command(argv: Sequence[str], commands: Iterable[str]) -> list[str]:
+    """Bare ``c20sim`` and ``c20sim --pty --link /tmp/ttyC20`` mean the dashboard: its options need no command word.
+
+    ``-h``/``--help`` alone still asks for the command list.
+    """
+    words = list(argv)
+    if not words:
+        return ["dashboard"]
+    if words[0] in commands or words[0] in ("-h", "--help"):
+        return words
+    return ["dashboard", *words]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        args = parser.parse_args(["dashboard"])
+    commands = next(a.choices for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    args = parser.parse_args(with_default_command(sys.argv[1:] if argv is None else argv, commands or ()))
     try:
         result: int = args.func(args)
         return result

@@ -20,7 +20,7 @@ from rich.text import Text
 from textual import on
 from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding, BindingType
-from textual.containers import Horizontal, Vertical
+from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.css.query import NoMatches
 from textual.reactive import reactive
 from textual.screen import ModalScreen, Screen
@@ -84,8 +84,11 @@ class HelpScreen(ModalScreen[None]):
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
 
     def compose(self) -> ComposeResult:
-        with Vertical(id="help"):
+        with VerticalScroll(id="help"):
             yield Markdown(HELP)
+
+    def on_mount(self) -> None:
+        self.query_one("#help").focus()  # up/down, page up/down and the wheel scroll it
 
     def action_dismiss(self, result: None = None) -> None:  # type: ignore[override]
         self.dismiss(result)
@@ -195,6 +198,7 @@ class Dashboard(App[int]):
         self.views: dict[int, DriveView] = {}
         self._plotted: tuple[int, int] | None = None
         self._drive_labels: dict[int, str] = {}
+        self._title_shown = ""
         self.set_reactive(Dashboard.selected, next(iter(self.bench.addresses)))
         self._unsubscribe: list[Callable[[], None]] = []
         self._started = False
@@ -238,10 +242,19 @@ class Dashboard(App[int]):
         text = Text(" c20sim ", style="bold reverse")
         text.append(" ")
         text.append_text(self.connect_text())
-        text.append(f" │ {sim.profile.name} · {'virtual' if sim.virtual else 'realtime'} clock")
+        text.append(" │ ")
+        text.append(self.clock_text(), style="bold")
+        text.append(f" │ {sim.profile.name}")
         text.no_wrap = True
         text.overflow = "ellipsis"
         return text
+
+    def clock_text(self) -> str:
+        """The model's time and how the clock runs: ``t 12.3 s virtual`` or ``t 12.3 s ×1 realtime``."""
+        sim = self.sim
+        speed = getattr(sim.clock, "speed", 1.0)
+        how = "virtual" if sim.virtual else f"×{speed:g} realtime"
+        return f"t {sim.now():.1f} s {how}"
 
     def connect_text(self) -> Text:
         """Where a master connects: every endpoint, as the ready line gives it."""
@@ -289,7 +302,10 @@ class Dashboard(App[int]):
         if view is None:
             return
         screen.query_one(DriveStatus).view = view
-        screen.query_one(DriveStatus).border_title = f"drive {self.selected} · t {view.telemetry.t:.1f} s"
+        title = self._title()
+        if title.plain != self._title_shown:  # the model's time moves on in the title bar
+            self._title_shown = title.plain
+            screen.query_one("#title", Static).update(title)
         history = self.bench.history[self.selected]
         plotted = (self.selected, history.samples)
         if plotted != self._plotted:  # the plots move on with each sample (2 a second), not each refresh
@@ -356,6 +372,7 @@ class Dashboard(App[int]):
 
     def action_advance(self, seconds: float) -> None:
         self.bench.advance(float(seconds))
+        self.notify(f"virtual time +{float(seconds):g} s: t = {self.sim.now():.1f} s", timeout=2)
         self.refresh_views()
 
     def action_drive(self, step: int) -> None:
@@ -389,8 +406,8 @@ class Dashboard(App[int]):
     @on(TabbedContent.TabActivated)
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
         if event.pane.id is not None:
+            self._show()  # fill the tab's fields before one takes the focus
             self._focus_tab(event.pane.id)
-            self._show()
 
     def _focus_tab(self, tab: str) -> None:
         screen = self.get_screen_main()

@@ -9,6 +9,7 @@ shown as an error notification.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import ClassVar
@@ -65,7 +66,7 @@ def _bits(value: int, names: Iterable[tuple[str, int]]) -> Text:
     for name, bit in names:
         if text:
             text.append(" ")
-        text.append(name, style="bold black on bright_green" if value & bit else "dim")
+        text.append(name, style="bold black on bright_green" if value & bit else "bright_black")
     return text
 
 
@@ -81,12 +82,15 @@ class DriveStatus(Static):
         tel = view.telemetry
         status = tel.status
         words = STATUS_WORDS.get(status, f"status {status}")
-        head = Text(f" {words.upper()} ", style=STATUS_STYLES.get(status, "bold"))
-        head.append(f" 2100H = {status}", style="dim")
+        # Each part is a span of its own: a base style on the whole Text would colour every row
+        # (the state's background behind the fault text, the terminals, everything).
+        out = Text()
+        out.append(f" {words.upper()} ", style=STATUS_STYLES.get(status, "bold"))
+        out.append(f" 2100H = {status}", style="dim")
         if tel.state not in words:
-            head.append(f" ({tel.state})", style="dim")
+            out.append(f" ({tel.state})", style="dim")
         if tel.fault_code:
-            fault = Text(f"0x{tel.fault_code:02X} {tel.fault_name}", style="bold red")
+            fault = Text(f"0x{tel.fault_code:02X} {tel.fault_name}", style="bold bright_red")
         else:
             fault = Text("none", style="green")
         rows: list[tuple[str, Text | str]] = [
@@ -104,11 +108,14 @@ class DriveStatus(Static):
             ("inputs", _bits(tel.input_terminals, ((t.name or "", t.value) for t in Terminal))),
             ("outputs", _bits(tel.output_terminals, ((o.name or "", o.value) for o in Output))),
         ]
-        out = head
+        width = max(1, self.content_size.width)
+        out.truncate(width, overflow="ellipsis")
         for label, value in rows:
+            line = Text(f"{label:<9}", style="bold")
+            line.append(value)
+            line.truncate(width, overflow="ellipsis")  # one line each, whatever the width: never wrapped
             out.append("\n")
-            out.append(f"{label:<9}", style="bold")
-            out.append(value)
+            out.append_text(line)
         out.no_wrap = True
         out.overflow = "ellipsis"
         return out
@@ -180,11 +187,22 @@ def record_matches(record: FrameRecord, drive: int | None, function: int | None,
     return not errors_only or record.kind.error or bool(record.note)
 
 
+#: Wall-clock time of day minus the monotonic clock the ports stamp frames with (the event loop's, perf_counter).
+WALL_OFFSET = time.time() - time.monotonic()
+
+
+def time_of_day(line_t: float) -> str:
+    """A frame's line time (monotonic seconds) as the time of day, to the millisecond."""
+    wall = line_t + WALL_OFFSET
+    return time.strftime("%H:%M:%S", time.localtime(wall)) + f".{int(wall % 1 * 1000):03d}"
+
+
 def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
-    """One frame log line: time, direction, drive, words (highlighted if wrong), hex."""
+    """One frame log line: time of day, model time, direction, drive, words (highlighted if wrong), hex."""
     arrow = "→" if record.direction is Direction.RX else "←"
     slave = "-" if record.slave is None else str(record.slave)
-    line = Text(f"{record.t:9.3f} {arrow} {slave:>3} ", style="dim")
+    model = "" if record.model_t is None else f" t={record.model_t:.3f}"
+    line = Text(f"{time_of_day(record.t)}{model} {arrow} {slave:>3} ", style="dim")
     style = ""
     if record.kind is RecordKind.EXCEPTION:
         style = "bold yellow"
@@ -365,6 +383,15 @@ class NumberInput(Input):
     def __init__(self, step: float, low: float, high: float, *, id: str | None = None) -> None:
         super().__init__(type="number", compact=True, id=id)
         self.step, self.low, self.high = step, low, high
+        #: the drive's value, as last shown: a step starts here when the field holds no number
+        self.current: float | None = None
+
+    def show(self, value: float) -> None:
+        """The drive's value now; the text is left alone while the user is typing in the field."""
+        first = self.current is None  # a field that took the focus before any value came: fill it once
+        self.current = value
+        if (first or not self.has_focus) and self.value != f"{value:g}":
+            self.value = f"{value:g}"
 
     def check_consume_key(self, key: str, character: str | None) -> bool:
         return character is not None and character in NUMBER_CHARACTERS
@@ -378,11 +405,14 @@ class NumberInput(Input):
         self.screen.set_focus(None)
 
     def action_step(self, direction: int) -> None:
+        """One step from the number in the field, or from the drive's value; never from nothing."""
         try:
-            value = float(self.value or 0)
+            start = float(self.value)
         except ValueError:
-            value = 0.0
-        value = min(max(value + direction * self.step, self.low), self.high)
+            if self.current is None:
+                return  # nothing known yet: a step must never invent a value (a blank field is not 0 V)
+            start = self.current
+        value = min(max(start + direction * self.step, self.low), self.high)
         self.value = f"{value:g}"
         self.post_message(Input.Submitted(self, self.value))
 
@@ -431,9 +461,7 @@ class ConditionsPanel(Vertical):
             "ai2": cond.ai2_v,
         }
         for name, value in values.items():
-            field = self.query_one(f"#cond-{name}", NumberInput)
-            if not field.has_focus and field.value != f"{value:g}":
-                field.value = f"{value:g}"
+            self.query_one(f"#cond-{name}", NumberInput).show(value)
         for terminal in Terminal:
             box = self.query_one(f"#term-{terminal.name}", Checkbox)
             on_ = bool(cond.inputs & terminal)

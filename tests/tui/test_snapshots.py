@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
 from textual.pilot import Pilot
 
 from c20sim.clock import VirtualClock
@@ -11,7 +12,7 @@ from c20sim.profile import load_profile
 from c20sim.protocol import RtuFramer
 from c20sim.registers import Reg
 from c20sim.simulator import Simulator
-from c20sim.tui import Dashboard
+from c20sim.tui import Dashboard, widgets
 
 
 def dashboard(drives: tuple[int, ...] = (1,)) -> Dashboard:
@@ -64,7 +65,9 @@ async def frames_with_errors(pilot: Pilot[Any]) -> None:
     await pilot.pause()
 
 
-def test_frame_log(snap_compare: Any) -> None:
+def test_frame_log(snap_compare: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    # frames show the time of day: fixed here, so every run draws the same
+    monkeypatch.setattr(widgets, "time_of_day", lambda line_t: f"10:00:{line_t:06.3f}")
     assert snap_compare(dashboard((1, 2)), terminal_size=(100, 30), run_before=frames_with_errors)
 
 
