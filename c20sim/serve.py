@@ -10,6 +10,7 @@ endpoint, and ``--ready-file`` gets the same as JSON with the real addresses
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import signal
@@ -105,6 +106,7 @@ class Server:
         self._log_file: IO[str] | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self.control: ControlApi | None = None
+        self._ready: tuple[Path, str] | None = None  #: the ready file written, and what it says
         self.scenario_task: asyncio.Task[Report] | None = None
 
     async def start(self) -> None:
@@ -179,11 +181,23 @@ class Server:
         data = self.addresses()
         target = Path(path)
         tmp = target.with_name(f".{target.name}.tmp")
+        text = json.dumps(data, indent=2) + "\n"
         try:
-            tmp.write_text(json.dumps(data, indent=2) + "\n")
+            tmp.write_text(text)
             os.replace(tmp, target)
         except OSError as exc:
             raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
+        self._ready = (target, text)
+
+    def _remove_ready_file(self) -> None:
+        """A ready file says 'serving here': it goes when the server does (unless another wrote over it)."""
+        if self._ready is None:
+            return
+        target, text = self._ready
+        self._ready = None
+        with contextlib.suppress(OSError):
+            if target.read_text() == text:
+                target.unlink()
 
     def _open_frame_log(self, path: str) -> None:
         try:
@@ -208,6 +222,7 @@ class Server:
                 await server.wait_closed()
 
     def close(self) -> None:
+        self._remove_ready_file()
         if self.scenario_task is not None:
             self.scenario_task.cancel()
         for endpoint in self.endpoints.all():
@@ -261,19 +276,23 @@ def run(main: Coroutine[Any, Any, T]) -> T:
     return uvloop.run(main)
 
 
+#: Signals that end serving cleanly: Ctrl-C, a service manager's stop, a closed terminal window.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:
-    """Serve until SIGINT or SIGTERM."""
+    """Serve until SIGINT, SIGTERM or SIGHUP."""
     server = Server(sim, options)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         loop.add_signal_handler(sig, stop.set)
     try:
         await server.start()
         print(server.ready_line(), file=out, flush=True)
         await stop.wait()
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in STOP_SIGNALS:
             loop.remove_signal_handler(sig)
         await server.aclose()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import fcntl
 import os
 import tty
 from pathlib import Path
@@ -37,6 +38,7 @@ class PtyPort:
         self._endpoint: RtuEndpoint | None = None
         self._unsent = bytearray()  # what the pty's buffer would not take yet
         self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
+        self._lock = -1  #: the open lock file beside --link, held while this port owns the link
         self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
@@ -44,6 +46,8 @@ class PtyPort:
             raise C20SimError(
                 f"--link {self.link}: a file that is not a symlink is in the way; remove it or choose another path"
             )
+        if self.link is not None:
+            self._take_link_lock(self.link)
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
@@ -63,6 +67,30 @@ class PtyPort:
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         if self.line_timing:
             self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
+
+    def _take_link_lock(self, link: Path) -> None:
+        """Hold ``LINK.lock`` for as long as this port owns the link: a second c20sim is refused, naming the first.
+
+        The kernel drops the lock when its holder dies, however it dies, so a stale link is taken over.
+        """
+        lock_path = link.with_name(link.name + ".lock")
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise C20SimError(
+                f"--link {link}: cannot create {lock_path}: {exc.strerror}; choose a writable path"
+            ) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise C20SimError(
+                f"--link {link} is held by another c20sim (PID {holder}); stop it or choose another --link"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._lock = fd
 
     @property
     def baud(self) -> int:
@@ -143,3 +171,10 @@ class PtyPort:
             self._slave = -1
         if self.link is not None and self.link.is_symlink() and os.readlink(self.link) == self.path:
             self.link.unlink()
+        if self._lock >= 0:
+            # The lock file stays (unlinking it would let a third c20sim lock a fresh file while a
+            # second holds the old one); emptied, it names no holder.
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._lock, 0)
+            os.close(self._lock)  # releases the lock
+            self._lock = -1

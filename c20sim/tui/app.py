@@ -11,7 +11,9 @@ through the :class:`~c20sim.tui.workbench.Workbench`.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import signal
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import ClassVar, cast
@@ -224,6 +226,14 @@ class Dashboard(App[int]):
         self.set_interval(1.0 / self.refresh_hz, self.refresh_views)
         framelog.focus()
         self.refresh_views()
+
+    def on_mount(self) -> None:
+        # A closed terminal window (SIGHUP) or a kill (SIGTERM) ends the app as q does: the terminal is
+        # given back (no alternate screen, no mouse tracking) and the link and ready file are removed.
+        with contextlib.suppress(NotImplementedError, RuntimeError, AttributeError):  # none on Windows: q works
+            loop = asyncio.get_running_loop()
+            for name in ("SIGTERM", "SIGHUP"):
+                loop.add_signal_handler(getattr(signal, name), self.exit)
 
     async def on_unmount(self) -> None:
         await self.close_server()

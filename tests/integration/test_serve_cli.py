@@ -143,3 +143,37 @@ def test_bad_options_exit_2_with_one_line(args: list[str], message: str) -> None
     code, err = run_error(*args)
     assert code == 2
     assert err.endswith(message) and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT])
+def test_each_stop_signal_removes_link_and_ready_file(
+    tmp_path: Path, started: list[subprocess.Popen[str]], sig: signal.Signals
+) -> None:
+    ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
+    proc = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))
+    wait_for_ready_file(ready, proc)
+    assert link.is_symlink()
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=10)
+    assert (proc.returncode, err) == (0, "")
+    assert not link.is_symlink() and not link.exists()
+    assert not ready.exists()
+
+
+def test_a_held_link_is_refused_naming_its_holder(tmp_path: Path, started: list[subprocess.Popen[str]]) -> None:
+    ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
+    first = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))
+    wait_for_ready_file(ready, first)
+    target = link.readlink()
+    second = start(started, "--pty", "--link", str(link))
+    _, err = second.communicate(timeout=10)
+    assert (second.returncode, err) == (
+        2,
+        f"c20sim: --link {link} is held by another c20sim (PID {first.pid}); stop it or choose another --link\n",
+    )
+    assert link.readlink() == target  # the first one's link is left alone
+    first.send_signal(signal.SIGTERM)
+    assert first.wait(timeout=10) == 0
+    third = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))  # free again once it ended
+    wait_for_ready_file(ready, third)
+    assert link.readlink() != target or link.exists()

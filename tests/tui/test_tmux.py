@@ -120,3 +120,30 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     assert read(client, 0x2100) == 4
     terminal.keys("q")
     assert terminal.exit_status() == "status 0", terminal.screen()
+
+
+@pytest.mark.parametrize("sig", ["TERM", "HUP"])
+def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: str) -> None:
+    """kill -TERM, or the terminal window closed (HUP): the alternate screen and mouse tracking are switched
+    off, the link and the ready file are removed, exit status 0."""
+    ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
+    session = f"c20sim-{uuid.uuid4().hex[:8]}"
+    command = f"{sys.executable} -m c20sim --pty --link {link} --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
+    tmux = TMUX or "tmux"
+    cwd = Path(__file__).parents[2]
+    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
+    try:
+        subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
+        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
+        terminal = Terminal(session)
+        wait_for("the ready file", ready.exists)
+        terminal.wait_for_text("STOPPED")
+        assert link.is_symlink()
+        assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "1 1"
+        found = subprocess.run(["pgrep", "-f", f"ready-file {ready}"], capture_output=True, text=True, check=True)
+        subprocess.run(["kill", f"-{sig}", *found.stdout.split()], check=True)
+        assert terminal.exit_status() == "status 0", terminal.screen()
+        assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "0 0"
+        assert not link.is_symlink() and not ready.exists()
+    finally:
+        subprocess.run([tmux, "kill-session", "-t", session], check=False)
