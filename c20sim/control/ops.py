@@ -52,6 +52,7 @@ __all__ = [
     "frames",
     "inject_fault",
     "key_command",
+    "keypad_edit",
     "link_state",
     "parse_register",
     "power_cycle",
@@ -456,9 +457,35 @@ def press_key(sim: Simulator, address: int, key: object) -> bool:
     return found.keypad(command)
 
 
-def set_run_channel(sim: Simulator, address: int, channel: object) -> RunChannel:
-    """Set F00.01 (2006H) from the drive's own panel, as its keypad edits it: any state, no write enable."""
+def keypad_edit(sim: Simulator, address: int, register: str | int, value: object) -> dict[str, Any]:
+    """Set a parameter from the drive's own panel: its range and W/R* apply, the communication locks
+    (200EH, password) do not, as on the drive's keypad. A refusal raises ControlError (409) naming the code a
+    master would get for the same write."""
     found = drive(sim, address)
+    reg = parse_register(sim, register)
+    spec = sim.profile.registers[reg]
+    raw = integer("value", value, 0, 0xFFFF)
+    sim.sync()
+    refusal: tuple[ExceptionCode, str] | None = None
+    if not spec.access.writable:
+        refusal = ExceptionCode.READ_ONLY, "read-only"
+    elif not spec.accepts(raw):
+        refusal = ExceptionCode.ILLEGAL_VALUE, f"allowed {spec.minimum} to {spec.maximum}"
+    elif spec.access is Access.RW_STOPPED and found.running:
+        refusal = ExceptionCode.NOT_WHILE_RUNNING, "W/R*: stop the drive first"
+    if refusal is not None:
+        code, why = refusal
+        raise ControlError(
+            f"{spec.label} = {raw} refused ({why}): exception 0x{int(code):02X} ({code.meaning}) for a master",
+            status=409,
+            exception=int(code),
+        )
+    found.write(spec.storage, raw)
+    return read_register(sim, address, reg)
+
+
+def set_run_channel(sim: Simulator, address: int, channel: object) -> RunChannel:
+    """Set F00.01 (2006H) from the drive's own panel, as its keypad edits it."""
     if isinstance(channel, str):
         names = {c.key: c for c in RunChannel}
         if channel not in names:
@@ -466,8 +493,7 @@ def set_run_channel(sim: Simulator, address: int, channel: object) -> RunChannel
         value = names[channel]
     else:
         value = RunChannel(integer("channel", channel, 0, max(RunChannel)))
-    sim.sync()
-    found.write(sim.profile.registers.canonical(Reg.RUN_CHANNEL), int(value))
+    keypad_edit(sim, address, Reg.RUN_CHANNEL, int(value))
     return value
 
 

@@ -34,6 +34,7 @@ from ..registers import RUN_CHANNELS
 from ..serve import ServeOptions, Server
 from ..simulator import Simulator
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
+from .registers import RegistersPanel
 from .widgets import (
     STATUS_STYLES,
     ConditionsPanel,
@@ -47,7 +48,7 @@ from .workbench import LINK_SWITCHES, DriveView, Workbench
 
 __all__ = ["Dashboard"]
 
-TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5"}
+TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5", "registers": "f6"}
 
 HELP = """\
 # c20sim dashboard
@@ -64,6 +65,8 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `s` | STOP (from any channel) |
 | `x` | RESET a fault (refused while its cause is still there) |
 | `m` | run channel: keypad -> terminals -> communication (F00.01) |
+| `S` | speed source: keypad -> AI1 -> AI2 -> Modbus -> multi-speed (F00.02) |
+| `+` / `-` | keypad speed reference, 1.00 Hz a press (F00.10; used with the keypad speed source) |
 | `P` | power cycle |
 | `D` | restore default parameters (200FH = 1; only while stopped) |
 
@@ -75,6 +78,7 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
 | `F4` | device faults: one key each, the cause switched on or off; `z` clears all |
 | `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
+| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code) |
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |
 | `ctrl+p` | the command palette: every action by name |
@@ -149,6 +153,8 @@ class MainScreen(Screen[None]):
                 yield DeviceFaultsPanel(bench, id="faults-panel")
             with TabPane("Link faults F5", id="link"):
                 yield LinkFaultsPanel(bench, id="link-panel")
+            with TabPane("Registers F6", id="registers"):
+                yield RegistersPanel(bench, id="registers-panel")
         yield Footer()
 
     async def on_mount(self) -> None:
@@ -170,6 +176,9 @@ class Dashboard(App[int]):
         Binding("J", "keypad('jogrev')", "Jog rev", show=False),
         Binding("x", "keypad('reset')", "Reset"),
         Binding("m", "channel", "Channel", show=False),
+        Binding("S", "speed_source", "Speed source", show=False),
+        Binding("plus", "keypad_speed(1)", "Speed +", show=False),
+        Binding("minus", "keypad_speed(-1)", "Speed -", show=False),
         Binding("P", "power_cycle", "Power cycle", show=False),
         Binding("D", "restore_defaults", "Defaults", show=False),
         Binding("t", "advance(1)", "+1s"),
@@ -340,6 +349,8 @@ class Dashboard(App[int]):
             screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
         elif active == "link":
             screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
+        elif active == "registers":
+            screen.query_one(RegistersPanel).show()
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -358,6 +369,20 @@ class Dashboard(App[int]):
     def action_channel(self) -> None:
         channel = self.bench.cycle_channel(self.selected)
         self.notify(f"drive {self.selected}: run channel {RUN_CHANNELS[channel]} (F00.01 = {channel})", timeout=3)
+        self.refresh_views()
+
+    def action_speed_source(self) -> None:
+        try:
+            words = self.bench.cycle_speed_source(self.selected)
+        except C20SimError as exc:
+            self.notify(f"drive {self.selected}: {exc}", severity="warning", timeout=4)
+            return
+        self.notify(f"drive {self.selected}: speed from {words} (F00.02)", timeout=3)
+        self.refresh_views()
+
+    def action_keypad_speed(self, steps: int) -> None:
+        words = self.bench.step_keypad_speed(self.selected, int(steps))
+        self.notify(f"drive {self.selected}: keypad speed {words} (F00.10)", timeout=2)
         self.refresh_views()
 
     def action_power_cycle(self) -> None:
@@ -401,6 +426,7 @@ class Dashboard(App[int]):
             screen.query_one(ConditionsPanel).selected = address
             screen.query_one(DeviceFaultsPanel).selected = address
             screen.query_one(LinkFaultsPanel).selected = address
+            screen.query_one(RegistersPanel).selected = address
         if self.views:
             self._show()
 
@@ -426,6 +452,7 @@ class Dashboard(App[int]):
             "conditions": "#cond-supply",
             "faults": DeviceFaultsPanel,
             "link": LinkFaultsPanel,
+            "registers": "#reg-table",
         }[tab]
         screen.query_one(target).focus()  # type: ignore[call-overload]
 

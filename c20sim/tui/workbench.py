@@ -25,7 +25,7 @@ from ..errors import C20SimError
 from ..linkfaults import KNOBS
 from ..profile import Profile
 from ..protocol import ExceptionCode
-from ..registers import RUN_CHANNELS, Command, Reg, RunChannel
+from ..registers import RUN_CHANNELS, Command, Reg, RunChannel, fcode_address
 from ..simulator import Simulator
 
 __all__ = [
@@ -191,7 +191,7 @@ class Workbench:
         """The conditions drive ``address`` is in now, whoever set them."""
         return Conditions.of(ops.conditions(self.sim, address), ops.held_fault(self.sim, address))
 
-    def register(self, address: int, register: Reg) -> int:
+    def register(self, address: int, register: int) -> int:
         raw: int = ops.read_register(self.sim, address, register)["raw"]
         return raw
 
@@ -244,6 +244,36 @@ class Workbench:
         """The keypad's own parameter edit: F00.01 keypad -> terminals -> communication -> keypad."""
         now = self.register(address, Reg.RUN_CHANNEL)
         return int(ops.set_run_channel(self.sim, address, (now + 1) % (RunChannel.COMMUNICATION + 1)))
+
+    def cycle_speed_source(self, address: int) -> str:
+        """The keypad's edit of F00.02: the next speed source the profile allows; returns it in words."""
+        spec = self.profile.registers[Reg.SPEED_SOURCE]
+        now = self.register(address, Reg.SPEED_SOURCE)
+        value = spec.minimum if now >= spec.maximum else now + 1
+        return str(ops.keypad_edit(self.sim, address, Reg.SPEED_SOURCE, value)["text"])
+
+    def step_keypad_speed(self, address: int, steps: int) -> str:
+        """The panel's up/down on the keypad speed reference (F00.10), one step of 1.00 Hz; returns it in words."""
+        cell = fcode_address(0, 10)
+        spec = self.profile.registers[cell]
+        value = min(max(self.register(address, cell) + steps * 100, spec.minimum), spec.maximum)
+        return str(ops.keypad_edit(self.sim, address, cell, value)["text"])
+
+    def registers(self, address: int) -> list[dict[str, object]]:
+        """Every register and function code, grouped as the sheet groups them, with its value now."""
+        return ops.registers(self.sim, address)
+
+    def write_register(self, address: int, register: str, value: int) -> str | None:
+        """Write as a master would (the same checks); None if taken, else the refusal with its exception code."""
+        try:
+            ops.write_register(self.sim, address, register, value)
+        except ops.ControlError as exc:
+            return str(exc)
+        return None
+
+    def counters(self, address: int) -> dict[str, object]:
+        """The drive's traffic: requests, replies, exceptions by code, CRC errors, silences, injected."""
+        return ops.counters(self.sim, address)
 
     def power_cycle(self, address: int) -> None:
         ops.power_cycle(self.sim, address)

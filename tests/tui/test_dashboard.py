@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
-from textual.widgets import Checkbox, Input, RichLog
+from textual.widgets import Checkbox, DataTable, Input, RichLog, Static
 
 from c20sim import control
 from c20sim.tui.app import Dashboard, HelpScreen, SaveLogScreen
@@ -269,3 +269,45 @@ async def test_server_is_closed_on_exit() -> None:
         port = bench.app.server.endpoints.tcp.port  # type: ignore[union-attr]
     client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=0.5, retries=0)
     assert not await client.connect()
+
+
+async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:
+    """F6: every register, live; Enter edits one as a master would, and a refusal names its exception code."""
+    await bench.press("f6")
+    screen = bench.app.get_screen_main()
+    table = screen.query_one("#reg-table", DataTable)
+    assert table.has_focus
+    assert str(table.get_cell("2100H", "value")) == "stopped"
+    assert str(table.get_cell("2002H", "name")) == "motor pole pairs (= F02.00)"
+    await bench.press("down", "down", "down", "enter")  # 2001H: the communication speed setting
+    await bench.pilot.pause(0.1)
+    await bench.press("ctrl+u", *"1500", "enter")
+    assert await bench.read(0x2001) == 1500
+    await bench.write(0x2000, 1)
+    await bench.press("t")
+    assert str(table.get_cell("2002H", "access")) == "W/R* lock"  # pole pairs, while running
+    table.move_cursor(row=table.get_row_index("2002H"))
+    await bench.press("enter")
+    await bench.pilot.pause(0.1)
+    await bench.press("ctrl+u", "8", "enter")
+    errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
+    assert errors[-1] == (
+        "drive 1: 2002H = 8 refused: exception 0x08 (parameter cannot be changed while running), "
+        "as a master would get it"
+    )
+    assert await bench.read(0x2002) == 4
+    bench.app.refresh_views()
+    await bench.pilot.pause()
+    counters = str(screen.query_one("#reg-counters", Static).render())
+    assert counters.startswith("requests 3 · replies 3 · exceptions 0 · CRC 0")
+
+
+async def test_speed_source_and_keypad_speed_from_the_panel(bench: Bench) -> None:
+    await bench.press("m")  # run channel: keypad
+    await bench.press("S", "S", "S")  # speed source: Modbus -> multi-speed -> keypad -> AI1
+    assert await bench.read(0x0002) == 1
+    await bench.press("S", "S", "S", "S")  # AI2, Modbus, multi-speed, keypad
+    assert await bench.read(0x0002) == 0
+    await bench.press("minus", "minus")  # keypad reference 50.00 Hz -> 48.00 Hz
+    assert await bench.read(0x000A) == 4800
+    assert "keypad · speed from keypad" in bench.screen_text()

@@ -84,3 +84,14 @@ async def undervoltage_tripped(pilot: Pilot[Any]) -> None:
 
 def test_device_faults_panel_after_undervoltage(snap_compare: Any) -> None:
     assert snap_compare(dashboard(), terminal_size=(80, 24), run_before=undervoltage_tripped)
+
+
+async def registers_while_running(pilot: Pilot[Any]) -> None:
+    await running_at_1500(pilot)
+    await pilot.press("f6")
+    pilot.app.refresh_views()  # type: ignore[attr-defined]
+    await pilot.pause()
+
+
+def test_register_view(snap_compare: Any) -> None:
+    assert snap_compare(dashboard(), terminal_size=(80, 24), run_before=registers_while_running)
