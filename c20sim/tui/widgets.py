@@ -111,7 +111,8 @@ class DriveStatus(Static):
         width = max(1, self.content_size.width)
         out.truncate(width, overflow="ellipsis")
         for label, value in rows:
-            line = Text(f"{label:<9}", style="bold")
+            line = Text()
+            line.append(f"{label:<9}", style="bold")
             line.append(value)
             line.truncate(width, overflow="ellipsis")  # one line each, whatever the width: never wrapped
             out.append("\n")
