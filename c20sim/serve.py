@@ -168,6 +168,8 @@ class Server:
                 await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
+            if self.control is not None:
+                self.control.serving = True
             if scenario is not None:
                 from .scenario import play
 
