@@ -17,6 +17,7 @@ from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
+from .schema import add_schema_command
 from .serve import ServeOptions, pty_supported, run, run_server
 from .simulator import Simulator, make_clock, parse_addresses
 
@@ -225,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)
+    add_schema_command(sub)
     return parser
 
 
