@@ -161,3 +161,35 @@ def test_an_unknown_schema_is_a_usage_error() -> None:
         [sys.executable, "-m", "c20sim", "schema", "drive"], capture_output=True, text=True, timeout=60, cwd=ROOT
     )
     assert done.returncode == 2 and "c20sim schema: error: argument kind: invalid choice: 'drive'" in done.stderr
+
+
+# --- The reference pages name everything the formats and the API have.
+
+DOCS = ROOT / "docs"
+
+
+def test_the_profile_page_names_every_key() -> None:
+    text = (DOCS / "profile-format.md").read_text()
+    schema = build("profile")
+    keys = set(schema["properties"])
+    for prop in schema["properties"].values():
+        keys |= set(prop.get("properties", {})) | set(prop.get("items", {}).get("properties", {}))
+    missing = sorted(k for k in keys if f"`{k}`" not in text and f"[{k}]" not in text)
+    assert missing == []
+
+
+def test_the_scenario_page_names_every_key_condition_and_link_fault() -> None:
+    text = (DOCS / "scenario-format.md").read_text()
+    schema = build("scenario")
+    step = schema["properties"]["step"]["items"]["properties"]
+    keys = set(schema["properties"]) | set(step) | set(step["set"]["properties"]) | set(step["link"]["properties"])
+    missing = sorted(k for k in keys if f"`{k}`" not in text and f"[[{k}]]" not in text)
+    assert missing == []
+
+
+def test_the_api_page_names_every_route() -> None:
+    from c20sim.control.http import ROUTES
+
+    text = (DOCS / "api.md").read_text()
+    missing = sorted(key for key in ROUTES if key.split(" ", 1)[1] + "`" not in text)
+    assert missing == []
