@@ -71,7 +71,9 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
-    where = parser.add_argument_group("endpoints (with none: --pty and --tcp 127.0.0.1:5020; --tcp alone where there are no ptys)")
+    where = parser.add_argument_group(
+        "endpoints (with none: --pty and --tcp 127.0.0.1:5020; --tcp alone where there are no ptys)"
+    )
     where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
     where.add_argument(
         "--link", metavar="PATH", help="a stable symlink to the pty, such as /tmp/ttyC20 (implies --pty)"
