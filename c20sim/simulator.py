@@ -122,6 +122,8 @@ class Simulator:
         self._tick = 0
         #: (address, condition) -> (generator, setter, low, high), applied at every tick
         self._generators: dict[tuple[int, str], tuple[Generator, Callable[[Drive, float], None], float, float]] = {}
+        #: the value each generator last set: its condition is set again only when the value changes
+        self._applied: dict[tuple[int, str], float] = {}
         self.drives: dict[int, Drive] = {}
         self.ports: dict[int, DrivePort] = {}
         self._steps: dict[int, list[Callable[[Drive, float], None]]] = {}
@@ -235,9 +237,13 @@ class Simulator:
 
     def _apply(self, at: float) -> None:
         for key, (generator, setter, low, high) in list(self._generators.items()):
-            setter(self.drives[key[0]], clamp(generator.value(at), low, high))
+            value = clamp(generator.value(at), low, high)
+            if self._applied.get(key) != value:  # a held value is not set again: the drive keeps its steady skip
+                setter(self.drives[key[0]], value)
+                self._applied[key] = value
             if generator.done(at):
                 del self._generators[key]
+                self._applied.pop(key, None)
         for address, steps in self._steps.items():
             for step in steps:
                 step(self.drives[address], at)
@@ -256,13 +262,16 @@ class Simulator:
         """Drive condition ``name`` of drive ``address`` by ``generator`` from now on (replacing one there)."""
         self.sync()
         self._generators[(address, name)] = (generator, setter, low, high)
-        setter(self.drives[address], clamp(generator.value(self.clock.now()), low, high))
+        value = clamp(generator.value(self.clock.now()), low, high)
+        setter(self.drives[address], value)
+        self._applied[(address, name)] = value
 
     def clear_generator(self, address: int, name: str | None = None) -> None:
         """Stop the generator on ``name`` (every one of the drive for None); its condition stays where it is."""
         self.sync()
         for key in [k for k in self._generators if k[0] == address and name in (None, k[1])]:
             del self._generators[key]
+            self._applied.pop(key, None)
 
     def generators(self, address: int) -> dict[str, dict[str, Any]]:
         """The running generators of a drive, by condition, as JSON-ready values."""
@@ -278,6 +287,7 @@ class Simulator:
         self.sync()
         t = self.clock.now()
         self._generators.clear()
+        self._applied.clear()
         for address, old in list(self.drives.items()):
             drive = Drive(self.profile, t0=t, state_path=old.parameters.path)
             drive.parameters.restore_defaults()
