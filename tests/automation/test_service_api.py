@@ -87,6 +87,12 @@ def test_openapi_describes_exactly_the_routes_the_app_serves() -> None:
                 jsonschema.Draft202012Validator.check_schema(schema)
 
 
+def test_the_document_is_valid_openapi() -> None:
+    from openapi_spec_validator import validate
+
+    validate(document(ROUTES))  # raises, saying where, if it is not
+
+
 def test_get_routes_lists_the_service_routes_too() -> None:
     for key in (
         "GET /health",
