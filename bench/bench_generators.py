@@ -21,9 +21,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from c20sim.control import ops  # noqa: E402
-from c20sim.profile import load_profile  # noqa: E402
-from c20sim.simulator import Simulator  # noqa: E402
+from c20sim.control import ops
+from c20sim.profile import load_profile
+from c20sim.simulator import Simulator
 
 MINUTE = 60.0
 

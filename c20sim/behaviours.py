@@ -18,7 +18,9 @@ each optional:
 - ``on_step(drive, t) -> None``: called every :data:`~c20sim.generators.TICK` of model time, as the drive
   is advanced (it may set the drive's conditions).
 
-Hooks run in the profile's order. They see the :class:`~c20sim.drive.model.Drive` itself. An unknown
+Hooks run in the profile's order; at each tick the generators' values
+(:mod:`c20sim.generators`) are applied first, then the steps, so a condition is
+best driven by one or the other. They see the :class:`~c20sim.drive.model.Drive` itself. An unknown
 name, or an entry point that fails to load, is a :class:`~c20sim.errors.ProfileError` naming the
 profile, and the behaviours that are installed.
 """

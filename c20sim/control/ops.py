@@ -660,7 +660,7 @@ def reset(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
                 f'setup {setup!r}: no such state file; give "{DEFAULTS}" or the path of a file written by --state'
             )
         try:
-            values = ParameterStore(sim.profile, path).snapshot()
+            values = ParameterStore(sim.profile)._read(path)  # read only: no save, no tidying beside the file
         except C20SimError as exc:
             raise ControlError(f"setup: {exc}") from None
     sim.reset(values)

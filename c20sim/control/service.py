@@ -66,12 +66,17 @@ def add_routes(
     async def get_clock(request: web.Request) -> web.Response:
         return reply(ops.clock_state(sim))
 
+    async def no_fields(request: web.Request) -> None:
+        data = await body(request)
+        if data:
+            raise ControlError(f"{request.method} {request.path} takes no fields; got {', '.join(map(repr, data))}")
+
     async def pause(request: web.Request) -> web.Response:
-        only(await body(request))
+        await no_fields(request)
         return reply(ops.pause(sim))
 
     async def resume(request: web.Request) -> web.Response:
-        only(await body(request))
+        await no_fields(request)
         return reply(ops.resume(sim))
 
     async def speed(request: web.Request) -> web.Response:

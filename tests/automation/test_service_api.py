@@ -201,6 +201,10 @@ async def test_the_clock_of_a_virtual_simulator_cannot_be_paused(client: Callabl
         {"error": "pause: the clock is virtual and moves only when advanced; pause is for serve --clock realtime"},
     )
     assert (await api("PUT", "/clock/speed", {"speed": 2}))[0] == 409
+    assert await api("POST", "/clock/resume", {"now": True}) == (
+        400,
+        {"error": "POST /clock/resume takes no fields; got 'now'"},
+    )
 
 
 # --- Set-ups.
