@@ -38,6 +38,13 @@ T = TypeVar("T")
 __all__ = ["Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
 
 
+#: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
+NEEDS_POSIX = (
+    "--pty needs a POSIX system (Linux, macOS, BSD); on Windows use a com0com pair with --serial COMn, "
+    "or --tcp HOST:PORT (RTU over TCP) or --modbus-tcp HOST:PORT"
+)
+
+
 def pty_supported() -> bool:
     """True where a pty can be made (POSIX: the tty module loads); False on Windows."""
     try:
@@ -133,6 +140,8 @@ class Server:
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:
+                if not pty_supported():
+                    raise C20SimError(NEEDS_POSIX)
                 from .transport.pty import PtyPort
 
                 self.endpoints.pty = PtyPort(line, link=opts.link, line_timing=opts.line_timing)

@@ -20,13 +20,7 @@ from ..protocol import char_time
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
-__all__ = ["NEEDS_POSIX", "PtyPort"]
-
-#: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only, imported only here.
-NEEDS_POSIX = (
-    "--pty needs a POSIX system (Linux, macOS, BSD); on Windows use a com0com pair with --serial COMn, "
-    "or --tcp HOST:PORT (RTU over TCP) or --modbus-tcp HOST:PORT"
-)
+__all__ = ["PtyPort"]
 
 
 class PtyPort:
@@ -45,10 +39,8 @@ class PtyPort:
         self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
-        try:
-            import tty  # POSIX only: importing this module must work everywhere
-        except ImportError:
-            raise C20SimError(NEEDS_POSIX) from None
+        import tty  # POSIX only, so imported here: importing this module works everywhere
+
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
             raise C20SimError(
                 f"--link {self.link}: a file that is not a symlink is in the way; remove it or choose another path"
