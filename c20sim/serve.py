@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
-__all__ = ["Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
+__all__ = ["NEEDS_POSIX", "Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
 
 
 #: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
