@@ -17,7 +17,8 @@ from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
-from .serve import ServeOptions, run, run_server
+from .schema import add_schema_command
+from .serve import ServeOptions, pty_supported, run, run_server
 from .simulator import Simulator, make_clock, parse_addresses
 
 __all__ = ["main"]
@@ -70,7 +71,9 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
-    where = parser.add_argument_group("endpoints (with none: --pty and --tcp 127.0.0.1:5020)")
+    where = parser.add_argument_group(
+        "endpoints (with none: --pty and --tcp 127.0.0.1:5020; --tcp alone where there are no ptys)"
+    )
     where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
     where.add_argument(
         "--link", metavar="PATH", help="a stable symlink to the pty, such as /tmp/ttyC20 (implies --pty)"
@@ -135,7 +138,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         scenario=getattr(args, "scenario", None),
     )
     if not options.any_endpoint:
-        options.pty = True
+        options.pty = pty_supported()  # no pty on Windows: TCP alone
         options.tcp = "127.0.0.1:5020"
     return options
 
@@ -225,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)
+    add_schema_command(sub)
     return parser
 
 

@@ -49,7 +49,7 @@ class RealtimeClock:
     """Wall time times ``speed``, from ``t0``: ``speed = 10`` runs the model ten times faster.
 
     ``source`` is the wall clock (``time.monotonic`` unless a test injects one).
-    Changing ``speed`` keeps the model's time continuous.
+    Changing ``speed``, :meth:`pause` and :meth:`resume` keep the model's time continuous.
     """
 
     def __init__(self, speed: float = 1.0, *, t0: float = 0.0, source: Callable[[], float] = time.monotonic) -> None:
@@ -59,8 +59,11 @@ class RealtimeClock:
         self._speed = float(speed)
         self._base_wall = source()
         self._base_t = float(t0)
+        self._paused = False
 
     def now(self) -> float:
+        if self._paused:
+            return self._base_t
         return self._base_t + (self._source() - self._base_wall) * self._speed
 
     @property
@@ -74,3 +77,19 @@ class RealtimeClock:
         self._base_t = self.now()
         self._base_wall = self._source()
         self._speed = float(value)
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    def pause(self) -> None:
+        """Stop the model's time where it is (again is harmless)."""
+        if not self._paused:
+            self._base_t = self.now()
+            self._paused = True
+
+    def resume(self) -> None:
+        """Let the model's time run on from where it was paused, with no jump (again is harmless)."""
+        if self._paused:
+            self._base_wall = self._source()
+            self._paused = False

@@ -195,6 +195,8 @@ class Profile:
     mirrors: Mapping[int, int]  #: 20xxH register -> function code address
     defaults: Mapping[int, int]  #: function code address -> default raw value
     registers: RegisterMap = field(repr=False, compare=False)
+    #: named behaviours (entry-point group c20sim.behaviours) hooking this model's registers or step
+    behaviours: tuple[str, ...] = ()
 
     def fault_code(self, cause: FaultCause) -> int:
         """The wire code of a fault cause (raises KeyError if the profile has none)."""
@@ -358,6 +360,7 @@ _TOP_KEYS = (
     "thermal",
     "fault",
     "parameter",
+    "behaviours",
 )
 _FAULT_KEYS = ("code", "name", "meaning", "cause", "source")
 _PARAM_KEYS = (
@@ -426,6 +429,11 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
                 f'no function code mirrors {register:04X}H ({register.name.lower()}); add one with mirror = "{register:04X}H"',
             )
     registers = RegisterMap(parameters, mirrors)
+    behaviours = data.get("behaviours", [])
+    if not isinstance(behaviours, list) or not all(isinstance(b, str) and b for b in behaviours):
+        raise check.fail("behaviours", 'must be a list of behaviour names, such as ["slow-eeprom"]')
+    if len(set(behaviours)) != len(behaviours):
+        raise check.fail("behaviours", "a behaviour is listed twice")
     return Profile(
         name=name,
         description=description,
@@ -441,6 +449,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
         mirrors=mirrors,
         defaults=defaults,
         registers=registers,
+        behaviours=tuple(behaviours),
     )
 
 

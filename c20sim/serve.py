@@ -24,17 +24,34 @@ from .bus import FrameRecord
 from .errors import C20SimError
 from .simulator import Simulator
 from .transport.line import Line
-from .transport.pty import PtyPort
-from .transport.serial import SerialPort
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 
 if TYPE_CHECKING:
+    # Imported where used: pty needs tty/termios and pyserial needs them on POSIX, which Windows lacks.
     from .control.http import ControlApi
     from .scenario import Report, Scenario
+    from .transport.pty import PtyPort
+    from .transport.serial import SerialPort
 
 T = TypeVar("T")
 
-__all__ = ["Endpoints", "ServeOptions", "Server", "run", "run_server"]
+__all__ = ["NEEDS_POSIX", "Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
+
+
+#: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
+NEEDS_POSIX = (
+    "--pty needs a POSIX system (Linux, macOS, BSD); on Windows use a com0com pair with --serial COMn, "
+    "or --tcp HOST:PORT (RTU over TCP) or --modbus-tcp HOST:PORT"
+)
+
+
+def pty_supported() -> bool:
+    """True where a pty can be made (POSIX: the tty module loads); False on Windows."""
+    try:
+        import tty  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 class Endpoint(Protocol):
@@ -124,9 +141,19 @@ class Server:
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:
+                if not pty_supported():
+                    raise C20SimError(NEEDS_POSIX)
+                from .transport.pty import PtyPort
+
                 self.endpoints.pty = PtyPort(line, link=opts.link, line_timing=opts.line_timing)
                 await self.endpoints.pty.start()
             if opts.serial:
+                try:
+                    from .transport.serial import SerialPort
+                except ImportError as exc:
+                    raise C20SimError(
+                        f"--serial: pyserial cannot be loaded here ({exc}); use --tcp or --modbus-tcp"
+                    ) from None
                 self.endpoints.serial = SerialPort(
                     line,
                     opts.serial,
@@ -151,6 +178,8 @@ class Server:
                 await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
+            if self.control is not None:
+                self.control.serving = True
             if scenario is not None:
                 from .scenario import play
 
@@ -284,15 +313,50 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
     """Serve until SIGINT, SIGTERM or SIGHUP."""
     server = Server(sim, options)
     stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
     # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
-    for sig in STOP_SIGNALS:
-        loop.add_signal_handler(sig, stop.set)
+    restore = _on_stop_signals(stop)
     try:
         await server.start()
         print(server.ready_line(), file=out, flush=True)
         await stop.wait()
     finally:
-        for sig in STOP_SIGNALS:
-            loop.remove_signal_handler(sig)
+        restore()
         await server.aclose()
+
+
+def _on_stop_signals(stop: asyncio.Event) -> Callable[[], None]:
+    """Set ``stop`` on SIGINT, SIGTERM or SIGHUP; returns what puts the old handlers back.
+
+    The loop's own signal handlers where it has them (POSIX); where it has not (Windows, whose loops raise
+    NotImplementedError) a plain ``signal.signal`` handler that hands the stop to the loop: Ctrl+C and
+    Ctrl+Break still stop the server cleanly.
+    """
+    loop = asyncio.get_running_loop()
+    signals = list(STOP_SIGNALS)
+
+    def remove() -> None:
+        for sig in signals:
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                loop.remove_signal_handler(sig)
+
+    try:
+        for sig in signals:
+            loop.add_signal_handler(sig, stop.set)
+        return remove
+    except (NotImplementedError, RuntimeError):
+        remove()
+    if hasattr(signal, "SIGBREAK"):  # Windows: Ctrl+Break
+        signals.append(signal.SIGBREAK)
+    old = {sig: signal.getsignal(sig) for sig in signals}
+
+    def handler(signum: int, frame: object) -> None:
+        loop.call_soon_threadsafe(stop.set)
+
+    for sig in signals:
+        signal.signal(sig, handler)
+
+    def restore() -> None:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+    return restore

@@ -9,14 +9,17 @@ I/O beyond what the drives do with their state files.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
+from . import behaviours as behaviour_plugins
 from .bus import Bus, Reply
 from .clock import Clock, RealtimeClock, VirtualClock
 from .drive.base import DrivePort
 from .drive.model import Drive
 from .errors import C20SimError
+from .generators import TICK, Generator, clamp
 from .linkfaults import LinkFaults
 from .profile import Profile
 from .protocol import FrameEvent
@@ -105,22 +108,44 @@ class Simulator:
         seed: int | None = None,
         log_size: int = 2000,
         baud: int | None = None,
+        behaviours: Mapping[str, behaviour_plugins.Factory] | None = None,
     ) -> None:
         if not addresses:
             raise C20SimError("no drives: give at least one address")
         self.profile = profile
         self.clock: Clock = clock if clock is not None else VirtualClock()
+        self._baud = baud
+        self._factories = behaviour_plugins.load(profile, behaviours)
         t0 = self.clock.now()
+        #: generator and behaviour ticks fall at t0 + k * TICK: the same model times however time is stepped
+        self._t0 = t0
+        self._tick = 0
+        #: (address, condition) -> (generator, setter, low, high), applied at every tick
+        self._generators: dict[tuple[int, str], tuple[Generator, Callable[[Drive, float], None], float, float]] = {}
+        #: the value each generator last set: its condition is set again only when the value changes
+        self._applied: dict[tuple[int, str], float] = {}
         self.drives: dict[int, Drive] = {}
+        self.ports: dict[int, DrivePort] = {}
+        self._steps: dict[int, list[Callable[[Drive, float], None]]] = {}
         for address in addresses:
             drive = Drive(profile, t0=t0, state_path=state_path_for(state, address, len(addresses)))
-            set_address(drive, profile, address)
-            self.drives[address] = drive
-        if baud is not None:
-            for drive in self.drives.values():
-                set_baud(drive, profile, baud)
-        self.slaves = {address: Slave(profile, drive) for address, drive in self.drives.items()}
+            self._place(address, drive)
+        self.slaves = {address: Slave(profile, self.ports[address]) for address in self.drives}
         self.bus = Bus(self.slaves.values(), log_size=log_size, seed=seed)
+
+    def _place(self, address: int, drive: Drive) -> None:
+        """Put ``drive`` at ``address``: the command line's address and baud, the profile's behaviours."""
+        set_address(drive, self.profile, address)
+        if self._baud is not None:
+            set_baud(drive, self.profile, self._baud)
+        self.drives[address] = drive
+        hooks = [factory(address, self.profile) for _, factory in self._factories]
+        self.ports[address] = behaviour_plugins.HookedDrive(drive, hooks) if hooks else drive
+        steps = [h.on_step for h in hooks if hasattr(h, "on_step")]
+        if steps:
+            self._steps[address] = steps
+        else:
+            self._steps.pop(address, None)
 
     @property
     def virtual(self) -> bool:
@@ -131,6 +156,8 @@ class Simulator:
 
     def handle(self, event: FrameEvent) -> Reply | None:
         """Serve one framing event at the clock's time."""
+        if self._generators or self._steps:
+            self.sync()  # generators and behaviours act on the way to now, before the slave sees the drive
         return self.bus.handle(event, self.clock.now())
 
     def drive(self, address: int | None = None) -> Drive:
@@ -187,10 +214,92 @@ class Simulator:
         return left / speed
 
     def sync(self) -> None:
-        """Bring every drive to the clock's time (for telemetry between requests)."""
+        """Bring every drive to the clock's time (for telemetry between requests).
+
+        With generators or behaviours' steps, the drives are advanced tick by tick (:data:`TICK` of
+        model time): at each tick the generators' values are applied and the steps run.
+        """
         t = self.clock.now()
+        if self._generators or self._steps:
+            self._run_ticks(t)
         for drive in self.drives.values():
             drive.advance_to(t)
+
+    def _run_ticks(self, t: float) -> None:
+        last = math.floor((t - self._t0) / TICK + 1e-9)
+        while self._tick < last and (self._generators or self._steps):
+            self._tick += 1
+            at = self._t0 + self._tick * TICK
+            for drive in self.drives.values():
+                drive.advance_to(at)
+            self._apply(at)
+        self._tick = max(self._tick, last)
+
+    def _apply(self, at: float) -> None:
+        for key, (generator, setter, low, high) in list(self._generators.items()):
+            value = clamp(generator.value(at), low, high)
+            if self._applied.get(key) != value:  # a held value is not set again: the drive keeps its steady skip
+                setter(self.drives[key[0]], value)
+                self._applied[key] = value
+            if generator.done(at):
+                del self._generators[key]
+                self._applied.pop(key, None)
+        for address, steps in self._steps.items():
+            for step in steps:
+                step(self.drives[address], at)
+
+    # --- Generators (c20sim.generators): the checking is control.ops'.
+
+    def set_generator(
+        self,
+        address: int,
+        name: str,
+        generator: Generator,
+        setter: Callable[[Drive, float], None],
+        low: float,
+        high: float,
+    ) -> None:
+        """Drive condition ``name`` of drive ``address`` by ``generator`` from now on (replacing one there)."""
+        self.sync()
+        self._generators[(address, name)] = (generator, setter, low, high)
+        value = clamp(generator.value(self.clock.now()), low, high)
+        setter(self.drives[address], value)
+        self._applied[(address, name)] = value
+
+    def clear_generator(self, address: int, name: str | None = None) -> None:
+        """Stop the generator on ``name`` (every one of the drive for None); its condition stays where it is."""
+        self.sync()
+        for key in [k for k in self._generators if k[0] == address and name in (None, k[1])]:
+            del self._generators[key]
+            self._applied.pop(key, None)
+
+    def generators(self, address: int) -> dict[str, dict[str, Any]]:
+        """The running generators of a drive, by condition, as JSON-ready values."""
+        return {k[1]: dict(g[0].describe()) for k, g in self._generators.items() if k[0] == address}
+
+    # --- Runtime control.
+
+    def reset(self, parameters: Mapping[int, int] | None = None) -> None:
+        """Every drive anew, as at power-up, with its function codes from ``parameters`` (the profile's
+        defaults for those not given; all defaults for None), without restarting: the bus, its ports and
+        the frame log stay; conditions, faults, generators and link faults go. A drive with a state file
+        keeps it, and writes the new values to it. The command line's addresses and baud stay."""
+        self.sync()
+        t = self.clock.now()
+        self._generators.clear()
+        self._applied.clear()
+        for address, old in list(self.drives.items()):
+            drive = Drive(self.profile, t0=t, state_path=old.parameters.path)
+            drive.parameters.restore_defaults()
+            if parameters:
+                drive.parameters.load(parameters)
+            drive.power_cycle()  # take the values as a drive switched on with them
+            self._place(address, drive)
+            self.slaves[address].attach(self.ports[address])
+            self.bus.link_of(self.slaves[address]).clear()
+        self.bus.link.clear()
+        self.bus.line_baud = next(iter(self.slaves.values())).baud  # as at start: the line at the set-up's baud
+        self._t0, self._tick = t, 0
 
 
 def make_clock(kind: str, speed: float = 1.0) -> Clock:

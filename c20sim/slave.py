@@ -50,6 +50,11 @@ class Slave:
         self._address_cell = self.registers.canonical(Reg.ADDRESS)
         self._baud_cell = self.registers.canonical(Reg.BAUD)
 
+    def attach(self, drive: DrivePort) -> None:
+        """Answer for ``drive`` from now on (a reset to a set-up): as a drive switched on, the password locks."""
+        self.drive = drive
+        self._unlocked = not self._password
+
     @property
     def address(self) -> int:
         """The station address the drive answers to now (2008H)."""

@@ -210,6 +210,31 @@ class C20Sim:
             )
         return self.call(self.sim.run_until, t)
 
+    # --- Runtime control: the clock and set-ups.
+
+    def clock(self) -> dict[str, Any]:
+        """The clock: ``clock`` (virtual or realtime), ``t``, ``paused``, ``speed``."""
+        return self._op(ops.clock_state)
+
+    def pause(self) -> None:
+        """Stop the model's time (``clock="realtime"``); the drives still answer the bus."""
+        self._op(ops.pause)
+
+    def resume(self) -> None:
+        """Let the model's time run on from where :meth:`pause` stopped it."""
+        self._op(ops.resume)
+
+    def set_speed(self, factor: float) -> None:
+        """Run the realtime clock at ``factor`` model seconds per wall second (0.001-1000), with no jump."""
+        self._op(ops.set_speed, factor)
+
+    def reset(self, setup: str | os.PathLike[str] = "defaults") -> None:
+        """Every drive anew, without restarting the server: ``"defaults"`` or a state file's function codes.
+
+        Conditions, faults, generators and link faults go; the ports, the clock and the frame log stay.
+        """
+        self._op(ops.reset, setup if setup == "defaults" else os.fspath(os.path.abspath(setup)))
+
     # --- Drives.
 
     def drive(self, address: int | None = None) -> DriveHandle:
@@ -376,8 +401,20 @@ class DriveHandle:
         return value
 
     def set(self, **conditions: object) -> None:
-        """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ..."""
+        """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ...
+
+        A continuous condition may be given a generator: ``set(supply_v={"ramp": 30, "over": 5})``,
+        ``{"sine": 2, "period": 0.5}`` or ``{"noise": 0.5, "seed": 1}`` (c20sim.generators).
+        """
         self._owner._op(ops.set_conditions, self.address, conditions)
+
+    def generators(self) -> dict[str, dict[str, Any]]:
+        """The generators running on this drive's conditions, by condition."""
+        return self._owner._op(ops.generators, self.address)
+
+    def clear_generators(self, condition: str | None = None) -> None:
+        """Stop the generator on ``condition`` (all for None); the conditions stay where they are."""
+        self._owner._op(ops.clear_generators, self.address, condition)
 
     def inject_fault(self, code: int, *, persistent: bool = False) -> None:
         self._owner._op(ops.inject_fault, self.address, code, persistent)

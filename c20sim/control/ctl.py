@@ -92,11 +92,33 @@ def _at_least_one(text: str) -> int:
     return value
 
 
+#: Actions on the whole simulator (no drive): the service routes (c20sim.control.service).
+GLOBAL_ACTIONS = ("health", "clock", "pause", "resume", "speed", "reset")
+
+
+def _service(url: str, args: argparse.Namespace, at: str) -> Any:
+    action: str = args.action
+    if action == "health":
+        return call(url, "GET", "/health")
+    if action == "clock":
+        return call(url, "GET", "/clock")
+    if action in ("pause", "resume"):
+        return call(url, "POST", f"/clock/{action}")
+    if action == "speed":
+        return call(url, "PUT", "/clock/speed", {"speed": args.factor})
+    if action == "reset":
+        setup = args.setup if args.setup == "defaults" else str(Path(args.setup).resolve())  # the server's cwd differs
+        return call(url, "POST", "/reset", {"setup": setup})
+    if args.clear is not None:  # generators --clear [CONDITION]
+        return call(url, "DELETE", f"{at}/generators", {"condition": args.clear} if args.clear else {})
+    return call(url, "GET", f"{at}/generators")
+
+
 def cmd_ctl(args: argparse.Namespace) -> int:
     url = _ctl_url(args)
     action: str = args.action
     drive = args.drive
-    if drive is None and action not in ("time", "advance", "frames", "info", "link"):
+    if drive is None and action not in ("time", "advance", "frames", "info", "link", *GLOBAL_ACTIONS):
         drive = call(url, "GET", "/")["drives"][0]
     at = f"/drives/{drive}"
     result: Any
@@ -143,6 +165,8 @@ def cmd_ctl(args: argparse.Namespace) -> int:
             result = call(url, "GET", where)
     elif action == "advance":
         result = call(url, "POST", "/time/advance", {"seconds": args.seconds})
+    elif action in GLOBAL_ACTIONS or action == "generators":
+        result = _service(url, args, at)
     elif action == "time":
         result = call(url, "GET", "/time")
     else:  # frames
@@ -204,6 +228,16 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     advance = action("advance", help="advance virtual time (serve --clock virtual)")
     advance.add_argument("seconds", type=float)
     action("time", help="the model's time")
+    action("health", help="whether the server is serving")
+    action("clock", help="the clock: virtual or realtime, t, paused, speed")
+    action("pause", help="stop the model's time (realtime clock)")
+    action("resume", help="let the model's time run on (realtime clock)")
+    speed = action("speed", help="set the realtime clock's speed factor, such as 10")
+    speed.add_argument("factor", type=float)
+    reset = action("reset", help="every drive anew, no restart: defaults, or a state file's function codes")
+    reset.add_argument("setup", nargs="?", default="defaults", help='"defaults" (the default) or a state file path')
+    generators = action("generators", help="the generators on a drive's conditions; --clear [CONDITION] stops them")
+    generators.add_argument("--clear", nargs="?", const="", metavar="CONDITION", help="stop one generator, or all")
     log = action("frames", help="the frame log")
     log.add_argument("--last", type=_at_least_one, metavar="N", help="only the newest N frames (N >= 1)")
     log.add_argument("--slave", type=int, metavar="N")

@@ -19,7 +19,7 @@ from aiohttp import web
 
 from ..errors import C20SimError
 from ..simulator import Simulator
-from . import causes, ops
+from . import causes, ops, service
 from .ops import ControlError, unknown
 
 log = logging.getLogger(__name__)
@@ -37,6 +37,8 @@ class ControlApi:
         self.sim = sim
         self.url = ""
         self._runner: web.AppRunner | None = None
+        #: set by the server once every endpoint is up: GET /health answers 200 from then on
+        self.serving = False
         #: frames recorded since start; with the ring's length it numbers the records in the ring
         self._seen = len(sim.bus.records)
         self._unsubscribe = sim.bus.subscribe(self._count)
@@ -299,6 +301,7 @@ def make_app(api: ControlApi) -> web.Application:
     r.add_delete("/link", delete_link)
     r.add_get("/frames", get_frames)
     r.add_delete("/frames", delete_frames)
+    service.add_routes(app, api, body=body, address=address, only=only)
     return app
 
 
@@ -326,3 +329,4 @@ ROUTES: Mapping[str, str] = {
     "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ)",
     "DELETE /frames": "- (empties the frame log)",
 }
+ROUTES = {**ROUTES, **service.ROUTES}

@@ -23,10 +23,14 @@ import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
+from ..clock import RealtimeClock
 from ..drive.model import Drive, HallFault, Telemetry
+from ..drive.params import ParameterStore
 from ..errors import C20SimError
+from ..generators import GeneratorError, parse_generator
 from ..linkfaults import KNOBS, LinkFaults
 from ..protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
 from ..registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
@@ -44,26 +48,33 @@ __all__ = [
     "check_fault",
     "check_link_faults",
     "clear_fault",
+    "clear_generators",
     "clear_link_faults",
+    "clock_state",
     "conditions",
     "counters",
     "drive",
     "drive_state",
     "frames",
+    "generators",
     "inject_fault",
     "key_command",
     "keypad_edit",
     "link_state",
     "parse_register",
+    "pause",
     "power_cycle",
     "press_key",
     "read_register",
     "register_address",
     "registers",
+    "reset",
     "restore_defaults",
+    "resume",
     "set_conditions",
     "set_link_faults",
     "set_run_channel",
+    "set_speed",
     "telemetry",
     "unknown",
     "write_register",
@@ -153,6 +164,7 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
     state["address"] = address
     state["conditions"] = _read_conditions(found)
     state["link_faults"] = link_state(sim.link_faults(address))
+    state["generators"] = sim.generators(address)
     return state
 
 
@@ -201,11 +213,11 @@ def parse_register(sim: Simulator, text: str | int) -> int:
 
 def read_register(sim: Simulator, address: int, register: str | int) -> dict[str, Any]:
     """A register's value as a master would read it, without counting as communication."""
-    found = drive(sim, address)
+    drive(sim, address)
     reg = parse_register(sim, register)
     spec = sim.profile.registers[reg]
     sim.sync()
-    raw = found.read(sim.profile.registers.canonical(reg))
+    raw = sim.ports[address].read(sim.profile.registers.canonical(reg))  # through the profile's behaviours
     return {
         "register": spec.label,
         "address": reg,
@@ -308,12 +320,14 @@ class Condition:
     write: Callable[[Drive, Any], None]
     check: Callable[[str, object], object]
     help: str = ""
+    #: a continuous quantity: it may be given a generator (c20sim.generators) instead of a value
+    continuous: bool = False
 
 
 def _ranged(
     name: str, unit: str, low: float, high: float, read: Callable[[Drive], float], write: Callable[[Drive, float], None]
 ) -> Condition:
-    return Condition(name, unit, low, high, read, write, lambda k, v: number(k, v, low, high))
+    return Condition(name, unit, low, high, read, write, lambda k, v: number(k, v, low, high), continuous=True)
 
 
 def _hall(key: str, value: object) -> str | None:
@@ -374,7 +388,11 @@ CONDITIONS: Mapping[str, Condition] = {
 
 
 def check_conditions(values: object) -> dict[str, object]:
-    """Check conditions by their :data:`CONDITIONS` names; returns the checked values."""
+    """Check conditions by their :data:`CONDITIONS` names; returns the checked values.
+
+    A continuous condition may be given a generator instead of a value, such as ``{"ramp": 30, "over": 5}``
+    (:func:`c20sim.generators.parse_generator`): it is checked here, and started by :func:`set_conditions`.
+    """
     if not isinstance(values, Mapping) or not values:
         raise ControlError(f'give conditions as an object, such as {{"supply_v": 30}}; known: {", ".join(CONDITIONS)}')
     checked: dict[str, object] = {}
@@ -382,17 +400,62 @@ def check_conditions(values: object) -> dict[str, object]:
         condition = CONDITIONS.get(key)
         if condition is None:
             raise unknown("condition", key, CONDITIONS)
-        checked[key] = condition.check(key, value)
+        if isinstance(value, Mapping):
+            checked[key] = _check_generator(condition, value)
+        else:
+            checked[key] = condition.check(key, value)
     return checked
 
 
+def _check_generator(condition: Condition, spec: Mapping[str, object]) -> Mapping[str, object]:
+    if not condition.continuous or condition.low is None or condition.high is None:
+        raise ControlError(
+            f"{condition.name}: takes a value, not a generator; generators are for continuous conditions"
+        )
+    try:
+        parse_generator(condition.name, spec, condition.low, condition.high, 0.0, condition.low)
+    except GeneratorError as exc:
+        raise ControlError(str(exc)) from None
+    return spec
+
+
 def set_conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> None:
-    """Set conditions at the drive's current time; all are checked before any is applied."""
+    """Set conditions at the drive's current time; all are checked before any is applied.
+
+    A value stops a generator running on that condition; a generator (see :func:`check_conditions`)
+    starts from the condition's value now and is applied as the drive is advanced.
+    """
     found = drive(sim, address)
     checked = check_conditions(values)
     sim.sync()
     for key, value in checked.items():
-        CONDITIONS[key].write(found, value)
+        condition = CONDITIONS[key]
+        if isinstance(value, Mapping):
+            assert condition.low is not None and condition.high is not None
+            current = condition.read(found)
+            assert isinstance(current, int | float)
+            generator = parse_generator(key, value, condition.low, condition.high, sim.now(), float(current))
+            sim.set_generator(address, key, generator, condition.write, condition.low, condition.high)
+        else:
+            sim.clear_generator(address, key)
+            condition.write(found, value)
+
+
+def generators(sim: Simulator, address: int) -> dict[str, dict[str, Any]]:
+    """The generators running on the drive's conditions, by condition."""
+    drive(sim, address)
+    sim.sync()
+    return sim.generators(address)
+
+
+def clear_generators(sim: Simulator, address: int, name: object = None) -> dict[str, dict[str, Any]]:
+    """Stop the generator on condition ``name`` (all of the drive's for None); the conditions stay where
+    they are. Returns the generators still running."""
+    drive(sim, address)
+    if name is not None and name not in CONDITIONS:
+        raise unknown("condition", str(name), CONDITIONS)
+    sim.clear_generator(address, None if name is None else str(name))
+    return sim.generators(address)
 
 
 def _read_conditions(found: Drive) -> dict[str, object]:
@@ -638,3 +701,76 @@ def frames(
     if last is not None:
         kept = kept[-last:]
     return [{"seq": seq, **record.as_dict()} for seq, record in kept]
+
+
+# --- Runtime control: the clock, and set-ups.
+
+#: The speed factors :func:`set_speed` takes: model seconds per wall second.
+SPEED_RANGE = (0.001, 1000.0)
+#: The set-up :func:`reset` names the profile's defaults by.
+DEFAULTS = "defaults"
+
+
+def clock_state(sim: Simulator) -> dict[str, Any]:
+    """The clock: ``clock`` (virtual or realtime), ``t``, ``paused`` and ``speed`` (None for virtual)."""
+    clock = sim.clock
+    realtime = clock if isinstance(clock, RealtimeClock) else None
+    return {
+        "clock": "virtual" if sim.virtual else "realtime",
+        "t": sim.now(),
+        "paused": realtime.paused if realtime is not None else False,
+        "speed": realtime.speed if realtime is not None else None,
+    }
+
+
+def _realtime(sim: Simulator, what: str) -> RealtimeClock:
+    if not isinstance(sim.clock, RealtimeClock):
+        raise ControlError(
+            f"{what}: the clock is virtual and moves only when advanced; {what} is for serve --clock realtime", 409
+        )
+    return sim.clock
+
+
+def pause(sim: Simulator) -> dict[str, Any]:
+    """Stop the model's time (realtime clock; 409 for a virtual one): the drives stand still, and still
+    answer the bus, until :func:`resume`."""
+    clock = _realtime(sim, "pause")
+    sim.sync()
+    clock.pause()
+    return clock_state(sim)
+
+
+def resume(sim: Simulator) -> dict[str, Any]:
+    """Let a paused realtime clock run on from where it stopped."""
+    _realtime(sim, "resume").resume()
+    return clock_state(sim)
+
+
+def set_speed(sim: Simulator, factor: object) -> dict[str, Any]:
+    """Set the realtime clock's speed factor (model seconds per wall second), with no jump in time."""
+    clock = _realtime(sim, "speed")
+    value = number("speed", factor, *SPEED_RANGE)
+    sim.sync()
+    clock.speed = value
+    return clock_state(sim)
+
+
+def reset(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
+    """Every drive anew without restarting (:meth:`Simulator.reset`), set up from ``setup``: ``"defaults"``
+    (the profile's function codes) or the path of a c20sim state file (``--state``) to take them from.
+    The file is only read. Returns ``{"setup": ..., "drives": [...]}``."""
+    if not isinstance(setup, str) or not setup:
+        raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {json.dumps(setup)}')
+    values: dict[int, int] | None = None
+    if setup != DEFAULTS:
+        path = Path(setup)
+        if not path.is_file():
+            raise ControlError(
+                f'setup {setup!r}: no such state file; give "{DEFAULTS}" or the path of a file written by --state'
+            )
+        try:
+            values = ParameterStore(sim.profile)._read(path)  # read only: no save, no tidying beside the file
+        except C20SimError as exc:
+            raise ControlError(f"setup: {exc}") from None
+    sim.reset(values)
+    return {"setup": setup, "drives": [drive_state(sim, a) for a in sim.drives]}

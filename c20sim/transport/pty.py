@@ -14,7 +14,6 @@ import contextlib
 import errno
 import fcntl
 import os
-import tty
 from pathlib import Path
 
 from ..errors import C20SimError
@@ -42,6 +41,8 @@ class PtyPort:
         self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
+        import tty  # POSIX only, so imported here: importing this module works everywhere
+
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
             raise C20SimError(
                 f"--link {self.link}: a file that is not a symlink is in the way; remove it or choose another path"

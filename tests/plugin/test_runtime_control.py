@@ -1,0 +1,103 @@
+"""Runtime control from a test: pause, resume, speed, reset to a set-up, generators; a real Modbus client."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+
+from c20sim.drive.params import ParameterStore
+from c20sim.errors import C20SimError
+from c20sim.profile import load_profile
+from c20sim.testing import C20Sim
+
+
+@pytest.fixture
+def client(c20sim: C20Sim) -> Iterator[ModbusTcpClient]:
+    assert c20sim.host is not None and c20sim.port is not None
+    modbus = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+    assert modbus.connect()
+    yield modbus
+    modbus.close()
+
+
+def read(client: ModbusTcpClient, register: int) -> int:
+    response = client.read_holding_registers(register, count=1, device_id=1)
+    assert not response.isError(), response
+    return int(response.registers[0])
+
+
+def wait_until(condition: object, what: str, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.005)
+
+
+@pytest.mark.c20sim(clock="realtime")
+def test_pause_stops_model_time_and_the_drive_still_answers(c20sim: C20Sim, client: ModbusTcpClient) -> None:
+    client.write_register(0x2001, 1500, device_id=1)
+    client.write_register(0x2000, 1, device_id=1)
+    c20sim.pause()
+    frozen = c20sim.clock()
+    assert frozen["paused"] is True and frozen["clock"] == "realtime"
+    speed = read(client, 0x3006)  # the drive answers while paused ...
+    for _ in range(5):
+        assert read(client, 0x3006) == speed  # ... and stands still
+    assert c20sim.now() == frozen["t"]
+    c20sim.resume()
+    wait_until(lambda: c20sim.now() > frozen["t"], "model time to run on after resume")
+    assert c20sim.clock()["paused"] is False
+
+
+@pytest.mark.c20sim(clock="realtime")
+def test_speed_factor_is_set_at_runtime(c20sim: C20Sim) -> None:
+    c20sim.set_speed(50)
+    assert c20sim.clock()["speed"] == 50.0
+    with pytest.raises(C20SimError, match=r"^speed: 5000 is outside 0.001-1000$"):
+        c20sim.set_speed(5000)
+
+
+def test_pause_needs_a_realtime_clock(c20sim: C20Sim) -> None:
+    with pytest.raises(C20SimError, match="pause: the clock is virtual and moves only when advanced"):
+        c20sim.pause()
+
+
+def test_reset_to_defaults_and_to_a_state_file_without_restarting(
+    c20sim: C20Sim, client: ModbusTcpClient, tmp_path: Path
+) -> None:
+    client.write_register(0x2001, 1500, device_id=1)
+    client.write_register(0x2000, 1, device_id=1)
+    c20sim.set(supply_v={"sine": 1, "period": 0.5})
+    c20sim.link_faults(delay=0.01)
+    c20sim.advance(2.0)
+    assert read(client, 0x3006) == 1500
+    c20sim.reset()
+    assert c20sim.drive().generators() == {} and c20sim.link_faults()["active"] == []
+    assert (read(client, 0x2100), read(client, 0x3006), read(client, 0x2006)) == (3, 0, 2)  # stopped, F00.01 = 2
+    assert c20sim.now() == 2.0  # the clock goes on: a reset is not a restart
+
+    path = tmp_path / "setup.json"
+    ParameterStore(load_profile(), path).set(0x0001, 0)  # F00.01 = 0: the keypad runs the drive
+    c20sim.reset(path)
+    assert read(client, 0x2006) == 0
+    refused = client.write_register(0x2000, 1, device_id=1)  # a run command off the comms channel
+    assert refused.isError() and refused.exception_code == 0x04
+
+
+def test_generators_from_the_handle(c20sim: C20Sim, client: ModbusTcpClient) -> None:
+    drive = c20sim.drive()
+    drive.set(supply_v={"ramp": 30, "over": 5})
+    c20sim.advance(2.5)
+    assert read(client, 0x3008) == pytest.approx(390, abs=5)  # the bus follows the supply, in 0.1 V
+    assert drive.conditions()["supply_v"] == 39.0
+    assert list(drive.generators()) == ["supply_v"]
+    drive.clear_generators()
+    c20sim.advance(1.0)
+    assert drive.conditions()["supply_v"] == 39.0
+    with pytest.raises(C20SimError, match=r"^ambient_c.sine: 500 is outside 0-200$"):
+        drive.set(ambient_c={"sine": 500, "period": 1})
