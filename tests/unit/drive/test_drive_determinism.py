@@ -55,14 +55,19 @@ def busy_timeline() -> dict[int, list[Action]]:
         0: [write(Reg.SPEED_SETPOINT, 3000), write(Reg.COMMAND, 1)],
         2250: [lambda d: d.set_load_torque(0.8)],
         4500: [lambda d: d.set_supply_voltage(40.0)],
-        6123: [lambda d: d.set_supply_voltage(30.0)],  # undervoltage trip while running
+        6123: [lambda d: d.set_supply_voltage(15.0)],  # undervoltage trip while running
         7500: [lambda d: d.set_supply_voltage(48.0)],
         8000: [write(Reg.COMMAND, 7)],
         8300: [write(Reg.SPEED_SETPOINT, 2000), write(Reg.COMMAND, 2)],
         12700: [lambda d: d.set_load_torque(3.0)],  # stall
         20000: [lambda d: d.set_load_torque(0.0), write(Reg.COMMAND, 7), lambda d: d.set_ambient(40.0)],
-        20500: [lambda d: d.set_load_inertia(0.01), write(Reg.SPEED_SETPOINT, 3000), write(Reg.COMMAND, 1)],
-        30250: [write(Reg.DECEL_TIME, 5), write(Reg.COMMAND, 5)],  # overvoltage
+        20500: [
+            lambda d: d.set_load_inertia(0.01),
+            write(Reg.ACCEL_TIME, 20),  # 2 s: a 0.5 s ramp of this inertia trips overcurrent
+            write(Reg.SPEED_SETPOINT, 3000),
+            write(Reg.COMMAND, 1),
+        ],
+        30250: [write(0x0B03, 0), write(Reg.DECEL_TIME, 20), write(Reg.COMMAND, 5)],  # stall prevention off: OV2
         31500: [lambda d: d.set_load_inertia(0.0)],
         33000: [write(Reg.COMMAND, 7), write(0x0802, 20), lambda d: d.communicated(33.0)],
         33100: [write(Reg.COMMAND, 3), lambda d: d.communicated(33.1)],
@@ -87,10 +92,10 @@ def test_polling_every_ms_or_every_second_gives_identical_state(profile: Profile
 
 def overload_timeline() -> dict[int, list[Action]]:
     return {
-        0: [write(Reg.SPEED_SETPOINT, 1500), write(Reg.COMMAND, 1)],
-        3000: [lambda d: d.set_load_torque(1.6), lambda d: d.set_ambient(30.0)],  # trips OL1 after ~104 s
-        200_000: [write(Reg.COMMAND, 7), lambda d: d.set_load_torque(0.5)],
-        200_500: [write(Reg.COMMAND, 1)],
+        0: [write(Reg.SPEED_SETPOINT, 1500), write(0x021B, 500), write(Reg.COMMAND, 1)],  # F02.27 = 50.0 %
+        3000: [lambda d: d.set_load_torque(1.16), lambda d: d.set_ambient(30.0)],  # 193 % of 5 A: OL1 after ~100 s
+        250_000: [write(Reg.COMMAND, 7), lambda d: d.set_load_torque(0.5)],  # cooled below the warning level
+        250_500: [write(Reg.COMMAND, 1)],
     }
 
 
