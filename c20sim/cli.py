@@ -178,7 +178,10 @@ def render_profile(profile: Profile) -> str:
         ("thermal", profile.thermal),
     ):
         lines.append(title)
-        lines += [f"  {key:<24} {value:g}" for key, value in vars(section).items()]
+        lines += [
+            f"  {key:<24} {value}" if isinstance(value, tuple) else f"  {key:<24} {value:g}"
+            for key, value in vars(section).items()
+        ]
         lines.append("")
     lines.append("faults (code, name, meaning, source)")
     for fault in profile.faults.values():

@@ -29,8 +29,8 @@ def running_bench() -> Workbench:
     [
         ("u", 0.5, 0x0A),  # UV
         ("v", 0.5, 0x09),  # OV3: at constant speed
-        ("c", 0.5, 0x06),  # OC3: at constant speed
-        ("l", 40.0, 0x0B),  # OL1
+        ("c", 4.0, 27),  # 47 A of load: held at the current limit, so a locked rotor (overcurrent follows current)
+        ("l", 40.0, 0x0C),  # OL2: 18 A is 164 % of the drive's 11 A (INVT curve: about 26 s)
         ("k", 4.0, 27),  # STALL (assumed code)
         ("o", 160.0, 0x10),  # OH2: ambient 150 °C
         ("h", 0.5, 26),  # HALL (assumed code)

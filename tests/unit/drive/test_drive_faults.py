@@ -170,34 +170,37 @@ def test_drive_overload_trips_first_on_its_own_curve(profile: Profile, multiple:
 
 
 def test_overload_remembers_heat_between_runs(profile: Profile) -> None:
-    first, _ = trip_time(profile, 10.0, 100.0, coefficient_raw=500)  # 200 %: 60 s
+    m, p = profile.motor, profile.protection
     drive = running(profile, 1500)
-    drive.write(F_MOTOR_OVERLOAD_COEFFICIENT, 500)
-    m = profile.motor
-    load = 10.0 * m.kt_nm_per_a - m.friction_nm - m.viscous_nm_per_krpm * 1.5
+    drive.write(F_MOTOR_OVERLOAD_COEFFICIENT, 500)  # protects as 5 A
+    load = 10.0 * m.kt_nm_per_a - m.friction_nm - m.viscous_nm_per_krpm * 1.5  # 10 A: 200 %, 60 s
     drive.set_load_torque(load)
-    drive.advance_to(drive.t + 30.0)  # half the budget
+    drive.advance_to(drive.t + 30.0)
+    half = drive.telemetry().motor_overload
     drive.set_load_torque(0.0)
-    drive.advance_to(drive.t + 60.0)  # cools 60 / 600 of it at about 1.4 A
+    drive.advance_to(drive.t + 60.0)
+    idle = drive.telemetry().current_a / 5.0
+    cooled = half - 60.0 * (1.0 - idle * idle) / p.overload_cooling_s
+    assert drive.telemetry().motor_overload == pytest.approx(cooled, abs=0.01)
     drive.set_load_torque(load)
     start = drive.t
     again = first_time(drive, faulted, start + 100.0, 0.01)
     assert again is not None
-    assert first == pytest.approx(60.0, rel=0.005)
-    assert 25.0 < again - start < 40.0  # the motor remembers: about 36 s left, not 60
+    assert half == pytest.approx(0.5, abs=0.02)
+    assert again - start == pytest.approx((1.0 - cooled) * 60.0, rel=0.02)  # not a fresh 60 s: it remembers
 
 
 def test_overload_resets_only_after_cooling_down(profile: Profile) -> None:
     drive = running(profile, 1500)
-    drive.set_load_torque(15 * profile.motor.kt_nm_per_a)
+    drive.set_load_torque(15 * profile.motor.kt_nm_per_a)  # 15.5 A: 141 % of the drive, OL2
     assert first_time(drive, faulted, 300.0, 0.5) is not None
     drive.set_load_torque(0.0)
     reset(drive)
     assert faulted(drive)
-    drive.advance_to(drive.t + 60.0)
+    drive.advance_to(drive.t + 30.0)
     reset(drive)
-    assert faulted(drive)  # 60 s of a 600 s cool-down: still above the 80 % warning level
-    drive.advance_to(drive.t + 70.0)
+    assert faulted(drive)  # 30 s of a 240 s cool-down: still above the 80 % warning level
+    drive.advance_to(drive.t + 30.0)
     reset(drive)
     assert drive.read(Reg.STATUS1) == 3
 
