@@ -602,46 +602,18 @@ class Drive:
             ramp, phase = physics.ramp_toward(self._ramp, target, cfg.up, cfg.down)
             if phase == DECEL and cfg.stall_v and self._bus > cfg.stall_v:
                 ramp = self._ramp  # overvoltage stall prevention: hold the output frequency, stretching the ramp
-            # The speed loop: the ramp's acceleration torque fed forward, a PI on the speed error for the rest.
-            error = (self._ramp - speed) * RPM  # where the rotor should be now; the feedforward takes it on
-            integ = self._integ + cfg.ki * error * STEP
-            wanted = (cfg.inertia * (ramp - self._ramp) * RPM / STEP + cfg.kp * error + integ) / kt
-            high = min(prot.current_limit_a, (self._bus - emf) / resistance)
-            low = max(-prot.current_limit_a, (-self._bus - emf) / resistance)
-            if low <= wanted <= high:
-                current = wanted
-                self._integ = integ
-            else:  # limited: the integrator holds (no wind-up)
-                limited = True
-                current = high if wanted > high else low
-            new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
-            if limited:
-                ramp = new_speed  # the current limit holds the ramp back
-            elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < self._settled_rpm(state):
-                # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
-                new_speed = ramp
-                self._integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
-                current = self._integ / kt
-            self._demand = wanted
+            ramp, current, new_speed, integ, limited, wanted = self._control(state, ramp, target, speed, emf)
+            if phase == DECEL and cfg.stall_v and ramp != self._ramp:
+                ramp, current, new_speed, integ, limited, wanted = self._stall_limited(
+                    state, (ramp, current, new_speed, integ, limited, wanted), target, speed, emf
+                )
+            self._integ, self._demand = integ, wanted
         else:
             target, ramp, phase = 0.0, 0.0, CONSTANT
             # Output off: only the freewheeling diodes conduct, once the back-EMF exceeds the bus.
             current = 0.0 if abs(emf) <= self._bus else -math.copysign(abs(emf) - self._bus, emf) / resistance
             new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
-        volts = kt * new_speed * RPM + current * resistance
-        power = volts * current
-        loss = th.conduction_resistance_ohm * current * current + th.switching_loss_w_per_a * abs(current)
-        bus = physics.bus_step(
-            self._bus,
-            self._supply,
-            (power + loss) / max(self._bus, 1.0),
-            inv_source=self._inv_source,
-            inv_bleed=self._inv_bleed,
-            inv_brake=self._inv_brake,
-            chopper_v=self.profile.supply.brake_chopper_v,
-            capacitance=self._capacitance,
-            dt=STEP,
-        )
+        bus, power, loss = self._bus_after(new_speed, current)
         self._bus_settled = abs(bus - self._bus) <= 1e-9  # a chopper at its threshold never settles
         temp_ss = self._ambient + loss * th.resistance_k_per_w
         self._temp = temp_ss + (self._temp - temp_ss) * self._temp_decay
@@ -664,6 +636,79 @@ class Drive:
         self._auto_events()
         if self.state is state:
             self._try_segment()
+
+    def _control(
+        self, state: State, ramp: float, target: float, speed: float, emf: float
+    ) -> tuple[float, float, float, float, bool, float]:
+        """One step of the speed loop toward ``ramp``: (ramp, current, new speed, integrator, limited, demand).
+
+        The ramp's acceleration torque is fed forward and a PI on the speed error does the rest; the
+        current limit clamps the current and holds the ramp back to the rotor. Nothing is changed.
+        """
+        cfg, m, prot = self._cfg, self.profile.motor, self.profile.protection
+        kt, resistance = m.kt_nm_per_a, m.resistance_ohm
+        error = (self._ramp - speed) * RPM  # where the rotor should be now; the feedforward takes it on
+        integ = self._integ + cfg.ki * error * STEP
+        wanted = (cfg.inertia * (ramp - self._ramp) * RPM / STEP + cfg.kp * error + integ) / kt
+        high = min(prot.current_limit_a, (self._bus - emf) / resistance)
+        low = max(-prot.current_limit_a, (-self._bus - emf) / resistance)
+        limited = not low <= wanted <= high
+        if limited:  # the integrator holds (no wind-up)
+            integ = self._integ
+            current = high if wanted > high else low
+        else:
+            current = wanted
+        new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        if limited:
+            ramp = new_speed  # the current limit holds the ramp back
+        elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < self._settled_rpm(state):
+            # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
+            new_speed = ramp
+            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
+            current = integ / kt
+        return ramp, current, new_speed, integ, limited, wanted
+
+    def _stall_limited(
+        self,
+        state: State,
+        full: tuple[float, float, float, float, bool, float],
+        target: float,
+        speed: float,
+        emf: float,
+    ) -> tuple[float, float, float, float, bool, float]:
+        """Overvoltage stall prevention, looking one step ahead as the drive's fast stall loop does.
+
+        The bus rises by volts per millisecond under hard braking: the ramp's step down is cut to what
+        brings the bus to the stall level, and held if the bus is there already.
+        """
+        stall_v = self._cfg.stall_v
+        full_bus = self._bus_after(full[2], full[1])[0]
+        if full_bus <= stall_v:
+            return full
+        held = self._control(state, self._ramp, target, speed, emf)
+        held_bus = self._bus_after(held[2], held[1])[0]
+        if held_bus >= stall_v or full[0] == held[0]:
+            return held
+        share = (stall_v - held_bus) / (full_bus - held_bus)
+        return self._control(state, self._ramp + share * (full[0] - self._ramp), target, speed, emf)
+
+    def _bus_after(self, speed: float, current: float) -> tuple[float, float, float]:
+        """The bus after this step with the motor at ``speed`` drawing ``current``: (bus, power, loss)."""
+        m, th = self.profile.motor, self.profile.thermal
+        power = (m.kt_nm_per_a * speed * RPM + current * m.resistance_ohm) * current
+        loss = th.conduction_resistance_ohm * current * current + th.switching_loss_w_per_a * abs(current)
+        bus = physics.bus_step(
+            self._bus,
+            self._supply,
+            (power + loss) / max(self._bus, 1.0),
+            inv_source=self._inv_source,
+            inv_bleed=self._inv_bleed,
+            inv_brake=self._inv_brake,
+            chopper_v=self.profile.supply.brake_chopper_v,
+            capacitance=self._capacitance,
+            dt=STEP,
+        )
+        return bus, power, loss
 
     @staticmethod
     def _settled_rpm(state: State) -> float:
