@@ -68,6 +68,8 @@ TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
 SETTLED_RPM = 1e-6
 #: Stopping on the ramp, the drive takes the rotor as stopped below this speed (rpm; assumed).
 ZERO_RPM = 1.0
+#: 3006H reads 0 when no Hall edge came for this long (s; assumed): 25 rpm at 4 pole pairs.
+HALL_TIMEOUT = 0.1
 
 _BY_PHASE = {
     "overcurrent": {
@@ -415,6 +417,9 @@ class Drive:
         self._phase = CONSTANT
         self._motor_i2t = self._drive_i2t = 0.0
         self._theta = 0.0
+        self._edge_t: float | None = None  # time of the last Hall edge
+        self._edge_rpm = 0.0  # the speed measured at it, from the time since the edge before
+        self._seg_edge: tuple[float | None, float] = (None, 0.0)  # the two at a segment's start
         self._hall_before = self._hall()
         self._hall_glitch = False
         self._stall_steps = self._brake_steps = 0
@@ -619,6 +624,7 @@ class Drive:
         self._temp = temp_ss + (self._temp - temp_ss) * self._temp_decay
         self._motor_i2t = max(0.0, self._motor_i2t + STEP * self._motor_rate(current))
         self._drive_i2t = max(0.0, self._drive_i2t + STEP * self._drive_rate(current))
+        self._hall_edges(self._theta, new_speed * RPM * cfg.pole_pairs * STEP, self.t0 + (self._k - 1) * STEP, 1)
         self._theta = (self._theta + new_speed * RPM * cfg.pole_pairs * STEP) % physics.TWO_PI
         hall = self._hall()
         # Healthy codes step through the sequence; an out-of-order sensor shows itself at its first edge.
@@ -812,6 +818,7 @@ class Drive:
         temp_ss = self._ambient + self._loss * self.profile.thermal.resistance_k_per_w
         motor_rate = STEP * self._motor_rate(self._current)
         drive_rate = STEP * self._drive_rate(self._current)
+        self._seg_edge = (self._edge_t, self._edge_rpm)
         self._segment = Segment(
             k0=self._k,
             temp0=self._temp,
@@ -854,6 +861,8 @@ class Drive:
         self._temp = seg.temp(n)
         self._motor_i2t = seg.motor_i2t(n)
         self._drive_i2t = seg.drive_i2t(n)
+        self._edge_t, self._edge_rpm = self._seg_edge
+        self._hall_edges(seg.theta0, seg.theta_rate * n, self.t0 + seg.k0 * STEP, n)
         self._theta = seg.theta(n)
         self._hall_before = self._hall()
         if event:
@@ -914,9 +923,47 @@ class Drive:
         theta = (self._theta + self._speed * RPM * self._cfg.pole_pairs * since) % physics.TWO_PI
         return self._hall(theta)
 
+    def _hall_edges(self, theta: float, move: float, t_start: float, steps: int) -> None:
+        """Record the Hall edges crossed moving ``move`` electrical radians from ``theta`` over ``steps`` steps.
+
+        The speed is measured from the time between the last two edges, as a drive with Hall sensors
+        does: at low speed the reading steps once per edge and lags; two or more edges in the stretch
+        measure its (constant) speed exactly.
+        """
+        if move == 0.0:
+            return
+        sector = physics.SECTOR
+        end = theta + move
+        if move > 0.0:
+            crossed = math.floor(end / sector) - math.floor(theta / sector)
+            last = math.floor(end / sector) * sector
+        else:
+            crossed = math.ceil(theta / sector) - math.ceil(end / sector)
+            last = math.ceil(end / sector) * sector
+        if crossed <= 0:
+            return
+        t_edge = t_start + (last - theta) / move * steps * STEP
+        per_rpm = 60.0 / (6 * self._cfg.pole_pairs)  # rpm x seconds per sector
+        if crossed >= 2:  # the speed was constant over the stretch: its edges are evenly spaced
+            self._edge_rpm = abs(move) / (steps * STEP) / (RPM * self._cfg.pole_pairs)
+        elif self._edge_t is not None and t_edge > self._edge_t:
+            self._edge_rpm = per_rpm / (t_edge - self._edge_t)
+        else:
+            self._edge_rpm = 0.0
+        self._edge_t = t_edge
+
+    def _hall_rpm(self) -> float:
+        """The speed the Halls give at the drive's time: the last edge's, bounded by the time since it."""
+        edge_t, measured = self._edge_t, self._edge_rpm
+        since = self.t - edge_t if edge_t is not None else math.inf
+        if since > HALL_TIMEOUT:
+            return 0.0
+        per_rpm = 60.0 / (6 * self._cfg.pole_pairs)
+        return min(measured, per_rpm / since) if since > 0.0 else measured
+
     def _speed_read(self) -> int:
-        """3006H, from the Halls: the rotor's speed, with the profile's read noise while it turns."""
-        speed = abs(self._speed)
+        """3006H, from the Halls, with the profile's read noise while the rotor turns."""
+        speed = self._hall_rpm()
         amplitude = self.profile.control.speed_noise_rpm
         if amplitude and speed:
             speed = max(0.0, speed + amplitude * _noise(self.profile.control.noise_seed, self._k))

@@ -125,7 +125,7 @@ def test_stop_ramps_down_through_the_electronic_brake(profile: Profile) -> None:
     drive.write(Reg.COMMAND, 5)  # 2004H = 0.5 s from 3000 rpm
     drive.advance_to(1.25)
     assert drive.read(Reg.STATUS1) == 1
-    assert abs(drive.read(Reg.MOTOR_SPEED) - 1500) <= 2  # the speed loop trails the ramp by 1.5 rpm
+    assert abs(drive.read(Reg.MOTOR_SPEED) - 1500) <= 6  # the loop trails by 1.5 rpm, the Hall reading by a sector
     drive.advance_to(1.6)
     assert drive.read(Reg.STATUS1) == 6
     assert drive.read(Reg.MOTOR_SPEED) == 0

@@ -349,3 +349,20 @@ def test_a_ramp_stop_drives_the_motor_down_then_reads_0(profile: Profile) -> Non
     after = monitor(drive)
     assert drive.read(Reg.STATUS1) == 3
     assert {a: after[a] for a in (*OUTPUT_OFF, Reg.MOTOR_SPEED)} == dict.fromkeys((*OUTPUT_OFF, Reg.MOTOR_SPEED), 0)
+
+
+def test_the_hall_speed_reading_lags_and_times_out_at_low_speed(profile: Profile) -> None:
+    drive = running(profile, 100)  # the minimum: 4 pole pairs, a Hall edge every 25 ms
+    drive.advance_to(5.0)
+    assert drive.read(Reg.MOTOR_SPEED) == 100
+    drive.write(Reg.COMMAND, 6)  # coast: friction stops the rotor in about 0.16 s
+    stopped = first_time(drive, lambda d: d.telemetry().speed_rpm == 0.0, 6.0)
+    assert stopped is not None
+    assert drive.read(Reg.MOTOR_SPEED) > 0  # the last edge's measurement still shows
+    readings = []
+    for i in range(1, 200):
+        drive.advance_to(stopped + i * STEP)
+        readings.append(drive.read(Reg.MOTOR_SPEED))
+    assert readings == sorted(readings, reverse=True)  # no edge: only the bound 2.5 rpm s / (time since) lowers it
+    assert readings[-1] == 0  # no edge for 0.1 s: below 25 rpm, reads 0
+    assert 0 < readings.index(0) <= 100
