@@ -112,3 +112,46 @@ def test_trips_inside_skipped_stretches_land_on_the_same_step(profile: Profile) 
     assert fine[100_000][1].status == 1
     assert fine[110_000][1].fault_code == 0x0B
     assert fine[400_000][1].status == 1
+
+
+def physics_timeline() -> dict[int, list[Action]]:
+    """Issue 13's physics: stall prevention, the speed loop under load steps, active loads, F08.03, Hall timing."""
+    return {
+        0: [
+            lambda d: d.set_load_inertia(0.003),
+            write(Reg.ACCEL_TIME, 30),
+            write(Reg.SPEED_SETPOINT, 3000),
+            write(Reg.COMMAND, 1),
+        ],
+        5000: [write(Reg.DECEL_TIME, 5), write(Reg.COMMAND, 5)],  # stretched by stall prevention
+        8000: [lambda d: d.set_load_inertia(0.0), write(Reg.SPEED_SETPOINT, 1500), write(Reg.COMMAND, 1)],
+        11_000: [lambda d: d.set_load_torque(0.6)],  # the loop dips and recovers
+        14_000: [lambda d: d.set_load_torque(0.0), lambda d: d.set_active_load(0.6)],  # lowering: regenerates
+        17_000: [lambda d: d.set_active_load(-0.6), write(Reg.SPEED_SETPOINT, 0)],  # held at zero
+        20_000: [
+            lambda d: d.set_active_load(0.0),
+            write(Reg.SPEED_SETPOINT, 100),
+            write(0x0802, 10),  # F08.02 = 1 s
+            write(0x0803, 2),  # F08.03 = 2: ramp to a stop on a timeout
+            lambda d: d.communicated(20.0),
+        ],  # silence: stops at 21 s, then the Hall reading times out
+        23_000: [write(0x0802, 0), write(Reg.SPEED_SETPOINT, 2000), write(Reg.COMMAND, 1)],
+        27_000: [write(Reg.COMMAND, 6)],  # free stop: the output registers read 0 while it coasts
+    }
+
+
+def test_the_new_physics_is_as_deterministic(profile: Profile) -> None:
+    events = physics_timeline()
+    fine = simulate(profile, events, 32_000, 1, 1000)
+    odd = simulate(profile, events, 32_000, 7, 7000)
+    coarse = simulate(profile, events, 32_000, 1000, 1000)
+    assert fine.keys() == coarse.keys()
+    for ms in fine:
+        assert fine[ms] == coarse[ms], f"differs at {ms / 1000} s"
+    for ms in odd:
+        assert odd[ms] == fine[ms], f"differs at {ms / 1000} s"
+    states = [fine[ms][1].state for ms in sorted(fine)]
+    assert {"forward", "decelerating", "stopped", "coasting"} <= set(states)
+    assert fine[16_000][1].current_a < 0.0  # regenerating
+    assert fine[22_000][1].state == "stopped" and fine[22_000][1].fault_code == 0
+    assert all(fine[ms][1].fault_code == 0 for ms in fine)
