@@ -342,6 +342,8 @@ class _Checker:
                 raise self.fail(f"{key}[{i}]", f"must be a pair [multiple, seconds], not {pair!r}")
             multiple = self.number(pair[0], f"{key}[{i}][0]", float, 1.01, 20.0, "x rated")
             seconds = self.number(pair[1], f"{key}[{i}][1]", float, 0.01, 36000.0, "s")
+            if multiple != multiple or seconds != seconds:  # NaN passes every comparison
+                raise self.fail(f"{key}[{i}]", "must be finite numbers, not nan")
             if points and (multiple <= points[-1][0] or seconds >= points[-1][1]):
                 raise self.fail(f"{key}[{i}]", "multiples must rise and times fall from one point to the next")
             points.append((multiple, seconds))
