@@ -924,14 +924,18 @@ class Drive:
         return self._hall(theta)
 
     def _hall_edges(self, theta: float, move: float, t_start: float, steps: int) -> None:
-        """Record the Hall edges crossed moving ``move`` electrical radians from ``theta`` over ``steps`` steps.
+        """Record the Hall edges crossed moving ``move`` electrical radians from ``theta`` over ``steps`` steps."""
+        self._edge_t, self._edge_rpm = self._edges_after(theta, move, t_start, steps * STEP)
+
+    def _edges_after(self, theta: float, move: float, t_start: float, span: float) -> tuple[float | None, float]:
+        """The last Hall edge and the speed measured at it, after moving ``move`` rad from ``theta`` in ``span`` s.
 
         The speed is measured from the time between the last two edges, as a drive with Hall sensors
         does: at low speed the reading steps once per edge and lags; two or more edges in the stretch
-        measure its (constant) speed exactly.
+        (whose speed is constant) measure that speed exactly.
         """
         if move == 0.0:
-            return
+            return self._edge_t, self._edge_rpm
         sector = physics.SECTOR
         end = theta + move
         if move > 0.0:
@@ -941,24 +945,24 @@ class Drive:
             crossed = math.ceil(theta / sector) - math.ceil(end / sector)
             last = math.ceil(end / sector) * sector
         if crossed <= 0:
-            return
-        t_edge = t_start + (last - theta) / move * steps * STEP
-        per_rpm = 60.0 / (6 * self._cfg.pole_pairs)  # rpm x seconds per sector
+            return self._edge_t, self._edge_rpm
+        t_edge = t_start + (last - theta) / move * span
         if crossed >= 2:  # the speed was constant over the stretch: its edges are evenly spaced
-            self._edge_rpm = abs(move) / (steps * STEP) / (RPM * self._cfg.pole_pairs)
-        elif self._edge_t is not None and t_edge > self._edge_t:
-            self._edge_rpm = per_rpm / (t_edge - self._edge_t)
-        else:
-            self._edge_rpm = 0.0
-        self._edge_t = t_edge
+            return t_edge, abs(move) / span / (RPM * self._cfg.pole_pairs)
+        if self._edge_t is not None and t_edge > self._edge_t:
+            return t_edge, 60.0 / (6 * self._cfg.pole_pairs) / (t_edge - self._edge_t)
+        return t_edge, 0.0
 
     def _hall_rpm(self) -> float:
         """The speed the Halls give at the drive's time: the last edge's, bounded by the time since it."""
-        edge_t, measured = self._edge_t, self._edge_rpm
+        t_step = self.t0 + self._k * STEP
+        since_step = self.t - t_step
+        move = self._speed * RPM * self._cfg.pole_pairs * since_step
+        edge_t, measured = self._edges_after(self._theta, move, t_step, since_step)  # edges since the last step
         since = self.t - edge_t if edge_t is not None else math.inf
         if since > HALL_TIMEOUT:
             return 0.0
-        per_rpm = 60.0 / (6 * self._cfg.pole_pairs)
+        per_rpm = 60.0 / (6 * self._cfg.pole_pairs)  # rpm x seconds per sector
         return min(measured, per_rpm / since) if since > 0.0 else measured
 
     def _speed_read(self) -> int:
