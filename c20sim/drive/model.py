@@ -8,6 +8,18 @@ without the current limit), it enters a :class:`~c20sim.drive.physics.Segment`
 whose closed forms give the state at any later step directly: an idle or
 steady drive skips ahead at no cost, and bit for bit as if it had stepped.
 
+The drive behaves as an INVT-family drive does where it matters for trips:
+a speed loop of finite bandwidth (the ramp's torque fed forward, a PI on the
+rest) drives a current clamped at the current limit; overcurrent trips on the
+current the loop asks before the limit acts (a too-short ramp of a heavy
+load), not on load torque; overvoltage stall prevention (F11.03/F11.04) holds
+the ramp while braking would lift the bus above its level; the motor and the
+drive each have an inverse-time overload curve with thermal memory (F02.27
+scales the motor's); inverter losses and so heating come from the current;
+the bus has an undervoltage recover level; loads can be passive (opposing
+motion) or active (signed, such as a hoist's weight); 3006H is measured from
+the Hall edges and 3009H from the rotor's angle at the moment it is read.
+
 Faults are causes: each protection watches a physical condition, trips by a
 transition of the state table with the profile's code, and the latch is
 released by fault reset only once the cause is gone. Conditions are set by
@@ -756,6 +768,8 @@ class Drive:
         driven = state in DRIVEN
         if self._bus > supply.overvoltage_v and self._trip_on(_BY_PHASE["overvoltage"][self._phase]):
             return
+        # The current the loop asks this step flows for the microseconds the limit takes to act: a ramp of a
+        # heavy load that asks more than the trip level trips here, a load beyond the limit slows the rotor.
         if driven and abs(self._demand) > prot.overcurrent_a and self._trip_on(_BY_PHASE["overcurrent"][self._phase]):
             return
         if self._hall_glitch and self._trip_on(FaultCause.HALL):  # a bad code trips whenever the bus is up
