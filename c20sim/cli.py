@@ -176,6 +176,7 @@ def render_profile(profile: Profile) -> str:
         ("supply", profile.supply),
         ("protection", profile.protection),
         ("thermal", profile.thermal),
+        ("control", profile.control),
     ):
         lines.append(title)
         lines += [
