@@ -120,7 +120,7 @@ def overload(profile: Profile) -> list[Row]:
         rows.append(
             (
                 f"motor overload at {multiple:.0%} of rated x F02.27",
-                f"{published} (GD20 P02.27 motor overload curve)",
+                f"{published} (INVT motor overload curve, GD350-IP55 manual p. 143)",
                 f"{name} after {seconds:.1f} s",
             )
         )
@@ -130,7 +130,7 @@ def overload(profile: Profile) -> list[Row]:
         rows.append(
             (
                 f"drive overload at {multiple:.0%} of the drive's {drive_amps:g} A",
-                f"{published} (GD20 specifications, G type)",
+                f"{published} (INVT G type, GD20 specifications)",
                 f"{name} after {seconds:.1f} s",
             )
         )
