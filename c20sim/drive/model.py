@@ -328,7 +328,10 @@ class Drive:
         Unlike :meth:`set_load_torque` it can drive the rotor: a forward run
         with a positive active load regenerates, and a held load draws current.
         """
-        self._active = float(nm)
+        nm = float(nm)
+        if not math.isfinite(nm):
+            raise ValueError(f"active load must be a finite torque in N m, not {nm}")
+        self._active = nm
         self._changed()
 
     @property

@@ -294,6 +294,13 @@ def test_a_heavier_faster_hoist_trips_ov3(profile: Profile) -> None:
     assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERVOLTAGE_CONSTANT)
 
 
+def test_an_active_load_must_be_finite(profile: Profile) -> None:
+    drive = Drive(profile)
+    with pytest.raises(ValueError, match="active load must be a finite torque in N m, not nan"):
+        drive.set_active_load(float("nan"))
+    assert drive.active_load == 0.0
+
+
 def test_a_held_load_draws_current_at_zero_speed(profile: Profile) -> None:
     drive = running(profile, 0)
     drive.set_active_load(-1.0)
