@@ -179,9 +179,13 @@ def render_profile(profile: Profile) -> str:
         ("supply", profile.supply),
         ("protection", profile.protection),
         ("thermal", profile.thermal),
+        ("control", profile.control),
     ):
         lines.append(title)
-        lines += [f"  {key:<24} {value:g}" for key, value in vars(section).items()]
+        lines += [
+            f"  {key:<24} {value}" if isinstance(value, tuple) else f"  {key:<24} {value:g}"
+            for key, value in vars(section).items()
+        ]
         lines.append("")
     lines.append("faults (code, name, meaning, source)")
     for fault in profile.faults.values():

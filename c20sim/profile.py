@@ -25,6 +25,7 @@ from .registers import FIXED_REGISTERS, Access, Reg, RegisterMap, RegisterSpec, 
 
 __all__ = [
     "DEFAULT_PROFILE",
+    "ControlParams",
     "FaultCause",
     "FaultSpec",
     "MotorParams",
@@ -109,6 +110,10 @@ class SupplyParams:
     bleed_time_constant_s: float = field(
         default=2.0, metadata=_num(0.01, 3600, "s", "bus discharge time constant with the supply off")
     )
+    undervoltage_recover_v: float = field(
+        default=0.0,
+        metadata=_num(0, 800, "V", "the bus counts as back only above this (hysteresis); 0 = undervoltage_v"),
+    )
 
 
 @dataclass(frozen=True)
@@ -118,12 +123,21 @@ class ProtectionParams:
     current_limit_a: float = field(metadata=_num(0.1, 300, "A"))
     overcurrent_a: float = field(metadata=_num(0.1, 600, "A", "instantaneous trip"))
     drive_rated_current_a: float = field(metadata=_num(0.1, 300, "A"))
-    overload_time_s: float = field(metadata=_num(1, 3600, "s", "time to trip at 150 % of rated current (I^2 t)"))
+    motor_overload_curve: tuple[tuple[float, float], ...] = field(
+        metadata={"doc": "[[multiple of rated current, seconds to trip], ...]: the motor's inverse-time curve"}
+    )
+    drive_overload_curve: tuple[tuple[float, float], ...] = field(
+        metadata={"doc": "[[multiple of drive rated current, seconds to trip], ...]: the drive's inverse-time curve"}
+    )
     overload_warning: float = field(
         metadata=_num(0.1, 1, "", "fraction of the I^2 t budget that sets status word 2 bit 4")
     )
     stall_time_s: float = field(metadata=_num(0.1, 60, "s"))
     stall_speed_rpm: float = field(metadata=_num(0, 3000, "rpm"))
+    overload_cooling_s: float = field(
+        default=600.0,
+        metadata=_num(1, 36000, "s", "time a full overload budget takes to cool away at zero current"),
+    )
     brake_hold_s: float = field(
         default=0.5, metadata=_num(0, 60, "s", "electronic brake (status 6) hold after a ramp stop reaches zero")
     )
@@ -136,11 +150,28 @@ class ThermalParams:
     ambient_c: float = field(metadata=_num(-20, 60, "degC"))
     resistance_k_per_w: float = field(metadata=_num(0.001, 100, "K/W", "heatsink to ambient"))
     time_constant_s: float = field(metadata=_num(1, 100000, "s"))
-    switching_loss_fraction: float = field(metadata=_num(0, 0.5, "", "inverter loss as a fraction of output power"))
+    conduction_resistance_ohm: float = field(
+        metadata=_num(0, 100, "ohm", "inverter conduction loss: this times the current squared")
+    )
+    switching_loss_w_per_a: float = field(metadata=_num(0, 1000, "W/A", "inverter switching loss per amp of current"))
     overheat_c: float = field(metadata=_num(40, 150, "degC"))
     overheat_reset_k: float = field(
         default=5.0, metadata=_num(0, 50, "K", "an overheat fault resets only this far below overheat_c")
     )
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """The drive's speed loop and speed measurement."""
+
+    speed_loop_hz: float = field(
+        default=20.0, metadata=_num(0.1, 1000, "Hz", "speed loop bandwidth, tuned on the coupled inertia")
+    )
+    min_speed_rpm: float = field(default=0.0, metadata=_num(0, 3000, "rpm", "a set speed below it runs at it"))
+    speed_noise_rpm: float = field(
+        default=0.0, metadata=_num(0, 1000, "rpm", "read noise on 3006H while turning (uniform +-); 0 = none")
+    )
+    noise_seed: int = field(default=0, metadata=_num(0, 2**31 - 1, "", "seed of the read noise"))
 
 
 class FaultCause(enum.Enum):
@@ -190,6 +221,7 @@ class Profile:
     supply: SupplyParams
     protection: ProtectionParams
     thermal: ThermalParams
+    control: ControlParams
     faults: Mapping[int, FaultSpec]
     parameters: tuple[RegisterSpec, ...]
     mirrors: Mapping[int, int]  #: 20xxH register -> function code address
@@ -301,6 +333,24 @@ class _Checker:
             )
         return kind(value)
 
+    def curve(self, value: Any, key: str) -> tuple[tuple[float, float], ...]:
+        """An inverse-time curve: [[multiple, seconds], ...], multiples above 1 rising, times falling."""
+        shape = "[[multiple of rated current, seconds], ...]"
+        if not isinstance(value, list) or not value:
+            raise self.fail(key, f"must be a non-empty array {shape}")
+        points: list[tuple[float, float]] = []
+        for i, pair in enumerate(value):
+            if not isinstance(pair, list) or len(pair) != 2:
+                raise self.fail(f"{key}[{i}]", f"must be a pair [multiple, seconds], not {pair!r}")
+            multiple = self.number(pair[0], f"{key}[{i}][0]", float, 1.01, 20.0, "x rated")
+            seconds = self.number(pair[1], f"{key}[{i}][1]", float, 0.01, 36000.0, "s")
+            if multiple != multiple or seconds != seconds:  # NaN passes every comparison
+                raise self.fail(f"{key}[{i}]", "must be finite numbers, not nan")
+            if points and (multiple <= points[-1][0] or seconds >= points[-1][1]):
+                raise self.fail(f"{key}[{i}]", "multiples must rise and times fall from one point to the next")
+            points.append((multiple, seconds))
+        return tuple(points)
+
     def section(self, data: Mapping[str, Any], name: str, cls: type) -> Any:
         table = self.table(data, name) if name in data or _required(cls) else {}
         fields = {f.name: f for f in dataclasses.fields(cls)}
@@ -313,6 +363,9 @@ class _Checker:
                     raise self.fail(key, f"missing; {_describe_field(f)}")
                 continue
             value = table[fname]
+            if f.type == "tuple[tuple[float, float], ...]":
+                values[fname] = self.curve(value, key)
+                continue
             kind = (
                 bool
                 if f.type in ("bool", bool)
@@ -358,6 +411,7 @@ _TOP_KEYS = (
     "supply",
     "protection",
     "thermal",
+    "control",
     "fault",
     "parameter",
     "behaviours",
@@ -405,10 +459,17 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
     supply = check.section(data, "supply", SupplyParams)
     protection = check.section(data, "protection", ProtectionParams)
     thermal = check.section(data, "thermal", ThermalParams)
+    control = check.section(data, "control", ControlParams)
     if supply.undervoltage_v >= supply.voltage_v:
         raise check.fail(
             "supply.undervoltage_v",
             f"{supply.undervoltage_v:g} V must be below supply.voltage_v = {supply.voltage_v:g} V",
+        )
+    if supply.undervoltage_recover_v and not supply.undervoltage_v < supply.undervoltage_recover_v < supply.voltage_v:
+        raise check.fail(
+            "supply.undervoltage_recover_v",
+            f"{supply.undervoltage_recover_v:g} V must be between supply.undervoltage_v = {supply.undervoltage_v:g} V "
+            f"and supply.voltage_v = {supply.voltage_v:g} V",
         )
     if supply.overvoltage_v <= supply.voltage_v:
         raise check.fail(
@@ -444,6 +505,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
         supply=supply,
         protection=protection,
         thermal=thermal,
+        control=control,
         faults=faults,
         parameters=tuple(parameters),
         mirrors=mirrors,

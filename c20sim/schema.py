@@ -31,6 +31,7 @@ from .profile import (
     _SOURCES,
     _TOP_KEYS,
     REQUIRED_MIRRORS,
+    ControlParams,
     FaultCause,
     MotorParams,
     ProtectionParams,
@@ -53,6 +54,9 @@ def _section(cls: type) -> dict[str, Any]:
     for f in dataclasses.fields(cls):
         kind = {"bool": "boolean", "int": "integer", "float": "number"}.get(str(f.type), "string")
         prop: dict[str, Any] = {"type": kind}
+        if str(f.type).startswith("tuple[tuple[float, float]"):  # an inverse-time curve: [[multiple, seconds], ...]
+            pair = {"type": "array", "items": {"type": "number", "exclusiveMinimum": 0}, "minItems": 2, "maxItems": 2}
+            prop = {"type": "array", "items": pair, "minItems": 2}
         meta = f.metadata
         if "min" in meta:
             prop["minimum"], prop["maximum"] = meta["min"], meta["max"]
@@ -127,6 +131,7 @@ def profile_schema() -> dict[str, Any]:
         "supply": _section(SupplyParams),
         "protection": _section(ProtectionParams),
         "thermal": _section(ThermalParams),
+        "control": _section(ControlParams),
         "fault": {"type": "array", "items": fault, "minItems": 1},
         "parameter": {"type": "array", "items": parameter, "minItems": 1},
         "behaviours": {

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 from ..drive.terminals import Input
 from ..profile import FaultCause, Profile
+from ..registers import fcode_address
 from ..simulator import Simulator
 from . import ops
 
@@ -54,10 +55,20 @@ class Cause:
 def _load_levels(p: Profile) -> dict[str, float]:
     kt, prot = p.motor.kt_nm_per_a, p.protection
     return {
-        "overcurrent": round(prot.overcurrent_a * kt * 1.25, 2),
         "overload": round(prot.current_limit_a * kt * 0.9, 2),
         "stall": round(prot.current_limit_a * kt * 1.5, 2),
     }
+
+
+def _overcurrent_inertia(p: Profile) -> float:
+    """A coupled inertia whose acceleration at the profile's default ramp needs 125 % of the overcurrent trip.
+
+    A load torque cannot do it: the drive holds the current at its limit and the rotor stalls (a stall trip);
+    what an INVT-family drive trips OC on is the current its speed loop asks for, as on a fast ramp of a heavy load.
+    """
+    ramp_s = min(p.defaults[fcode_address(0, 11)], p.defaults[fcode_address(0, 12)]) / 10.0  # F00.11/F00.12, 0.1 s
+    alpha = p.motor.rated_speed_rpm * 2 * math.pi / 60 / max(ramp_s, 0.1)
+    return round(1.25 * p.protection.overcurrent_a * p.motor.kt_nm_per_a / alpha, 4)
 
 
 def _load(name: str, key: str, label: str, how: str, faults: tuple[FaultCause, ...]) -> Cause:
@@ -112,12 +123,15 @@ CAUSES: Mapping[str, Cause] = {
             lambda p, c: {"supply_v": p.supply.voltage_v},
             lambda p, c: _float(c, "supply_v") > p.supply.overvoltage_v,
         ),
-        _load(
+        Cause(
             "overcurrent",
             "c",
             "overcurrent",
-            "load torque past the overcurrent level (OC1-3 by phase, while running)",
+            "a heavy coupled inertia: the next start or stop at the default ramp asks more than the trip (OC1, OC2)",
             (FaultCause.OVERCURRENT_ACCEL, FaultCause.OVERCURRENT_DECEL, FaultCause.OVERCURRENT_CONSTANT),
+            lambda p, c: {"load_inertia_kg_m2": _overcurrent_inertia(p)},
+            lambda p, c: {"load_inertia_kg_m2": 0.0},
+            lambda p, c: math.isclose(_float(c, "load_inertia_kg_m2"), _overcurrent_inertia(p)),
         ),
         _load(
             "overload",

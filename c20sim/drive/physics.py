@@ -12,6 +12,7 @@ step directly and skipping ahead costs nothing and changes nothing.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -23,6 +24,7 @@ __all__ = [
     "bus_step",
     "free_motion",
     "hall_code",
+    "overload_rate",
     "ramp_toward",
 ]
 
@@ -101,6 +103,29 @@ def bus_step(
     if new < 0.0 or (supply == 0.0 and new < 0.05):
         return 0.0  # a dead bus settles at exactly zero, so an unpowered drive idles
     return new
+
+
+def overload_rate(ratio: float, curve: tuple[tuple[float, float], ...], cooling_s: float) -> float:
+    """Fraction of an overload budget used per second at ``ratio`` times the rated current.
+
+    Above rated current the budget fills at 1 / (time to trip), the time
+    interpolated on the inverse-time ``curve`` linearly in log time against
+    log current; between rated current and the curve's first point the rate
+    falls linearly to zero; past its last point it grows with the square of
+    the current. At or below rated current the budget cools away: all of it
+    in ``cooling_s`` at zero current (thermal memory).
+    """
+    if ratio <= 1.0:
+        return -(1.0 - ratio * ratio) / cooling_s
+    m0, t0 = curve[0]
+    if ratio <= m0:
+        return (ratio - 1.0) / (m0 - 1.0) / t0
+    for (ma, ta), (mb, tb) in itertools.pairwise(curve):
+        if ratio <= mb:
+            x = math.log(ratio / ma) / math.log(mb / ma)
+            return 1.0 / (ta * math.exp(x * math.log(tb / ta)))
+    ml, tl = curve[-1]
+    return (ratio / ml) ** 2 / tl
 
 
 def hall_code(theta: float) -> int:

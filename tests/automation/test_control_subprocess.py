@@ -67,8 +67,8 @@ def test_undervoltage_trip_over_http_and_modbus(served: tuple[dict[str, str], Pa
         assert read(client, 0x2100) == 1  # forward running
         assert read(client, 0x3006) == 1500  # at speed after the 0.5 s ramp
 
-        state: dict[str, Any] = call(url, "PUT", "/drives/1/conditions", {"supply_v": 20})
-        assert (state["supply_v"], state["state"]) == (20.0, "forward")
+        state: dict[str, Any] = call(url, "PUT", "/drives/1/conditions", {"supply_v": 15})
+        assert (state["supply_v"], state["state"]) == (15.0, "forward")
         call(url, "POST", "/time/advance", {"seconds": 0.1})
         assert read(client, 0x2100) == 4  # fault
         assert read(client, 0x2102) == 0x0A  # undervoltage, as the sheet's example
@@ -143,7 +143,7 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
         assert ctl(ready, "advance", "2").returncode == 0
         result = ctl(ready, "fault", "--cause", "undervoltage")
         assert result.returncode == 0, result.stderr
-        assert json.loads(result.stdout)["conditions"]["supply_v"] == 18.0  # half the 36 V trip level
+        assert json.loads(result.stdout)["conditions"]["supply_v"] == 10.0  # half the 20 V trip level
         assert read(client, 0x2102) == 0  # not yet: the bus takes its time to fall
         ctl(ready, "advance", "0.5")
         assert read(client, 0x2102) == 0x0A

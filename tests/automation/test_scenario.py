@@ -70,7 +70,7 @@ def test_a_wrong_expectation_fails_with_a_readable_report(tmp_path: Path) -> Non
         f"scenario too fast ({path})\n"
         "  ok   step 1 (at 0 s): write 2001H = 1500: taken\n"
         "  ok   step 1 (at 0 s): write 2000H = 1: taken\n"
-        "  FAIL step 2 (at 0.2 s) [mid-ramp]: 3006H (motor speed) = 1200 (1200 rpm), expected 1500 +/- 5 (1500 rpm)\n"
+        "  FAIL step 2 (at 0.2 s) [mid-ramp]: 3006H (motor speed) = 1194 (1194 rpm), expected 1500 +/- 5 (1500 rpm)\n"
         "  ok   step 2 (at 0.2 s) [mid-ramp]: 2100H (status word 1) = 1 (forward running), expected 1\n"
         "FAILED: 1 of 4 check(s)\n"
     )

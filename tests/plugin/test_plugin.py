@@ -68,7 +68,7 @@ def test_async_test_with_an_async_client(pytester: pytest.Pytester) -> None:
             await client.write_register(0x2001, 1500, device_id=1)
             await client.write_register(0x2000, 1, device_id=1)
             c20sim.advance(1.0)
-            c20sim.set(supply_v=20)
+            c20sim.set(supply_v=15)
             c20sim.advance(0.1)
             reply = await client.read_holding_registers(0x2102, count=1, device_id=1)
             assert reply.registers == [0x0A]

@@ -27,7 +27,7 @@ async def run_forward(bench: Bench, rpm: int = 1500) -> None:
 async def test_undervoltage_while_running_trips_0x0A(bench: Bench) -> None:
     await run_forward(bench)
     await bench.press("f4", "u")  # device faults, undervoltage: the supply drops
-    assert bench.app.bench.conditions(1).supply_v == 18.0
+    assert bench.app.bench.conditions(1).supply_v == 10.0  # half the 20 V trip level
     await bench.press("t")
     assert await bench.read(FAULT) == 0x000A
     assert await bench.read(STATUS1) == 4
@@ -97,10 +97,10 @@ async def test_conditions_supply_and_terminals(bench: Bench) -> None:
     await bench.press("f3")
     field = bench.app.get_screen_main().query_one("#cond-supply")
     assert field.has_focus
-    await bench.press("home", "ctrl+k", "3", "0", "enter", "escape", "t", "t")
-    assert await bench.read(STATUS1) == 5  # bus below 36 V while stopped: off
-    assert await bench.read(0x3008) < 360
-    await bench.press("f3", *["up"] * 10, "escape", "t", "t")  # 40 V: the bus is back
+    await bench.press("home", "ctrl+k", "1", "5", "enter", "escape", "t", "t")
+    assert await bench.read(STATUS1) == 5  # bus below 20 V while stopped: off
+    assert await bench.read(0x3008) < 200
+    await bench.press("f3", *["up"] * 10, "escape", "t", "t")  # 25 V, above the 22 V recover level: back
     assert await bench.read(STATUS1) == 3
     await bench.pilot.click("#term-S1")
     await bench.press("t")
@@ -147,8 +147,8 @@ async def test_power_cycle_and_restore_defaults(bench: Bench) -> None:
 
 
 async def test_restore_defaults_refused_while_running(bench: Bench) -> None:
-    await bench.write(0x2003, 20)
     await run_forward(bench)
+    await bench.write(0x2003, 20)  # after the run: a 2 s ramp would still trail 1500 rpm at 1 s
     await bench.press("D")
     assert await bench.read(0x2003) == 20
     assert any("stop the motor first" in str(n.message) for n in bench.app._notifications)

@@ -113,7 +113,7 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     terminal.keys("F4")
     terminal.wait_for_text("u undervoltage")
     terminal.keys("u")
-    terminal.wait_for_text("supply 18 V")
+    terminal.wait_for_text("supply 10 V")  # half the 20 V trip level
     terminal.keys("t")
     screen = terminal.wait_for_text("0x0A UV: bus undervoltage")
     assert read(client, 0x2102) == 0x000A

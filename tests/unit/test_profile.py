@@ -8,7 +8,7 @@ import pytest
 
 from c20sim.errors import ProfileError
 from c20sim.profile import DEFAULT_PROFILE, FaultCause, available_profiles, load_profile, profile_path
-from c20sim.registers import Access, Reg
+from c20sim.registers import Access, Reg, parse_fcode
 
 DEFAULT_TEXT = profile_path(DEFAULT_PROFILE).read_text()
 
@@ -96,3 +96,38 @@ def test_a_mirror_cannot_widen_the_sheets_range(tmp_path: Path) -> None:
     assert text != DEFAULT_TEXT
     message = bad(tmp_path, text)
     assert message.endswith("parameter F08.00.max: 1-250 goes beyond 2008H's range in the sheet, 1-247")
+
+
+MOTOR_CURVE = "motor_overload_curve = [[1.16, 3600.0], [1.5, 720.0], [1.8, 300.0], [2.0, 60.0]]"
+
+
+def test_overload_curves_and_new_keys_load() -> None:
+    profile = load_profile()
+    assert profile.protection.motor_overload_curve == ((1.16, 3600.0), (1.5, 720.0), (1.8, 300.0), (2.0, 60.0))
+    assert profile.protection.drive_overload_curve == ((1.1, 3600.0), (1.5, 60.0), (1.8, 10.0))
+    assert (profile.supply.undervoltage_v, profile.supply.undervoltage_recover_v) == (20.0, 22.0)
+    assert profile.control.min_speed_rpm == 100.0
+    for code, default in (("F02.27", 1000), ("F08.03", 0), ("F11.03", 1), ("F11.04", 120)):
+        spec = profile.registers[parse_fcode(code)]
+        assert (profile.defaults[spec.address], spec.source) == (default, "assumed")
+
+
+@pytest.mark.parametrize(
+    ("curve", "message"),
+    [
+        ("[[1.5, 720.0], [1.16, 3600.0]]", "protection.motor_overload_curve[1]: multiples must rise and times fall"),
+        ("[[1.16, 3600.0], [1.5, 3600.0]]", "protection.motor_overload_curve[1]: multiples must rise and times fall"),
+        ("[[0.9, 3600.0]]", "protection.motor_overload_curve[0][0]: 0.9 is out of range; allowed 1.01 to 20 x rated"),
+        ("[[1.5]]", "protection.motor_overload_curve[0]: must be a pair [multiple, seconds], not [1.5]"),
+        ("[[1.5, nan]]", "protection.motor_overload_curve[0]: must be finite numbers, not nan"),
+        ("60.0", "protection.motor_overload_curve: must be a non-empty array [[multiple of rated current, seconds]"),
+    ],
+)
+def test_a_bad_overload_curve_is_one_clear_line(tmp_path: Path, curve: str, message: str) -> None:
+    assert MOTOR_CURVE in DEFAULT_TEXT
+    assert message in bad(tmp_path, DEFAULT_TEXT.replace(MOTOR_CURVE, f"motor_overload_curve = {curve}"))
+
+
+def test_the_recover_level_lies_between_the_trip_and_the_supply(tmp_path: Path) -> None:
+    text = DEFAULT_TEXT.replace("undervoltage_recover_v = 22.0", "undervoltage_recover_v = 19.0")
+    assert "supply.undervoltage_recover_v: 19 V must be between supply.undervoltage_v = 20 V" in bad(tmp_path, text)

@@ -125,7 +125,7 @@ def test_stop_ramps_down_through_the_electronic_brake(profile: Profile) -> None:
     drive.write(Reg.COMMAND, 5)  # 2004H = 0.5 s from 3000 rpm
     drive.advance_to(1.25)
     assert drive.read(Reg.STATUS1) == 1
-    assert drive.read(Reg.MOTOR_SPEED) == 1500
+    assert abs(drive.read(Reg.MOTOR_SPEED) - 1500) <= 6  # the loop trails by 1.5 rpm, the Hall reading by a sector
     drive.advance_to(1.6)
     assert drive.read(Reg.STATUS1) == 6
     assert drive.read(Reg.MOTOR_SPEED) == 0
@@ -158,9 +158,9 @@ def test_reversing_decelerates_through_zero(profile: Profile) -> None:
     drive.advance_to(1.25)
     tel = drive.telemetry()
     assert drive.read(Reg.STATUS1) == 2
-    assert tel.speed_rpm == pytest.approx(1500.0, abs=1.0)  # still turning forward, slowing
+    assert tel.speed_rpm == pytest.approx(1500.0, abs=2.0)  # still turning forward, slowing
     drive.advance_to(1.75)
-    assert drive.telemetry().speed_rpm == pytest.approx(-1500.0, abs=1.0)
+    assert drive.telemetry().speed_rpm == pytest.approx(-1500.0, abs=2.0)
     drive.advance_to(3.0)
     assert drive.telemetry().speed_rpm == -3000.0
     assert drive.read(Reg.MOTOR_SPEED) == 3000
@@ -181,7 +181,7 @@ def test_jog_runs_at_the_jog_speed(profile: Profile) -> None:
 def test_current_limit_slows_a_heavy_ramp(profile: Profile) -> None:
     drive = Drive(profile)
     drive.set_load_inertia(0.01)
-    drive.write(cell(profile, Reg.ACCEL_TIME), 5)
+    drive.write(cell(profile, Reg.ACCEL_TIME), 10)  # 1 s asks 26 A: limited to 20 (0.5 s asks 51 A: OC1)
     drive.write(Reg.SPEED_SETPOINT, 3000)
     drive.write(Reg.COMMAND, 1)
     drive.advance_to(0.5)
