@@ -351,6 +351,7 @@ CONDITIONS: Mapping[str, Condition] = {
         _ranged(
             "load_torque_nm", "N m", 0, 1000, lambda d: d.telemetry().load_torque_nm, lambda d, v: d.set_load_torque(v)
         ),
+        _ranged("active_load_nm", "N m", -1000, 1000, lambda d: d.active_load, lambda d, v: d.set_active_load(v)),
         _ranged(
             "load_inertia_kg_m2",
             "kg m2",

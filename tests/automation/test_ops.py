@@ -198,3 +198,15 @@ def test_a_bench_edit_meets_the_masters_rules(register: str, value: int, code: i
     assert str(caught.value).startswith(f"{register} = {value} refused: exception 0x{code:02X} (")
     assert len(sim.bus.records) == before  # a bench edit is not a frame on the line
     assert ops.write_register(sim, 1, "2001H", 1000)["text"] == "1000 rpm"
+
+
+def test_an_active_load_regenerates_through_the_operations() -> None:
+    """The active load (a hoist's weight) is one row of CONDITIONS: set and read back like any condition."""
+    sim = running()
+    ops.set_conditions(sim, 1, {"active_load_nm": 1.0})  # pushes forward while running forward: regenerates
+    sim.run_until(sim.now() + 1.0)
+    state = ops.drive_state(sim, 1)
+    assert state["conditions"]["active_load_nm"] == 1.0
+    assert state["bus_v"] > sim.profile.supply.voltage_v  # the bus rises above the supply: energy flows back
+    with pytest.raises(ops.ControlError, match=r"^active_load_nm: -1001 is outside -1000-1000$"):
+        ops.set_conditions(sim, 1, {"active_load_nm": -1001})
