@@ -7,6 +7,14 @@ event goes to the shared :class:`~c20sim.transport.line.Line`, which serves
 requests from every stream one at a time. The reply comes back through
 ``send`` on the stream that asked, with the baud it goes out at.
 
+Backpressure: an endpoint has at most ``limit`` requests on the line (one,
+as an RTU master waits for each answer) and no reply it could not hand to
+its stream; while either holds, it asks its transport to stop reading, so
+the kernel's buffer and TCP flow control hold the rest, as libmodbus's
+server loop does. Frames already read wait in the framer, bounded by one
+read. When the endpoint closes, its requests still waiting on the line are
+dropped.
+
 Arrival times come from ``time.perf_counter``, not the loop's clock: uvloop's
 loop time has 1 ms resolution, coarser than t1.5 at 19200 baud (0.86 ms).
 The loop only schedules the silence timer.
@@ -20,7 +28,7 @@ import time
 from collections.abc import Callable
 
 from ..bus import Reply
-from ..protocol import RtuFramer
+from ..protocol import FrameEvent, RtuFramer
 from .line import Line
 
 __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
@@ -51,16 +59,45 @@ class RtuEndpoint:
         *,
         on_baud: Callable[[int], None] | None = None,
         name: str = "",
+        pause: Callable[[], None] | None = None,
+        resume: Callable[[], None] | None = None,
+        limit: int = 1,
     ) -> None:
         self.line = line
         self.framer = framer
         self._send = send
         self._on_baud = on_baud
         self.name = name
+        self._pause = pause
+        self._resume = resume
+        self.limit = limit
         self._loop = asyncio.get_running_loop()
         self._tick: asyncio.TimerHandle | None = None
         self._closed = False
         self._detach = line.on_baud(self._baud_changed)
+        self._outstanding = 0  #: requests on the line, not yet answered
+        self._held: FrameEvent | None = None  #: the next framed request, waiting for room on the line
+        self._write_blocked = False
+        self._paused = False
+        self._wake: asyncio.Handle | None = None
+
+    @property
+    def outstanding(self) -> int:
+        """Requests of this endpoint on the line, not yet answered."""
+        return self._outstanding
+
+    @property
+    def paused(self) -> bool:
+        """True while the transport is asked not to read."""
+        return self._paused
+
+    def write_blocked(self, blocked: bool) -> None:
+        """The stream will take no more replies for now (its buffer is full), or will again."""
+        self._write_blocked = blocked
+        if not blocked:
+            self._schedule_collect()
+        else:
+            self._flow()
 
     def feed(self, data: bytes) -> None:
         """Bytes arrived now."""
@@ -70,18 +107,32 @@ class RtuEndpoint:
         self._collect()
 
     def close(self) -> None:
-        """Stop serving; a half-received frame is dropped, a pending reply is not sent."""
+        """Stop serving; a half-received frame is dropped, waiting requests are dropped, a pending reply is not
+        sent."""
         self._closed = True
         self._detach()
+        self.line.cancel(self)
+        self._held = None
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
+        if self._wake is not None:
+            self._wake.cancel()
+            self._wake = None
 
     def _collect(self) -> None:
-        event = self.framer.next_event()
-        while event is not None:
-            self.line.submit(event, self._respond)
-            event = self.framer.next_event()
+        if self._closed:
+            return
+        while self._outstanding < self.limit and not self._write_blocked:
+            event = self._held if self._held is not None else self.framer.next_event()
+            self._held = None
+            if event is None:
+                break
+            self._outstanding += 1
+            self.line.submit(event, self._respond, self)
+        if self._held is None and (self._outstanding >= self.limit or self._write_blocked):
+            self._held = self.framer.next_event()
+        self._flow()
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
@@ -99,8 +150,32 @@ class RtuEndpoint:
         self.framer.tick(now)
         self._collect()
 
+    def _flow(self) -> None:
+        """Ask the transport to stop reading while the line or the stream has no room, and to read again."""
+        hold = self._held is not None or self._outstanding >= self.limit or self._write_blocked
+        if hold and not self._paused and self._pause is not None:
+            self._paused = True
+            self._pause()
+        elif not hold and self._paused and self._resume is not None:
+            self._paused = False
+            self._resume()
+
+    def _schedule_collect(self) -> None:
+        # Not at once: a reply is delivered from inside the line's loop, and the next request of the same
+        # stream goes behind those other streams have already queued.
+        if self._wake is None and not self._closed:
+            self._wake = self._loop.call_soon(self._woken)
+
+    def _woken(self) -> None:
+        self._wake = None
+        self._collect()
+
     def _respond(self, reply: Reply | None) -> None:
-        if reply is None or self._closed:
+        self._outstanding -= 1
+        if self._closed:
+            return
+        self._schedule_collect()
+        if reply is None:
             return
         try:
             self._send(reply.data, reply.baud)

@@ -59,7 +59,9 @@ class PtyPort:
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
         framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
-        self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
+        self._endpoint = RtuEndpoint(
+            self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
+        )
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         if self.line_timing:
             self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
@@ -72,6 +74,15 @@ class PtyPort:
     @property
     def name(self) -> str:
         return str(self.link) if self.link else self.path
+
+    def _pause(self) -> None:
+        """Backpressure: leave the master's bytes in the pty while its request is on the line."""
+        if self._master >= 0:
+            asyncio.get_running_loop().remove_reader(self._master)
+
+    def _resume(self) -> None:
+        if self._master >= 0:
+            asyncio.get_running_loop().add_reader(self._master, self._readable)
 
     def _readable(self) -> None:
         try:
@@ -96,6 +107,8 @@ class PtyPort:
         if written < len(data):
             self._unsent += data[written:]
             asyncio.get_running_loop().add_writer(self._master, self._flush_unsent)
+            if self._endpoint is not None:
+                self._endpoint.write_blocked(True)  # a master that does not read: read no more from it
 
     def _write_some(self, data: bytes | bytearray) -> int:
         try:
@@ -107,6 +120,8 @@ class PtyPort:
         del self._unsent[: self._write_some(self._unsent)]
         if not self._unsent:
             asyncio.get_running_loop().remove_writer(self._master)
+            if self._endpoint is not None:
+                self._endpoint.write_blocked(False)
 
     async def _pace(self) -> None:
         """Put replies on the pty one character time apart, at the line's baud."""

@@ -70,9 +70,24 @@ class SerialPort:
             raise C20SimError(_explain(self.device, exc)) from None
         framer = stream_framer(self.baud, line_timing=self.line_timing)
         self._endpoint = RtuEndpoint(
-            self.line, framer, self._send, on_baud=self._set_baud, name=f"serial {self.device}"
+            self.line,
+            framer,
+            self._send,
+            on_baud=self._set_baud,
+            name=f"serial {self.device}",
+            pause=self._pause,
+            resume=self._resume,
         )
         asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
+
+    def _pause(self) -> None:
+        """Backpressure: leave the master's bytes in the port while its request is on the line."""
+        if self._port is not None:
+            asyncio.get_running_loop().remove_reader(self._port.fileno())
+
+    def _resume(self) -> None:
+        if self._port is not None:
+            asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
 
     def _readable(self) -> None:
         assert self._port is not None and self._endpoint is not None
