@@ -22,11 +22,13 @@ import itertools
 import json
 import logging
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from . import httpguard
 from .errors import C20SimError
 from .linkfaults import LinkFaults
 from .protocol import ExceptionCode
@@ -456,6 +458,7 @@ class ControlApi:
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
         self.url = ""
+        self.host = ""  #: the HOST the API is bound to, for the guard's Host check
         self._runner: web.AppRunner | None = None
         #: frames recorded since start; with the ring's length it numbers the records in the ring
         self._seen = len(sim.bus.records)
@@ -471,7 +474,11 @@ class ControlApi:
     async def start(self, host: str, port: int) -> None:
         from aiohttp import web
 
-        runner = web.AppRunner(make_app(self), access_log=None)
+        self.host = host
+        if (warning := httpguard.check_bind(host)) is not None:
+            print(f"c20sim: {warning}", file=sys.stderr, flush=True)
+        httpguard.quiet_logs()
+        runner = web.AppRunner(make_app(self), access_log=None, **httpguard.run_app_kwargs())
         await runner.setup()
         site = web.TCPSite(runner, host, port)
         try:
@@ -529,7 +536,7 @@ def make_app(api: ControlApi) -> web.Application:
         raise ControlError(f"the body is not JSON: {name} is not a JSON number; give a finite number")
 
     async def body(request: web.Request) -> dict[str, Any]:
-        if not request.can_read_body:
+        if not request.body_exists:  # not can_read_body: the guard has read (and checked) the body already
             return {}
         text = await request.text()
         if not text.strip():
@@ -666,7 +673,7 @@ def make_app(api: ControlApi) -> web.Application:
         sim.bus.records.clear()
         return reply({"frames": [], "next": api._seen})
 
-    app = web.Application(middlewares=[errors])
+    app = web.Application(middlewares=[*httpguard.middlewares(api.host), errors])
     r = app.router
     r.add_get("/", index)
     r.add_get("/time", get_time)
@@ -742,7 +749,7 @@ def call(url: str, method: str, path: str, data: object = None, timeout: float =
 
     payload = json.dumps(data).encode() if data is not None else None
     request = urllib.request.Request(url + path, data=payload, method=method)
-    if payload is not None:
+    if method != "GET":  # the API takes state changes only as JSON, even without a body
         request.add_header("Content-Type", "application/json")
     try:
         with urllib.request.urlopen(request, timeout=timeout) as response:
