@@ -725,7 +725,19 @@ ROUTES: Mapping[str, str] = {
 
 def _ctl_url(args: argparse.Namespace) -> str:
     if args.url:
-        return str(args.url).rstrip("/")
+        from urllib.parse import urlsplit
+
+        given = str(args.url).rstrip("/")
+        try:
+            parts = urlsplit(given)
+            valid = parts.scheme in ("http", "https") and bool(parts.hostname) and parts.port is not None
+        except ValueError:
+            valid = False
+        if not valid:
+            raise C20SimError(
+                f"--url {args.url!r}: give the API's address as http://HOST:PORT, such as http://127.0.0.1:8020"
+            )
+        return given
     if args.ready_file:
         try:
             data = json.loads(Path(args.ready_file).read_text())

@@ -112,6 +112,9 @@ class Server:
     async def start(self) -> None:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
         opts, sim, line = self.options, self.sim, self.line
+        max_mb = opts.log_frames_max_mb
+        if max_mb is not None and not 0.01 <= max_mb <= 1e6:  # also refuses nan; inf is above the range
+            raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000")
         scenario = None
         if opts.scenario:
             from .scenario import check, load_scenario
@@ -189,8 +192,6 @@ class Server:
 
     def _open_frame_log(self, path: str) -> None:
         max_mb = self.options.log_frames_max_mb
-        if max_mb is not None and not 0.01 <= max_mb <= 1e6:  # also refuses nan; inf is above the range
-            raise C20SimError(f"--log-frames-max-mb {max_mb}: give a size in MiB from 0.01 to 1000000")
         self.frame_log = FrameLog(path, max_bytes=None if max_mb is None else int(max_mb * 1024 * 1024))
         self.frame_log.start()
         self._unsubscribe.append(self.sim.bus.subscribe(self.frame_log.put))

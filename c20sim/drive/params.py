@@ -155,6 +155,8 @@ class ParameterStore:
             document: Any = json.loads(text)
         except json.JSONDecodeError as exc:
             raise StateFileError(path, f"corrupt state file (not valid JSON: {exc.msg}, line {exc.lineno})") from None
+        except RecursionError:
+            raise StateFileError(path, "not a c20sim state file (JSON nested too deeply)") from None
         if not isinstance(document, dict) or document.get("format") != STATE_FORMAT:
             raise StateFileError(path, f"not a c20sim state file (expected format {STATE_FORMAT!r})")
         if document.get("profile") != self.profile.name:
