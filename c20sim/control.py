@@ -486,7 +486,7 @@ class ControlApi:
         except OSError as exc:
             await runner.cleanup()
             raise C20SimError(
-                f"--control {host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
+                f"--control {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
             ) from None
         self._runner = runner
         bound_port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), port)

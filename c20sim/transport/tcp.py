@@ -36,7 +36,7 @@ from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
-__all__ = ["ModbusTcpServer", "RtuOverTcpServer", "parse_host_port"]
+__all__ = ["ModbusTcpServer", "RtuOverTcpServer", "host_port", "parse_host_port"]
 
 log = logging.getLogger(__name__)
 
@@ -51,18 +51,36 @@ WRITE_HIGH_WATER = 16 * 1024
 
 
 def parse_host_port(text: str, option: str) -> tuple[str, int]:
-    """``HOST:PORT`` (``[::1]:502`` for IPv6); port 0 asks the system for a free one."""
-    host, sep, port_text = text.rpartition(":")
-    if not sep or not host:
-        raise C20SimError(f"{option} {text!r}: give HOST:PORT, such as 127.0.0.1:5020 (port 0 picks a free port)")
-    host = host.strip("[]")
+    """``HOST:PORT``, ``[IPV6]:PORT`` (a zone too: ``[fe80::1%eth0]:502``); port 0 asks for a free one."""
+    usage = "give HOST:PORT, such as 127.0.0.1:5020 or [::1]:5020 (port 0 picks a free port)"
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0:
+            raise C20SimError(f"{option} {text!r}: no ']' after the IPv6 address; {usage}")
+        host, rest = text[1:end], text[end + 1 :]
+        if not rest.startswith(":"):
+            raise C20SimError(f"{option} {text!r}: no port after [{host}]; {usage}")
+        port_text = rest[1:]
+    else:
+        host, sep, port_text = text.rpartition(":")
+        if not sep:
+            raise C20SimError(f"{option} {text!r}: {usage}")
+        if ":" in host:
+            raise C20SimError(f"{option} {text!r}: put an IPv6 address in brackets: [{host}]:{port_text}")
+    if not host:
+        raise C20SimError(f"{option} {text!r}: no host; {usage}")
     try:
         port = int(port_text)
     except ValueError:
-        raise C20SimError(f"{option} {text!r}: the port {port_text!r} is not a number; give HOST:PORT") from None
+        raise C20SimError(f"{option} {text!r}: the port {port_text!r} is not a number; {usage}") from None
     if not 0 <= port <= 65535:
         raise C20SimError(f"{option} {text!r}: port {port} is outside 0-65535")
     return host, port
+
+
+def host_port(host: str, port: int) -> str:
+    """``HOST:PORT`` for messages, an IPv6 address (with its zone) in brackets."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 async def _listen(factory: Callable[[], asyncio.Protocol], host: str, port: int, option: str) -> asyncio.Server:
@@ -71,13 +89,13 @@ async def _listen(factory: Callable[[], asyncio.Protocol], host: str, port: int,
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             raise C20SimError(
-                f"{option} {host}:{port}: the port is in use; stop the program holding it or choose another port (0 picks a free one)"
+                f"{option} {host_port(host, port)}: the port is in use; stop the program holding it or choose another port (0 picks a free one)"
             ) from None
         if exc.errno == errno.EACCES:
             raise C20SimError(
-                f"{option} {host}:{port}: permission denied; ports below 1024 need root, choose another"
+                f"{option} {host_port(host, port)}: permission denied; ports below 1024 need root, choose another"
             ) from None
-        raise C20SimError(f"{option} {host}:{port}: cannot listen: {exc.strerror or exc}") from None
+        raise C20SimError(f"{option} {host_port(host, port)}: cannot listen: {exc.strerror or exc}") from None
 
 
 class _Connection(asyncio.Protocol):
@@ -138,8 +156,11 @@ class _TcpServer:
         try:
             infos = await asyncio.get_running_loop().getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
         except OSError as exc:
-            raise C20SimError(f"{self.option} {self.host}:{self.port}: cannot resolve the host: {exc}") from None
-        self._server = await _listen(self._connection, str(infos[0][4][0]), self.port, self.option)
+            raise C20SimError(
+                f"{self.option} {host_port(self.host, self.port)}: cannot resolve the host: {exc}"
+            ) from None
+        address = self.host if "%" in self.host else str(infos[0][4][0])  # keep an IPv6 zone: fe80::1%eth0
+        self._server = await _listen(self._connection, address, self.port, self.option)
         self.host, self.port = self._server.sockets[0].getsockname()[:2]
 
     async def wait_closed(self) -> None:

@@ -63,6 +63,12 @@ def files(tmp_path: Path) -> Path:
             "c20sim: deep.json: not a c20sim state file (JSON nested too deeply)",
         ),
         (
+            ["serve", "--tcp", "[::1]"],
+            "c20sim: --tcp '[::1]': no port after [::1]; give HOST:PORT, such as 127.0.0.1:5020 or [::1]:5020",
+        ),
+        (["serve", "--tcp", "::1:5020"], "c20sim: --tcp '::1:5020': put an IPv6 address in brackets: [::1]:5020"),
+        (["serve", "--tcp", "[fe80::1%lo]:0"], "c20sim: --tcp [fe80::1%lo]:0: cannot listen: "),
+        (
             ["ctl", "--url", "not a url", "time"],
             "c20sim: --url 'not a url': give the API's address as http://HOST:PORT, such as http://127.0.0.1:8020",
         ),
