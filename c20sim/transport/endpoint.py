@@ -12,8 +12,10 @@ as an RTU master waits for each answer) and no reply it could not hand to
 its stream; while either holds, it asks its transport to stop reading, so
 the kernel's buffer and TCP flow control hold the rest, as libmodbus's
 server loop does. Frames already read wait in the framer, bounded by one
-read. When the endpoint closes, its requests still waiting on the line are
-dropped.
+read, and framed a slice at a time as room comes (framing a 64 KiB burst
+at once would hold the loop for tens of milliseconds). When the endpoint
+closes, its requests still waiting on the line are dropped, with the bytes
+not yet framed.
 
 Arrival times come from ``time.perf_counter``, not the loop's clock: uvloop's
 loop time has 1 ms resolution, coarser than t1.5 at 19200 baud (0.86 ms).
@@ -39,6 +41,9 @@ __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
 UNTIMED_SILENCE = 0.02
 
 log = logging.getLogger(__name__)
+
+#: Bytes of a read handed to the framer at a time: more than any frame, so a normal read is one slice.
+FEED_SLICE = 512
 
 
 def stream_framer(baud: int, *, line_timing: bool = False) -> RtuFramer:
@@ -80,6 +85,8 @@ class RtuEndpoint:
         self._write_blocked = False
         self._paused = False
         self._wake: asyncio.Handle | None = None
+        self._unfed = bytearray()  #: bytes read but not yet framed (all of one read, back to back)
+        self._unfed_t = 0.0
 
     @property
     def outstanding(self) -> int:
@@ -103,7 +110,8 @@ class RtuEndpoint:
         """Bytes arrived now."""
         if self._closed:
             return
-        self.framer.feed(data, time.perf_counter())
+        self._unfed += data
+        self._unfed_t = time.perf_counter()
         self._collect()
 
     def close(self) -> None:
@@ -113,6 +121,7 @@ class RtuEndpoint:
         self._detach()
         self.line.cancel(self)
         self._held = None
+        self._unfed.clear()
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
@@ -124,21 +133,31 @@ class RtuEndpoint:
         if self._closed:
             return
         while self._outstanding < self.limit and not self._write_blocked:
-            event = self._held if self._held is not None else self.framer.next_event()
+            event = self._held if self._held is not None else self._next_event()
             self._held = None
             if event is None:
                 break
             self._outstanding += 1
             self.line.submit(event, self._respond, self)
         if self._held is None and (self._outstanding >= self.limit or self._write_blocked):
-            self._held = self.framer.next_event()
+            self._held = self._next_event()
         self._flow()
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
-        deadline = self.framer.deadline()
+        deadline = self.framer.deadline() if not self._unfed else None  # unfed bytes follow with no silence
         if deadline is not None:
             self._tick = self._loop.call_later(max(0.0, deadline - time.perf_counter()), self._on_silence)
+
+    def _next_event(self) -> FrameEvent | None:
+        """The next framed event, framing the bytes read a slice at a time until there is one."""
+        event = self.framer.next_event()
+        while event is None and self._unfed:
+            chunk = bytes(self._unfed[:FEED_SLICE])
+            del self._unfed[:FEED_SLICE]
+            self.framer.feed(chunk, self._unfed_t)
+            event = self.framer.next_event()
+        return event
 
     def _on_silence(self) -> None:
         self._tick = None
@@ -152,7 +171,7 @@ class RtuEndpoint:
 
     def _flow(self) -> None:
         """Ask the transport to stop reading while the line or the stream has no room, and to read again."""
-        hold = self._held is not None or self._outstanding >= self.limit or self._write_blocked
+        hold = self._held is not None or bool(self._unfed) or self._outstanding >= self.limit or self._write_blocked
         if hold and not self._paused and self._pause is not None:
             self._paused = True
             self._pause()
