@@ -25,6 +25,7 @@ The loop only schedules the silence timer.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -87,6 +88,7 @@ class RtuEndpoint:
         self._wake: asyncio.Handle | None = None
         self._unfed = bytearray()  #: bytes read but not yet framed (all of one read, back to back)
         self._unfed_t = 0.0
+        self._generation = 0  #: bumped when the stream's master goes: older requests are not answered
 
     @property
     def outstanding(self) -> int:
@@ -129,6 +131,18 @@ class RtuEndpoint:
             self._wake.cancel()
             self._wake = None
 
+    def reset(self) -> None:
+        """The stream's master went away: drop its requests waiting on the line and the bytes not yet framed."""
+        self.line.cancel(self)
+        self._generation += 1  # a reply still due to the old master is dropped
+        self._outstanding = 0
+        self._held = None
+        self._unfed.clear()
+        self.framer.flush()
+        while self.framer.next_event() is not None:
+            pass
+        self._schedule_collect()
+
     def _collect(self) -> None:
         if self._closed:
             return
@@ -138,7 +152,7 @@ class RtuEndpoint:
             if event is None:
                 break
             self._outstanding += 1
-            self.line.submit(event, self._respond, self)
+            self.line.submit(event, functools.partial(self._respond, self._generation), self)
         if self._held is None and (self._outstanding >= self.limit or self._write_blocked):
             self._held = self._next_event()
         self._flow()
@@ -189,7 +203,9 @@ class RtuEndpoint:
         self._wake = None
         self._collect()
 
-    def _respond(self, reply: Reply | None) -> None:
+    def _respond(self, generation: int, reply: Reply | None) -> None:
+        if generation != self._generation:
+            return  # asked by a master that has gone (counted off by reset)
         self._outstanding -= 1
         if self._closed:
             return

@@ -5,6 +5,11 @@ so that a master may open, close and reopen the device without the simulator
 seeing an error. ``--link PATH`` adds a stable symlink such as /tmp/ttyC20.
 With ``line_timing`` replies are paced at the configured baud, byte by byte,
 and incoming frames are held to the sheet's 1.5/3.5-character rules.
+
+A real port loses what arrives while nobody has it open: when the last
+program that opened the device closes it (:class:`~.ptywatch.PtyOpeners`),
+the replies it did not read and the requests it left are flushed, and
+replies due while nobody has it open are dropped.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import asyncio
 import contextlib
 import errno
 import os
+import termios
 import tty
 from pathlib import Path
 
@@ -20,6 +26,7 @@ from ..errors import C20SimError
 from ..protocol import char_time
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
+from .ptywatch import PtyOpeners
 
 __all__ = ["PtyPort"]
 
@@ -38,6 +45,7 @@ class PtyPort:
         self._unsent = bytearray()  # what the pty's buffer would not take yet
         self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
         self._pacer: asyncio.Task[None] | None = None
+        self._openers: PtyOpeners | None = None
 
     async def start(self) -> None:
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
@@ -63,6 +71,9 @@ class PtyPort:
             self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
         )
         asyncio.get_running_loop().add_reader(self._master, self._readable)
+        self._openers = PtyOpeners(self.path, self._master_gone)
+        if not self._openers.start():
+            self._openers = None
         if self.line_timing:
             self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
 
@@ -96,7 +107,23 @@ class PtyPort:
         if data and self._endpoint is not None:
             self._endpoint.feed(data)
 
+    def _master_gone(self, _open_now: int) -> None:
+        """The last master closed the device: what it left is lost, as on a real port."""
+        if self._slave < 0:
+            return
+        # Its unread replies and its unread requests. A master that opened meanwhile may lose its first
+        # request with them (it times out and asks again): better than reading the old master's answers.
+        termios.tcflush(self._slave, termios.TCIOFLUSH)
+        if self._unsent:
+            self._unsent.clear()
+            asyncio.get_running_loop().remove_writer(self._master)
+        if self._endpoint is not None:
+            self._endpoint.write_blocked(False)
+            self._endpoint.reset()
+
     def _send(self, data: bytes, baud: int) -> None:
+        if self._openers is not None and not self._openers.still_open():
+            return  # the master that asked has gone: the reply is lost, as on a real port
         if self.line_timing:
             self._paced.put_nowait((data, baud))
             return
@@ -141,6 +168,9 @@ class PtyPort:
                     await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
 
     def close(self) -> None:
+        if self._openers is not None:
+            self._openers.close()
+            self._openers = None
         if self._endpoint is not None:
             self._endpoint.close()
         if self._pacer is not None:
