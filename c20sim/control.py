@@ -480,7 +480,7 @@ class ControlApi:
         httpguard.quiet_logs()
         runner = web.AppRunner(make_app(self), access_log=None, **httpguard.run_app_kwargs())
         await runner.setup()
-        site = web.TCPSite(runner, host, port)
+        site = httpguard.site(runner, host, port)  # a TCPSite with a connection cap and a header timeout
         try:
             await site.start()
         except OSError as exc:

@@ -17,14 +17,24 @@ Errors come back as ``{"error": "..."}`` like the API's own. aiohttp's
 traceback for malformed HTTP (a request line too long, smuggling attempts) is
 cut to one line by :func:`quiet_logs`. :func:`check_bind` gives the warning
 for a control API reachable beyond this machine; :func:`run_app_kwargs` the
-server's limits. The public surface is these functions, so the routes module
-installs the guard in a few lines.
+server's limits.
+
+Connections: :func:`site` listens like aiohttp's ``TCPSite`` but holds at
+most :func:`connection_cap` connections (a quarter of the file descriptors,
+so the wire's endpoints always have room), closes one that has not finished
+its first request's headers within :data:`HEADER_TIMEOUT` (slowloris), and
+keep-alive connections idle for :data:`IDLE_TIMEOUT` are closed by aiohttp.
+
+The public surface is these functions, so the routes module installs the
+guard in a few lines.
 """
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import logging
+import resource
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
@@ -34,12 +44,14 @@ if TYPE_CHECKING:
 __all__ = [
     "MAX_DEPTH",
     "check_bind",
+    "connection_cap",
     "host_allowed",
     "is_loopback",
     "json_depth",
     "middlewares",
     "quiet_logs",
     "run_app_kwargs",
+    "site",
 ]
 
 log = logging.getLogger(__name__)
@@ -52,6 +64,12 @@ MAX_DEPTH = 32
 
 #: Seconds a keep-alive connection may stay idle between requests.
 IDLE_TIMEOUT = 30.0
+
+#: Seconds a new connection has to send its first request's headers.
+HEADER_TIMEOUT = 10.0
+
+#: The most control-API connections at once, whatever the file descriptors allow.
+MAX_CONNECTIONS = 256
 
 Handler = Callable[["web.Request"], Awaitable["web.StreamResponse"]]
 
@@ -192,3 +210,112 @@ def quiet_logs() -> None:
     server_log = logging.getLogger("aiohttp.server")
     if _filter not in server_log.filters:
         server_log.addFilter(_filter)
+
+
+def connection_cap() -> int:
+    """Control-API connections allowed at once: a quarter of the file descriptors, 16 to MAX_CONNECTIONS."""
+    soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY:
+        return MAX_CONNECTIONS
+    return max(16, min(MAX_CONNECTIONS, soft // 4))
+
+
+class _Connections:
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.open = 0
+        self.refused = 0
+
+
+class _Guarded(asyncio.Protocol):
+    """aiohttp's request handler behind a cap on connections and a deadline for the first headers."""
+
+    def __init__(self, inner: Any, connections: _Connections) -> None:
+        self._inner = inner
+        self._connections = connections
+        self._counted = False
+        self._headers_done = False
+        self._tail = b""
+        self._timer: asyncio.TimerHandle | None = None
+        self._transport: asyncio.BaseTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        connections = self._connections
+        if connections.open >= connections.cap:
+            connections.refused += 1
+            if connections.refused == 1 or connections.refused % 1000 == 0:
+                log.warning(
+                    "control API: %d connections open, the cap; new ones are closed at once (%d so far)",
+                    connections.open,
+                    connections.refused,
+                )
+            transport.close()
+            return
+        connections.open += 1
+        self._counted = True
+        self._transport = transport
+        self._timer = asyncio.get_running_loop().call_later(HEADER_TIMEOUT, self._too_slow)
+        self._inner.connection_made(transport)
+
+    def _too_slow(self) -> None:
+        self._timer = None
+        if not self._headers_done and self._transport is not None:
+            self._transport.close()
+
+    def data_received(self, data: bytes) -> None:
+        if not self._counted:
+            return
+        if not self._headers_done:
+            if b"\r\n\r\n" in self._tail + data:
+                self._headers_done = True
+                if self._timer is not None:
+                    self._timer.cancel()
+                    self._timer = None
+            else:
+                self._tail = (self._tail + data)[-3:]
+        self._inner.data_received(data)
+
+    def eof_received(self) -> bool | None:
+        return self._inner.eof_received() if self._counted else None
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self._counted:
+            return
+        self._counted = False
+        self._connections.open -= 1
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._inner.connection_lost(exc)
+
+    def pause_writing(self) -> None:
+        if self._counted:
+            self._inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        if self._counted:
+            self._inner.resume_writing()
+
+
+def site(runner: web.AppRunner, host: str, port: int) -> web.TCPSite:
+    """A ``TCPSite`` whose connections are capped and must send their first headers in time."""
+    from aiohttp import web
+
+    connections = _Connections(connection_cap())
+
+    class GuardedSite(web.TCPSite):
+        async def start(self) -> None:
+            await web.BaseSite.start(self)
+            handler = self._runner.server
+            assert handler is not None
+            self._server = await asyncio.get_running_loop().create_server(
+                lambda: _Guarded(handler(), connections),
+                self._host,
+                self._port,
+                backlog=self._backlog,
+                reuse_address=self._reuse_address,
+            )
+            sockets = self._server.sockets
+            self._bound_port = sockets[0].getsockname()[1] if sockets else self._port
+
+    return GuardedSite(runner, host, port)

@@ -10,9 +10,11 @@ meanwhile and must keep running, without a fault.
 from __future__ import annotations
 
 import json
+import resource
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -146,3 +148,53 @@ def test_a_control_api_beyond_loopback_says_so(tmp_path: Path) -> None:
     warnings = [line for line in err.splitlines() if "reachable from other machines" in line]
     assert len(warnings) == 1, err
     assert warnings[0].startswith("c20sim: warning: --control 0.0.0.0:"), warnings
+
+
+def test_unfinished_http_requests_cannot_use_up_the_wire(tmp_path: Path) -> None:
+    """1,100 requests whose headers never end, against a server with 1,024 file descriptors: the API keeps
+    to its cap, the wire still takes a new master, and the held connections are closed after the header
+    timeout."""
+    ready = tmp_path / "ready.json"
+    command = [sys.executable, "-m", "c20sim", "serve", "--modbus-tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]
+
+    def limit_fds() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (1024, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    proc = subprocess.Popen(
+        [*command, "--ready-file", str(ready)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=limit_fds,
+    )
+    held: list[socket.socket] = []
+    try:
+        info = wait_for_ready_file(ready, proc)
+        control = int(info["control"].rsplit(":", 1)[1])
+        for _ in range(1100):
+            sock = socket.create_connection(("127.0.0.1", control), timeout=10)
+            sock.sendall(b"GET /drives/1 HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+            held.append(sock)
+        # A new Modbus TCP master (a raw socket: this process has more than 1,024 descriptors open, past select()).
+        with socket.create_connection(("127.0.0.1", int(info["modbus_tcp"].rsplit(":", 1)[1])), timeout=5) as master:
+            master.sendall(bytes.fromhex("0001 0000 0006 01 03 2100 0001"))
+            assert master.recv(64) == bytes.fromhex("0001 0000 0005 01 03 02 0003")
+        closed = 0
+        deadline = time.monotonic() + 30
+        for sock in held:  # every one is closed: beyond the cap at once, the others after the header timeout
+            sock.settimeout(max(0.1, deadline - time.monotonic()))
+            try:
+                closed += sock.recv(1) == b""
+            except ConnectionResetError:
+                closed += 1
+            except TimeoutError:
+                break
+        assert closed == len(held), f"{len(held) - closed} of {len(held)} unfinished requests still held"
+    finally:
+        for sock in held:
+            sock.close()
+        proc.terminate()
+        _out, err = proc.communicate(timeout=10)
+    caps = [line for line in err.splitlines() if "connections open, the cap" in line]
+    assert len(caps) == 1 and caps[0].startswith("control API: 256 connections open, the cap;"), err
+    assert "Traceback" not in err, err
