@@ -459,6 +459,7 @@ class ControlApi:
         self.sim = sim
         self.url = ""
         self.host = ""  #: the HOST the API is bound to, for the guard's Host check
+        self.frame_log: Any = None  #: serve's --log-frames writer (transport.framelog.FrameLog), for its drop count
         self._runner: web.AppRunner | None = None
         #: frames recorded since start; with the ring's length it numbers the records in the ring
         self._seen = len(sim.bus.records)
@@ -667,7 +668,8 @@ def make_app(api: ControlApi) -> web.Application:
             since=arg("since", 0) or 0,
             first_seq=api.first_seq,
         )
-        return reply({"frames": records, "next": api._seen})
+        dropped = api.frame_log.dropped if api.frame_log is not None else 0
+        return reply({"frames": records, "next": api._seen, "log_dropped": dropped})
 
     async def delete_frames(request: web.Request) -> web.Response:
         sim.bus.records.clear()
@@ -715,7 +717,7 @@ ROUTES: Mapping[str, str] = {
     "PATCH /drives/{address}/link": '{"offline": true, "drop_next": 2, "delay": 0.5, ...}',
     "DELETE /drives/{address}/link": "- (clears every link fault of the drive)",
     "GET /link": "- (the whole bus's link faults; PATCH and DELETE as for a drive)",
-    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ)",
+    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ); log_dropped: records --log-frames lost",
     "DELETE /frames": "- (empties the frame log)",
 }
 

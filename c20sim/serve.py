@@ -151,6 +151,7 @@ class Server:
 
                 host, port = parse_host_port(opts.control, "--control")
                 self.control = ControlApi(sim)
+                self.control.frame_log = self.frame_log
                 await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)

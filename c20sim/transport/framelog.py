@@ -38,8 +38,8 @@ __all__ = ["KEEP", "FrameLog"]
 
 log = logging.getLogger(__name__)
 
-#: Records the buffer holds before it drops: about a second of a flooded line.
-BUFFER_RECORDS = 20_000
+#: Records the buffer holds before it drops: a few seconds of a busy line (2 records a request).
+BUFFER_RECORDS = 4096
 
 #: Old files kept by rotation: PATH.1 (newest) to PATH.KEEP.
 KEEP = 3

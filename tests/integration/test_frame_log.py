@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -27,11 +28,16 @@ from tests.conftest import wait_for_ready_file
 
 
 def serve(tmp_path: Path, *args: str, stdout: int = subprocess.DEVNULL) -> tuple[subprocess.Popen[bytes], int]:
+    proc, info = serve_info(tmp_path, *args, stdout=stdout)
+    return proc, int(info["tcp"].rsplit(":", 1)[1])
+
+
+def serve_info(tmp_path: Path, *args: str, stdout: int) -> tuple[subprocess.Popen[bytes], dict[str, str]]:
     ready = tmp_path / "ready.json"
     ready.unlink(missing_ok=True)
     command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--ready-file", str(ready), *args]
     proc = subprocess.Popen(command, stdout=stdout, stderr=subprocess.PIPE)
-    return proc, int(wait_for_ready_file(ready, proc)["tcp"].rsplit(":", 1)[1])
+    return proc, wait_for_ready_file(ready, proc)
 
 
 def poll(port: int, seconds: float = 0.0, count: int = 0) -> tuple[int, int]:
@@ -75,13 +81,27 @@ def whole_lines(*paths: Path) -> list[dict[str, object]]:
     return records
 
 
+def log_dropped(url: str) -> int:
+    with urllib.request.urlopen(url + "/frames?last=1", timeout=10) as answer:
+        count: int = json.load(answer)["log_dropped"]
+    return count
+
+
 def test_a_reader_that_stops_reading_freezes_nothing(tmp_path: Path) -> None:
     # serve --log-frames /dev/stdout | (sleep 30): a pipe nobody reads, filled after about 64 KiB.
-    proc, port = serve(tmp_path, "--log-frames", "/dev/stdout", stdout=subprocess.PIPE)
+    options = ("--log-frames", "/dev/stdout", "--control", "127.0.0.1:0")
+    proc, info = serve_info(tmp_path, *options, stdout=subprocess.PIPE)
+    port = int(info["tcp"].rsplit(":", 1)[1])
     try:
         asked, answered = poll(port, seconds=8.0)
         assert asked > 1000, f"only {asked} polls in 8 s: the log is not the only thing slowing the server"
         assert answered == asked, f"{asked - answered} of {asked} polls unanswered while the log's reader slept"
+        # Once the pipe (64 KiB) and the buffer (4,096 records) are full, records are dropped, and counted.
+        deadline = time.monotonic() + 30
+        while log_dropped(info["control"]) == 0:
+            assert time.monotonic() < deadline, "no record dropped, yet the log's reader never read"
+            more, answered = poll(port, count=200)
+            assert answered == more
         err = stop(proc)
     finally:
         if proc.poll() is None:
