@@ -155,7 +155,10 @@ def middlewares(bound_host: str = "") -> list[Any]:
             if request.content_type != "application/json":
                 given = request.headers.get("Content-Type", "none")
                 return _refuse(415, f"{where}: Content-Type must be application/json, not {given}")
-            body = await request.read()
+            try:
+                body = await request.read()
+            except web.HTTPException as exc:  # 413: a body over client_max_size
+                return _refuse(exc.status, f"{where}: {exc.reason}")
             try:
                 body.decode("utf-8")
             except UnicodeDecodeError as exc:
