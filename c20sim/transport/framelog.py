@@ -72,9 +72,11 @@ class FrameLog:
         self._size = 0
         self._identity: tuple[int, int] | None = None
         self._checked = 0.0
-        #: records dropped in all, and since the last line that reported them
-        self.dropped = 0
-        self._unreported = 0
+        # Each counter has one writer, so no count is lost between the threads: records the full buffer refused
+        # (the loop's), records the sink refused (the writer thread's), and what the last notice reported.
+        self._refused = 0
+        self._lost = 0
+        self._reported = 0
         self._failing = ""  #: why writing stopped, while it is stopped
         self._gone = False  #: a pipe whose reader has exited: nothing will be written again
         self._thread: threading.Thread | None = None
@@ -93,12 +95,26 @@ class FrameLog:
     def put(self, record: FrameRecord) -> None:
         """Queue a record; when the buffer is full it is dropped and counted (the wire never waits)."""
         if self._gone or len(self._buffer) >= self._limit:
-            self.dropped += 1
-            self._unreported += 1
+            if self._refused == 0 and not self._gone:
+                log.warning(
+                    "frame log %s: its buffer is full, the sink is slower than the line; records are "
+                    "dropped and counted (log_dropped in GET /frames)",
+                    self.path,
+                )
+            self._refused += 1
             return
         self._buffer.append(record)
         if not self._wake.is_set():
             self._wake.set()
+
+    @property
+    def dropped(self) -> int:
+        """Records lost in all: refused by the full buffer, or by the sink."""
+        return self._refused + self._lost
+
+    @property
+    def _unreported(self) -> int:
+        return self.dropped - self._reported
 
     def close(self, timeout: float = 1.0) -> None:
         """Write what is buffered if the sink takes it within ``timeout``, then stop; never hangs."""
@@ -133,14 +149,15 @@ class FrameLog:
         if self._fd < 0:
             return
         if self._unreported:
-            count, self._unreported = self._unreported, 0
+            count = self._unreported
             note = self._failing or "the log could not keep up"
             notice = json.dumps({"kind": "log-dropped", "dropped": count, "note": note}) + "\n"
             if not self._write_lines([notice.encode()], records=0):
-                self._unreported += count
                 return
-            log.warning("frame log %s: writing again; %d frames were dropped (%s)", self.path, count, note)
-            self._failing = ""
+            self._reported += count
+            if self._failing:
+                log.warning("frame log %s: writing again; %d frames were dropped (%s)", self.path, count, note)
+                self._failing = ""
         elif self._failing:
             log.warning("frame log %s: writing again", self.path)
             self._failing = ""
@@ -208,8 +225,7 @@ class FrameLog:
                 select.select([], [self._fd], [], 0.1)
 
     def _fail(self, lines: int, exc: OSError) -> None:
-        self.dropped += lines
-        self._unreported += lines
+        self._lost += lines
         why = exc.strerror or str(exc)
         if exc.errno == errno.EPIPE:
             why = "the reader has gone"
@@ -246,7 +262,7 @@ class FrameLog:
     def _reopen_if_due(self) -> bool:
         """While failing: True when it is time to try again (a file is reopened if it was closed)."""
         if self._gone:
-            self.dropped += len(self._buffer)  # nobody will read them
+            self._lost += len(self._buffer)  # nobody will read them
             self._buffer.clear()
             return False
         if self._fd < 0:
