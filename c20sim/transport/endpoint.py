@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable
 
 from ..bus import Reply
-from ..protocol import FrameEvent, RtuFramer
+from ..protocol import FrameEvent, RtuFramer, char_time
 from .line import Line
 
 __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
@@ -88,6 +88,8 @@ class RtuEndpoint:
         self._wake: asyncio.Handle | None = None
         self._unfed = bytearray()  #: bytes read but not yet framed (all of one read, back to back)
         self._unfed_t = 0.0
+        self._resumed_at = 0.0
+        self._just_resumed = False
         self._generation = 0  #: bumped when the stream's master goes: older requests are not answered
 
     @property
@@ -112,8 +114,15 @@ class RtuEndpoint:
         """Bytes arrived now."""
         if self._closed:
             return
+        now = time.perf_counter()
+        if self._just_resumed and self.framer.pending and not self._unfed:
+            # The first bytes read after a pause were held by us, not silent: they follow the buffered ones.
+            deadline = self.framer.deadline()
+            assert deadline is not None
+            now = min(now, deadline - self.framer.t35 + len(data) * char_time(self.framer.baud))
+        self._just_resumed = False
         self._unfed += data
-        self._unfed_t = time.perf_counter()
+        self._unfed_t = now
         self._collect()
 
     def close(self) -> None:
@@ -159,7 +168,8 @@ class RtuEndpoint:
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
-        deadline = self.framer.deadline() if not self._unfed else None  # unfed bytes follow with no silence
+        # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once.
+        deadline = self._deadline() if not (self._unfed or self._paused) else None
         if deadline is not None:
             self._tick = self._loop.call_later(max(0.0, deadline - time.perf_counter()), self._on_silence)
 
@@ -176,12 +186,18 @@ class RtuEndpoint:
     def _on_silence(self) -> None:
         self._tick = None
         now = time.perf_counter()
-        deadline = self.framer.deadline()
+        deadline = self._deadline()
         if deadline is not None and now < deadline:  # the loop's timer fired early (its clock is coarser)
             self._tick = self._loop.call_later(deadline - now, self._on_silence)
             return
         self.framer.tick(now)
         self._collect()
+
+    def _deadline(self) -> float | None:
+        """When silence ends the buffered frame: the framer's time, but counted from a resume at the earliest
+        (bytes the transport held while paused were not silence)."""
+        deadline = self.framer.deadline()
+        return None if deadline is None else max(deadline, self._resumed_at + self.framer.t35)
 
     def _flow(self) -> None:
         """Ask the transport to stop reading while the line or the stream has no room, and to read again."""
@@ -191,6 +207,8 @@ class RtuEndpoint:
             self._pause()
         elif not hold and self._paused and self._resume is not None:
             self._paused = False
+            self._resumed_at = time.perf_counter()
+            self._just_resumed = True
             self._resume()
 
     def _schedule_collect(self) -> None:

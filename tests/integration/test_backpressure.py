@@ -26,7 +26,7 @@ from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from c20sim.bus import FrameRecord
-from c20sim.protocol import ReadRequest, encode
+from c20sim.protocol import ReadRequest, ReadResponse, encode
 from c20sim.registers import Reg
 from tests.conftest import wait_for_ready_file
 from tests.integration.conftest import ServeFactory
@@ -149,3 +149,26 @@ def test_a_client_that_never_reads_costs_no_memory_and_locks_no_one_out(
     assert sent[0] > 0
     assert answered == asked, f"{asked - answered} of {asked} polls unanswered while a client flooded"
     assert grown_mib < 20, f"RSS grew by {grown_mib:.1f} MiB ({before} KiB -> {peak} KiB) in 10 s of flooding"
+
+
+async def test_a_pipelined_frame_split_across_reads_is_not_broken_while_the_connection_waits(
+    serve: ServeFactory,
+) -> None:
+    """RTU over TCP, a reply delayed 100 ms: a second request sent meanwhile in two pieces is not read until the
+    first is answered, and its first piece must not be timed out as a broken frame (20 ms of silence) while
+    the second waits in the kernel's buffer."""
+    served = await serve()
+    served.sim.link_faults(1).delay = 0.1
+    first, second = RTU_READ, RTU_BURST_READ
+    reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
+    try:
+        writer.write(first + second[:3])
+        await writer.drain()
+        await asyncio.sleep(0.05)  # the rest of the second frame comes later, while the first is on the line
+        writer.write(second[3:])
+        await writer.drain()
+        replies = await asyncio.wait_for(reader.readexactly(14), timeout=2.0)
+    finally:
+        writer.close()
+    assert replies[:7] == encode(ReadResponse(1, (3,))), replies.hex(" ")
+    assert replies[7:] == encode(ReadResponse(1, (0,))), replies.hex(" ")
