@@ -94,7 +94,6 @@ def test_a_reader_that_stops_reading_freezes_nothing(tmp_path: Path) -> None:
     port = int(info["tcp"].rsplit(":", 1)[1])
     try:
         asked, answered = poll(port, seconds=8.0)
-        assert asked > 1000, f"only {asked} polls in 8 s: the log is not the only thing slowing the server"
         assert answered == asked, f"{asked - answered} of {asked} polls unanswered while the log's reader slept"
         # Once the pipe (64 KiB) and the buffer (4,096 records) are full, records are dropped, and counted.
         deadline = time.monotonic() + 30
