@@ -107,6 +107,12 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--state", metavar="PATH", help="keep function codes (EEPROM) in this file across runs")
     what.add_argument("--seed", type=int, help="seed for random link faults, for repeatable runs")
     what.add_argument("--log-frames", metavar="PATH", help="append every frame as a JSON line to this file")
+    what.add_argument(
+        "--log-frames-max-mb",
+        type=float,
+        metavar="MB",
+        help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3)",
+    )
     what.add_argument("--ready-file", metavar="PATH", help="write the real endpoint addresses as JSON when ready")
 
 
@@ -133,6 +139,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         modbus_tcp=args.modbus_tcp,
         line_timing=args.line_timing,
         log_frames=args.log_frames,
+        log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,
         control=args.control,
         scenario=getattr(args, "scenario", None),

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import enum
+import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -289,6 +290,8 @@ def load_profile(name_or_path: str = DEFAULT_PROFILE) -> Profile:
         raise ProfileError(str(path), "", "file not found") from None
     except OSError as exc:
         raise ProfileError(str(path), "", f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ProfileError(str(path), "", f"not a TOML profile: not UTF-8 text (byte {exc.start})") from None
     return parse_profile(text, str(path))
 
 
@@ -327,6 +330,9 @@ class _Checker:
             raise self.fail(key, f"must be a number, not {value!r}")
         if kind is int and not isinstance(value, int):
             raise self.fail(key, f"must be a whole number, not {value!r}")
+        if not math.isfinite(value):
+            bounds = f"; allowed {minimum:g} to {maximum:g}" if minimum is not None and maximum is not None else ""
+            raise self.fail(key, f"must be a finite number, not {value}{bounds}{' ' + unit if unit and bounds else ''}")
         if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
             raise self.fail(
                 key, f"{value} is out of range; allowed {minimum:g} to {maximum:g}{' ' + unit if unit else ''}"

@@ -151,6 +151,8 @@ def load_scenario(path: str | Path) -> Scenario:
         data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise ScenarioError(where, "", f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(where, "", f"not a TOML scenario: not UTF-8 text (byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(where, "", f"not valid TOML: {exc}") from None
     return parse_scenario(data, where)

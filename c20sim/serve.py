@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol, TypeVar
 
-from .bus import FrameRecord
 from .errors import C20SimError
 from .simulator import Simulator
+from .transport.framelog import FrameLog
 from .transport.line import Line
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 
@@ -76,6 +76,8 @@ class ServeOptions:
     modbus_tcp: str | None = None
     line_timing: bool = False
     log_frames: str | None = None
+    #: rotate the frame log when it reaches this many MiB (None: no limit)
+    log_frames_max_mb: float | None = None
     ready_file: str | None = None
     #: HOST:PORT of the HTTP control API (c20sim.control), or None
     control: str | None = None
@@ -120,7 +122,7 @@ class Server:
         self.options = options
         self.line = Line(sim)
         self.endpoints = Endpoints()
-        self._log_file: IO[str] | None = None
+        self.frame_log: FrameLog | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self.control: ControlApi | None = None
         self._ready: tuple[Path, str] | None = None  #: the ready file written, and what it says
@@ -129,6 +131,9 @@ class Server:
     async def start(self) -> None:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
         opts, sim, line = self.options, self.sim, self.line
+        max_mb = opts.log_frames_max_mb
+        if max_mb is not None and not 0.01 <= max_mb <= 1e6:  # also refuses nan; inf is above the range
+            raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000")
         scenario = None
         if opts.scenario:
             from .scenario import check, load_scenario
@@ -175,6 +180,7 @@ class Server:
 
                 host, port = parse_host_port(opts.control, "--control")
                 self.control = ControlApi(sim)
+                self.control.frame_log = self.frame_log
                 await self.control.start(host, port)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
@@ -229,16 +235,10 @@ class Server:
                 target.unlink()
 
     def _open_frame_log(self, path: str) -> None:
-        try:
-            self._log_file = open(path, "a", encoding="utf-8", buffering=1)  # noqa: SIM115 - closed in close()
-        except OSError as exc:
-            raise C20SimError(f"--log-frames {path}: cannot open: {exc.strerror}") from None
-        log_file = self._log_file
-
-        def write(record: FrameRecord) -> None:
-            log_file.write(json.dumps(record.as_dict()) + "\n")
-
-        self._unsubscribe.append(self.sim.bus.subscribe(write))
+        max_mb = self.options.log_frames_max_mb
+        self.frame_log = FrameLog(path, max_bytes=None if max_mb is None else int(max_mb * 1024 * 1024))
+        self.frame_log.start()
+        self._unsubscribe.append(self.sim.bus.subscribe(self.frame_log.put))
 
     async def aclose(self) -> None:
         """Close, and wait until every TCP connection has ended and the scenario has stopped."""
@@ -260,9 +260,9 @@ class Server:
         for unsubscribe in self._unsubscribe:
             unsubscribe()
         self._unsubscribe.clear()
-        if self._log_file is not None:
-            self._log_file.close()
-            self._log_file = None
+        if self.frame_log is not None:
+            self.frame_log.close()
+            self.frame_log = None
 
 
 def _profile_name(name_or_path: str) -> str:

@@ -302,12 +302,19 @@ class Simulator:
         self._t0, self._tick = t, 0
 
 
+#: --speed: a realtime clock from a thousandth of wall time to a thousand times it (assumed bounds: wider
+#: than any bench needs, narrow enough that model times stay finite).
+SPEED_RANGE = (0.001, 1000.0)
+
+
 def make_clock(kind: str, speed: float = 1.0) -> Clock:
     """The clock named on the command line: ``realtime`` (times ``speed``) or ``virtual``."""
     if kind == "virtual":
         return VirtualClock()
     if kind == "realtime":
-        if speed <= 0:
-            raise C20SimError(f"--speed must be positive, not {speed:g}")
+        if not SPEED_RANGE[0] <= speed <= SPEED_RANGE[1]:  # also refuses nan and inf
+            raise C20SimError(
+                f"--speed {speed:g}: give a clock speed factor from {SPEED_RANGE[0]:g} to {SPEED_RANGE[1]:g}"
+            )
         return RealtimeClock(speed)
     raise C20SimError(f"unknown clock {kind!r}; use realtime or virtual")

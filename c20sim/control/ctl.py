@@ -19,7 +19,19 @@ __all__ = ["add_ctl_command", "call"]
 
 def _ctl_url(args: argparse.Namespace) -> str:
     if args.url:
-        return str(args.url).rstrip("/")
+        from urllib.parse import urlsplit
+
+        given = str(args.url).rstrip("/")
+        try:
+            parts = urlsplit(given)
+            valid = parts.scheme in ("http", "https") and bool(parts.hostname) and parts.port is not None
+        except ValueError:
+            valid = False
+        if not valid:
+            raise C20SimError(
+                f"--url {args.url!r}: give the API's address as http://HOST:PORT, such as http://127.0.0.1:8020"
+            )
+        return given
     if args.ready_file:
         try:
             data = json.loads(Path(args.ready_file).read_text())
@@ -43,7 +55,7 @@ def call(url: str, method: str, path: str, data: object = None, timeout: float =
 
     payload = json.dumps(data).encode() if data is not None else None
     request = urllib.request.Request(url + path, data=payload, method=method)
-    if payload is not None:
+    if method != "GET":  # the API takes state changes only as JSON, even without a body
         request.add_header("Content-Type", "application/json")
     try:
         with urllib.request.urlopen(request, timeout=timeout) as response:

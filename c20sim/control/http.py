@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from collections.abc import Mapping
 from typing import Any
 
 from aiohttp import web
 
+from .. import httpguard
 from ..errors import C20SimError
 from ..simulator import Simulator
 from . import causes, ops, service
@@ -36,6 +38,8 @@ class ControlApi:
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
         self.url = ""
+        self.host = ""  #: the HOST the API is bound to, for the guard's Host check
+        self.frame_log: Any = None  #: serve's --log-frames writer (transport.framelog.FrameLog), for its drop count
         self._runner: web.AppRunner | None = None
         #: set by the server once every endpoint is up: GET /health answers 200 from then on
         self.serving = False
@@ -51,15 +55,19 @@ class ControlApi:
         return self._seen - len(self.sim.bus.records)
 
     async def start(self, host: str, port: int) -> None:
-        runner = web.AppRunner(make_app(self), access_log=None)
+        self.host = host
+        if (warning := httpguard.check_bind(host)) is not None:
+            print(f"c20sim: {warning}", file=sys.stderr, flush=True)
+        httpguard.quiet_logs()
+        runner = web.AppRunner(make_app(self), access_log=None, **httpguard.run_app_kwargs())
         await runner.setup()
-        site = web.TCPSite(runner, host, port)
+        site = httpguard.site(runner, host, port)  # a TCPSite with a connection cap and a header timeout
         try:
             await site.start()
         except OSError as exc:
             await runner.cleanup()
             raise C20SimError(
-                f"--control {host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
+                f"--control {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
             ) from None
         self._runner = runner
         bound_port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), port)
@@ -110,7 +118,7 @@ def make_app(api: ControlApi) -> web.Application:
         raise ControlError(f"the body is not JSON: {name} is not a JSON number; give a finite number")
 
     async def body(request: web.Request) -> dict[str, Any]:
-        if not request.can_read_body:
+        if not request.body_exists:  # not can_read_body: the guard has read (and checked) the body already
             return {}
         text = await request.text()
         if not text.strip():
@@ -269,13 +277,14 @@ def make_app(api: ControlApi) -> web.Application:
             since=arg("since", 0) or 0,
             first_seq=api.first_seq,
         )
-        return reply({"frames": records, "next": api._seen})
+        dropped = api.frame_log.dropped if api.frame_log is not None else 0
+        return reply({"frames": records, "next": api._seen, "log_dropped": dropped})
 
     async def delete_frames(request: web.Request) -> web.Response:
         sim.bus.records.clear()
         return reply({"frames": [], "next": api._seen})
 
-    app = web.Application(middlewares=[errors])
+    app = web.Application(middlewares=[*httpguard.middlewares(api.host), errors])
     r = app.router
     r.add_get("/", index)
     r.add_get("/time", get_time)
@@ -326,7 +335,7 @@ ROUTES: Mapping[str, str] = {
     "PATCH /drives/{address}/link": '{"offline": true, "drop_next": 2, "delay": 0.5, ...}',
     "DELETE /drives/{address}/link": "- (clears every link fault of the drive)",
     "GET /link": "- (the whole bus's link faults; PATCH and DELETE as for a drive)",
-    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ)",
+    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ); log_dropped: records --log-frames lost",
     "DELETE /frames": "- (empties the frame log)",
 }
 ROUTES = {**ROUTES, **service.ROUTES}

@@ -9,12 +9,18 @@ the same directory, fsync, ``os.replace``, fsync of the directory), so a kill
 at any moment leaves the old file or the new one, never a broken one. A file
 that cannot be read or makes no sense raises :class:`StateFileError` naming
 it; nothing is silently reset.
+
+Save first, apply after: a change is written to the file before it takes
+effect, so a write the disk refuses (read-only directory, full disk) leaves
+the old value both in RAM and on disk, and the master is answered 0x04
+(operation failed) instead of an acknowledgement that a restart would undo.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import tempfile
 from collections.abc import Mapping
@@ -22,14 +28,17 @@ from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any
 
-from ..errors import C20SimError
+from ..errors import C20SimError, ModbusError
 from ..profile import Profile
+from ..protocol import ExceptionCode
 from ..registers import format_fcode, parse_fcode
 
 __all__ = ["STATE_FORMAT", "ParameterStore", "StateFileError"]
 
 #: Marks a c20sim state file; bumped if the layout changes.
 STATE_FORMAT = "c20sim-eeprom/1"
+
+log = logging.getLogger(__name__)
 
 
 class StateFileError(C20SimError):
@@ -69,12 +78,10 @@ class ParameterStore:
         value &= 0xFFFF
         if self._values.get(cell) == value:
             return
-        self._values[cell] = value
-        self.save()
+        self._commit({**self._values, cell: value})
 
     def restore_defaults(self) -> None:
-        self._values = dict(self.profile.defaults)
-        self.save()
+        self._commit(dict(self.profile.defaults))
 
     def snapshot(self) -> dict[int, int]:
         """A copy of every value, by function-code address."""
@@ -82,10 +89,12 @@ class ParameterStore:
 
     def load(self, values: Mapping[int, int]) -> None:
         """Take stored values for the function codes this profile knows."""
+        new = dict(self._values)
         for address, value in values.items():
-            if address in self._values:
-                self._values[address] = value & 0xFFFF
-        self.save()
+            if address in new:
+                new[address] = value & 0xFFFF
+        self._write(new)
+        self._values = new
 
     # --- The state file.
 
@@ -96,14 +105,26 @@ class ParameterStore:
             with contextlib.suppress(OSError):
                 stale.unlink()
 
+    def _commit(self, values: dict[int, int]) -> None:
+        """Save ``values``, then make them the drive's; a failed save keeps the old ones and refuses with 0x04."""
+        try:
+            self._write(values)
+        except StateFileError as exc:
+            log.error("parameter write refused (0x04): the EEPROM save failed: %s; the old values are kept", exc)
+            raise ModbusError(ExceptionCode.OPERATION_FAILED, f"EEPROM save failed: {exc.message}") from None
+        self._values = values
+
     def save(self) -> None:
         """Write the state file atomically (no-op without one)."""
+        self._write(self._values)
+
+    def _write(self, values: dict[int, int]) -> None:
         if self.path is None:
             return
         document = {
             "format": STATE_FORMAT,
             "profile": self.profile.name,
-            "parameters": {format_fcode(a): v for a, v in sorted(self._values.items())},
+            "parameters": {format_fcode(a): v for a, v in sorted(values.items())},
         }
         data = (json.dumps(document, indent=1) + "\n").encode()
         directory = self.path.parent
@@ -134,6 +155,8 @@ class ParameterStore:
             document: Any = json.loads(text)
         except json.JSONDecodeError as exc:
             raise StateFileError(path, f"corrupt state file (not valid JSON: {exc.msg}, line {exc.lineno})") from None
+        except RecursionError:
+            raise StateFileError(path, "not a c20sim state file (JSON nested too deeply)") from None
         if not isinstance(document, dict) or document.get("format") != STATE_FORMAT:
             raise StateFileError(path, f"not a c20sim state file (expected format {STATE_FORMAT!r})")
         if document.get("profile") != self.profile.name:

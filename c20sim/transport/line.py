@@ -8,6 +8,11 @@ events that arrive meanwhile wait their turn, as on a real RS485 line or
 behind a serial gateway. No task and no lock per request: callbacks on the
 event loop, which is what keeps a request cheap.
 
+The queue is bounded by its callers, not here: each endpoint submits at most
+a few requests at a time and reads no more until they are answered
+(backpressure), and a closed endpoint's waiting requests are dropped with
+:meth:`Line.cancel`, as a gateway forgets a connection that went away.
+
 When the bus's line speed changes (the only drive took a 2009H write), every
 endpoint attached to the line is told, after the reply that acknowledged it
 has been handed over at the old speed.
@@ -37,7 +42,7 @@ class Line:
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
-        self._waiting: deque[tuple[FrameEvent, Respond]] = deque()
+        self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
         self._busy = False
         self._timer: asyncio.TimerHandle | None = None
         self._baud = sim.bus.line_baud
@@ -58,11 +63,23 @@ class Line:
         """True while a delayed reply holds the line."""
         return self._busy
 
-    def submit(self, event: FrameEvent, respond: Respond) -> None:
-        """Serve ``event`` now if the line is free, else when it is."""
-        self._waiting.append((event, respond))
+    @property
+    def waiting(self) -> int:
+        """Requests queued behind the one being served."""
+        return len(self._waiting)
+
+    def submit(self, event: FrameEvent, respond: Respond, source: object = None) -> None:
+        """Serve ``event`` now if the line is free, else when it is; ``source`` names who asked, for cancel."""
+        self._waiting.append((event, respond, source))
         if not self._busy:
             self._serve_waiting()
+
+    def cancel(self, source: object) -> int:
+        """Drop the waiting requests of ``source`` (a connection that closed); returns how many."""
+        before = len(self._waiting)
+        if before:
+            self._waiting = deque(item for item in self._waiting if item[2] is not source)
+        return before - len(self._waiting)
 
     def close(self) -> None:
         if self._timer is not None:
@@ -73,7 +90,7 @@ class Line:
 
     def _serve_waiting(self) -> None:
         while self._waiting and not self._busy:
-            event, respond = self._waiting.popleft()
+            event, respond, _source = self._waiting.popleft()
             try:
                 reply = self.sim.handle(event)
             except Exception:

@@ -5,6 +5,11 @@ so that a master may open, close and reopen the device without the simulator
 seeing an error. ``--link PATH`` adds a stable symlink such as /tmp/ttyC20.
 With ``line_timing`` replies are paced at the configured baud, byte by byte,
 and incoming frames are held to the sheet's 1.5/3.5-character rules.
+
+A real port loses what arrives while nobody has it open: when the last
+program that opened the device closes it (:class:`~.ptywatch.PtyOpeners`),
+the replies it did not read and the requests it left are flushed, and
+replies due while nobody has it open are dropped.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from ..errors import C20SimError
 from ..protocol import char_time
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
+from .ptywatch import PtyOpeners
 
 __all__ = ["PtyPort"]
 
@@ -39,6 +45,7 @@ class PtyPort:
         self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
         self._lock = -1  #: the open lock file beside --link, held while this port owns the link
         self._pacer: asyncio.Task[None] | None = None
+        self._openers: PtyOpeners | None = None
 
     async def start(self) -> None:
         import tty  # POSIX only, so imported here: importing this module works everywhere
@@ -64,8 +71,13 @@ class PtyPort:
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
         framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
-        self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
+        self._endpoint = RtuEndpoint(
+            self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
+        )
         asyncio.get_running_loop().add_reader(self._master, self._readable)
+        self._openers = PtyOpeners(self.path, self._master_gone)
+        if not self._openers.start():
+            self._openers = None
         if self.line_timing:
             self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
 
@@ -102,6 +114,15 @@ class PtyPort:
     def name(self) -> str:
         return str(self.link) if self.link else self.path
 
+    def _pause(self) -> None:
+        """Backpressure: leave the master's bytes in the pty while its request is on the line."""
+        if self._master >= 0:
+            asyncio.get_running_loop().remove_reader(self._master)
+
+    def _resume(self) -> None:
+        if self._master >= 0:
+            asyncio.get_running_loop().add_reader(self._master, self._readable)
+
     def _readable(self) -> None:
         try:
             data = os.read(self._master, 4096)
@@ -114,7 +135,25 @@ class PtyPort:
         if data and self._endpoint is not None:
             self._endpoint.feed(data)
 
+    def _master_gone(self, _open_now: int) -> None:
+        """The last master closed the device: what it left is lost, as on a real port."""
+        if self._slave < 0:
+            return
+        # Its unread replies and its unread requests. A master that opened meanwhile may lose its first
+        # request with them (it times out and asks again): better than reading the old master's answers.
+        import termios  # POSIX only, as tty above
+
+        termios.tcflush(self._slave, termios.TCIOFLUSH)
+        if self._unsent:
+            self._unsent.clear()
+            asyncio.get_running_loop().remove_writer(self._master)
+        if self._endpoint is not None:
+            self._endpoint.write_blocked(False)
+            self._endpoint.reset()
+
     def _send(self, data: bytes, baud: int) -> None:
+        if self._openers is not None and not self._openers.still_open():
+            return  # the master that asked has gone: the reply is lost, as on a real port
         if self.line_timing:
             self._paced.put_nowait((data, baud))
             return
@@ -125,6 +164,8 @@ class PtyPort:
         if written < len(data):
             self._unsent += data[written:]
             asyncio.get_running_loop().add_writer(self._master, self._flush_unsent)
+            if self._endpoint is not None:
+                self._endpoint.write_blocked(True)  # a master that does not read: read no more from it
 
     def _write_some(self, data: bytes | bytearray) -> int:
         try:
@@ -136,6 +177,8 @@ class PtyPort:
         del self._unsent[: self._write_some(self._unsent)]
         if not self._unsent:
             asyncio.get_running_loop().remove_writer(self._master)
+            if self._endpoint is not None:
+                self._endpoint.write_blocked(False)
 
     async def _pace(self) -> None:
         """Put replies on the pty one character time apart, at the line's baud."""
@@ -155,6 +198,9 @@ class PtyPort:
                     await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
 
     def close(self) -> None:
+        if self._openers is not None:
+            self._openers.close()
+            self._openers = None
         if self._endpoint is not None:
             self._endpoint.close()
         if self._pacer is not None:

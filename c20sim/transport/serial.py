@@ -3,6 +3,10 @@
 The port is opened exclusively, so a second simulator (or a terminal program)
 cannot share it by mistake. A baud change through 2009H is applied to the
 port after its reply has left the wire, as the drive does.
+
+A port that goes away (a USB adapter unplugged) is reported in one line and
+tried again every :data:`REOPEN_EVERY` seconds; when it is back (the bench
+is replugged) it is served again, with a line saying so.
 """
 
 from __future__ import annotations
@@ -23,6 +27,9 @@ log = logging.getLogger(__name__)
 __all__ = ["SerialPort"]
 
 PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+
+#: Seconds between attempts to open a port that went away.
+REOPEN_EVERY = 1.0
 
 
 class SerialPort:
@@ -46,6 +53,7 @@ class SerialPort:
         self._port: serial.Serial | None = None
         self._endpoint: RtuEndpoint | None = None
         self._baud_change: asyncio.Task[None] | None = None
+        self._reopen: asyncio.TimerHandle | None = None
 
     @property
     def name(self) -> str:
@@ -57,22 +65,41 @@ class SerialPort:
 
     async def start(self) -> None:
         try:
-            self._port = serial.Serial(
-                self.device,
-                self.baud,
-                bytesize=serial.EIGHTBITS,
-                parity=PARITIES[self.parity],
-                stopbits=serial.STOPBITS_TWO if self.stopbits == 2 else serial.STOPBITS_ONE,
-                timeout=0,
-                exclusive=True,
-            )
+            self._open()
         except serial.SerialException as exc:
             raise C20SimError(_explain(self.device, exc)) from None
+
+    def _open(self) -> None:
+        """Open the port and serve it; raises SerialException."""
+        self._port = serial.Serial(
+            self.device,
+            self.baud,
+            bytesize=serial.EIGHTBITS,
+            parity=PARITIES[self.parity],
+            stopbits=serial.STOPBITS_TWO if self.stopbits == 2 else serial.STOPBITS_ONE,
+            timeout=0,
+            exclusive=True,
+        )
         framer = stream_framer(self.baud, line_timing=self.line_timing)
         self._endpoint = RtuEndpoint(
-            self.line, framer, self._send, on_baud=self._set_baud, name=f"serial {self.device}"
+            self.line,
+            framer,
+            self._send,
+            on_baud=self._set_baud,
+            name=f"serial {self.device}",
+            pause=self._pause,
+            resume=self._resume,
         )
         asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
+
+    def _pause(self) -> None:
+        """Backpressure: leave the master's bytes in the port while its request is on the line."""
+        if self._port is not None:
+            asyncio.get_running_loop().remove_reader(self._port.fileno())
+
+    def _resume(self) -> None:
+        if self._port is not None:
+            asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
 
     def _readable(self) -> None:
         assert self._port is not None and self._endpoint is not None
@@ -80,8 +107,9 @@ class SerialPort:
             data = self._port.read(4096)
         except serial.SerialException as exc:
             # The adapter was unplugged or the line hung up: the fd stays readable forever, so stop watching it.
-            log.error("serial port %s lost (%s); it is closed, the other endpoints keep serving", self.device, exc)
-            self.close()
+            log.error("serial port %s lost (%s); serving it again when it is back", self.device, exc)
+            self._drop()
+            self._reopen = asyncio.get_running_loop().call_later(REOPEN_EVERY, self._try_reopen)
             return
         if data:
             self._endpoint.feed(data)
@@ -102,7 +130,23 @@ class SerialPort:
             port.baudrate = baud
             self.baud = baud
 
+    def _try_reopen(self) -> None:
+        self._reopen = None
+        try:
+            self._open()
+        except (serial.SerialException, OSError):
+            self._port = None
+            self._reopen = asyncio.get_running_loop().call_later(REOPEN_EVERY, self._try_reopen)
+            return
+        log.warning("serial port %s is back; serving it again", self.device)
+
     def close(self) -> None:
+        if self._reopen is not None:
+            self._reopen.cancel()
+            self._reopen = None
+        self._drop()
+
+    def _drop(self) -> None:
         if self._baud_change is not None:
             self._baud_change.cancel()
         if self._endpoint is not None:

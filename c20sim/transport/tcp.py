@@ -7,6 +7,12 @@ connection that asked. A frame completes on its length (TCP has no line
 timing); a broken frame is ended by 20 ms of silence. Connections are asyncio
 protocols feeding the shared line by callbacks: no task per request.
 
+Backpressure, as a real gateway's server loop: a connection is not read while
+its requests are on the line (one for RTU over TCP, :data:`MBAP_PIPELINE` for
+Modbus TCP) or while replies it has not taken fill its write buffer; the
+kernel's socket buffer and TCP flow control hold the rest. Requests a closed
+connection left waiting are dropped.
+
 Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
 request's transaction id. Where the line stays silent (absent drive, dropped
@@ -30,27 +36,51 @@ from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
-__all__ = ["ModbusTcpServer", "RtuOverTcpServer", "parse_host_port"]
+__all__ = ["ModbusTcpServer", "RtuOverTcpServer", "host_port", "parse_host_port"]
 
 log = logging.getLogger(__name__)
 
 #: Modbus TCP exception 0x0B: gateway target device failed to respond.
 GATEWAY_NO_RESPONSE = 0x0B
 
+#: Requests a Modbus TCP client may have outstanding at once (pipelining); an RTU-over-TCP client has one.
+MBAP_PIPELINE = 4
+
+#: Bytes of replies a client has not read, above which its connection is no longer read.
+WRITE_HIGH_WATER = 16 * 1024
+
 
 def parse_host_port(text: str, option: str) -> tuple[str, int]:
-    """``HOST:PORT`` (``[::1]:502`` for IPv6); port 0 asks the system for a free one."""
-    host, sep, port_text = text.rpartition(":")
-    if not sep or not host:
-        raise C20SimError(f"{option} {text!r}: give HOST:PORT, such as 127.0.0.1:5020 (port 0 picks a free port)")
-    host = host.strip("[]")
+    """``HOST:PORT``, ``[IPV6]:PORT`` (a zone too: ``[fe80::1%eth0]:502``); port 0 asks for a free one."""
+    usage = "give HOST:PORT, such as 127.0.0.1:5020 or [::1]:5020 (port 0 picks a free port)"
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0:
+            raise C20SimError(f"{option} {text!r}: no ']' after the IPv6 address; {usage}")
+        host, rest = text[1:end], text[end + 1 :]
+        if not rest.startswith(":"):
+            raise C20SimError(f"{option} {text!r}: no port after [{host}]; {usage}")
+        port_text = rest[1:]
+    else:
+        host, sep, port_text = text.rpartition(":")
+        if not sep:
+            raise C20SimError(f"{option} {text!r}: {usage}")
+        if ":" in host:
+            raise C20SimError(f"{option} {text!r}: put an IPv6 address in brackets: [{host}]:{port_text}")
+    if not host:
+        raise C20SimError(f"{option} {text!r}: no host; {usage}")
     try:
         port = int(port_text)
     except ValueError:
-        raise C20SimError(f"{option} {text!r}: the port {port_text!r} is not a number; give HOST:PORT") from None
+        raise C20SimError(f"{option} {text!r}: the port {port_text!r} is not a number; {usage}") from None
     if not 0 <= port <= 65535:
         raise C20SimError(f"{option} {text!r}: port {port} is outside 0-65535")
     return host, port
+
+
+def host_port(host: str, port: int) -> str:
+    """``HOST:PORT`` for messages, an IPv6 address (with its zone) in brackets."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 async def _listen(factory: Callable[[], asyncio.Protocol], host: str, port: int, option: str) -> asyncio.Server:
@@ -59,13 +89,13 @@ async def _listen(factory: Callable[[], asyncio.Protocol], host: str, port: int,
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             raise C20SimError(
-                f"{option} {host}:{port}: the port is in use; stop the program holding it or choose another port (0 picks a free one)"
+                f"{option} {host_port(host, port)}: the port is in use; stop the program holding it or choose another port (0 picks a free one)"
             ) from None
         if exc.errno == errno.EACCES:
             raise C20SimError(
-                f"{option} {host}:{port}: permission denied; ports below 1024 need root, choose another"
+                f"{option} {host_port(host, port)}: permission denied; ports below 1024 need root, choose another"
             ) from None
-        raise C20SimError(f"{option} {host}:{port}: cannot listen: {exc.strerror or exc}") from None
+        raise C20SimError(f"{option} {host_port(host, port)}: cannot listen: {exc.strerror or exc}") from None
 
 
 class _Connection(asyncio.Protocol):
@@ -77,12 +107,21 @@ class _Connection(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = cast(asyncio.Transport, transport)  # uvloop's transports do not subclass asyncio's
+        self.transport.set_write_buffer_limits(high=WRITE_HIGH_WATER)
         self.owner.connections.add(self)
 
     def connection_lost(self, exc: Exception | None) -> None:
         # The client left, perhaps mid-frame: that costs the others nothing.
         self.owner.connections.discard(self)
         self.transport = None
+
+    def pause_reading(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.pause_reading()
+
+    def resume_reading(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.resume_reading()
 
     def send(self, data: bytes) -> None:
         if self.transport is not None and not self.transport.is_closing():
@@ -117,8 +156,11 @@ class _TcpServer:
         try:
             infos = await asyncio.get_running_loop().getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
         except OSError as exc:
-            raise C20SimError(f"{self.option} {self.host}:{self.port}: cannot resolve the host: {exc}") from None
-        self._server = await _listen(self._connection, str(infos[0][4][0]), self.port, self.option)
+            raise C20SimError(
+                f"{self.option} {host_port(self.host, self.port)}: cannot resolve the host: {exc}"
+            ) from None
+        address = self.host if "%" in self.host else str(infos[0][4][0])  # keep an IPv6 zone: fe80::1%eth0
+        self._server = await _listen(self._connection, address, self.port, self.option)
         self.host, self.port = self._server.sockets[0].getsockname()[:2]
 
     async def wait_closed(self) -> None:
@@ -138,11 +180,22 @@ class _RtuConnection(_Connection):
         line = self.owner.line
         framer = stream_framer(line.sim.bus.line_baud)  # TCP carries no line timing
         self.endpoint = RtuEndpoint(
-            line, framer, lambda data, _baud: self.send(data), name=f"tcp {transport.get_extra_info('peername')}"
+            line,
+            framer,
+            lambda data, _baud: self.send(data),
+            name=f"tcp {transport.get_extra_info('peername')}",
+            pause=self.pause_reading,
+            resume=self.resume_reading,
         )
 
     def data_received(self, data: bytes) -> None:
         self.endpoint.feed(data)
+
+    def pause_writing(self) -> None:
+        self.endpoint.write_blocked(True)
+
+    def resume_writing(self) -> None:
+        self.endpoint.write_blocked(False)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.endpoint.close()
@@ -165,11 +218,42 @@ class _MbapConnection(_Connection):
         super().__init__(owner)
         self._buffer = bytearray()
         self._timers: set[asyncio.TimerHandle] = set()
+        self._outstanding = 0  #: requests not yet answered (on the line, or waiting for the gateway's timeout)
+        self._write_paused = False
+        self._paused = False
 
     def data_received(self, data: bytes) -> None:
         self._buffer += data
+        self._parse()
+
+    def pause_writing(self) -> None:
+        self._write_paused = True
+        self._flow()
+
+    def resume_writing(self) -> None:
+        self._write_paused = False
+        self._parse()
+
+    def _flow(self) -> None:
+        hold = self._outstanding >= MBAP_PIPELINE or self._write_paused
+        if hold and not self._paused:
+            self._paused = True
+            self.pause_reading()
+        elif not hold and self._paused:
+            self._paused = False
+            self.resume_reading()
+
+    def _done(self) -> None:
+        """One request answered (or left unanswered, a broadcast): room for the next."""
+        self._outstanding -= 1
+        if self.transport is not None:
+            asyncio.get_running_loop().call_soon(self._parse)
+
+    def _parse(self) -> None:
         buf = self._buffer
-        while len(buf) >= 7:
+        while len(buf) >= 7 and self._outstanding < MBAP_PIPELINE and not self._write_paused:
+            if self.transport is None:
+                return
             transaction, protocol, length, unit = struct.unpack_from(">HHHB", buf)
             if protocol != 0 or not 2 <= length <= 254:
                 log.info("modbus tcp: bad MBAP header %s; closing the connection", bytes(buf[:7]).hex(" "))
@@ -180,6 +264,7 @@ class _MbapConnection(_Connection):
             pdu = bytes(buf[7 : 6 + length])
             del buf[: 6 + length]
             self._request(transaction, unit, pdu)
+        self._flow()
 
     def _request(self, transaction: int, unit: int, pdu: bytes) -> None:
         line = self.owner.line
@@ -191,6 +276,7 @@ class _MbapConnection(_Connection):
         def respond(reply: Reply | None) -> None:
             if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
                 self._answer(transaction, unit, reply.data[1:-2])
+                self._done()
             elif unit != BROADCAST and self.transport is not None:
                 # The line stayed silent (or answered garbage): the gateway says so after its timeout.
                 answer = bytes((pdu[0] | 0x80, GATEWAY_NO_RESPONSE))
@@ -198,12 +284,16 @@ class _MbapConnection(_Connection):
                 def time_out() -> None:
                     self._timers.discard(timer)
                     self._answer(transaction, unit, answer)
+                    self._done()
 
                 timer = loop.call_later(self.owner.timeout, time_out)
                 self._timers.add(timer)
+            else:
+                self._done()
 
         for event in framer.events():
-            line.submit(event, respond)
+            self._outstanding += 1
+            line.submit(event, respond, self)
 
     def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
         self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
@@ -211,6 +301,8 @@ class _MbapConnection(_Connection):
     def connection_lost(self, exc: Exception | None) -> None:
         for timer in self._timers:
             timer.cancel()
+        self.owner.line.cancel(self)
+        self._buffer.clear()
         super().connection_lost(exc)
 
 

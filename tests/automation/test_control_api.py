@@ -29,6 +29,8 @@ async def client() -> AsyncIterator[Callable[[Simulator], Awaitable[Api]]]:
             method: str, path: str, body: Any = None, *, raw: str | None = None, headers: dict[str, str] | None = None
         ) -> tuple[int, Any]:
             kwargs: dict[str, Any] = {"data": raw} if raw is not None else {"json": body} if body is not None else {}
+            if headers is None and method != "GET":
+                headers = {"Content-Type": "application/json"}  # as every client of the API sends
             response = await test_client.request(method, path, headers=headers, **kwargs)
             return response.status, await response.json()
 

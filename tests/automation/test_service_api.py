@@ -36,7 +36,10 @@ async def client() -> AsyncIterator[Callable[[Simulator], Awaitable[Api]]]:
         clients.append(test_client)
 
         async def call(method: str, path: str, body: Any = None) -> tuple[int, Any]:
-            response = await test_client.request(method, path, **({"json": body} if body is not None else {}))
+            # state changes go as JSON, as ctl sends them (the guard refuses anything else with 415)
+            headers = {"Content-Type": "application/json"} if method != "GET" else {}
+            kwargs: dict[str, Any] = {"json": body} if body is not None else {"headers": headers}
+            response = await test_client.request(method, path, **kwargs)
             return response.status, await response.json()
 
         return call

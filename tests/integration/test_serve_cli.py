@@ -126,11 +126,12 @@ def test_nothing_is_left_half_started(tmp_path: Path) -> None:
         (["--drives", "1,248"], "c20sim: bad drive list '1,248': address 248 is outside 1-247\n"),
         (
             ["--tcp", "localhost"],
-            "c20sim: --tcp 'localhost': give HOST:PORT, such as 127.0.0.1:5020 (port 0 picks a free port)\n",
+            "c20sim: --tcp 'localhost': give HOST:PORT, such as 127.0.0.1:5020 or [::1]:5020 (port 0 picks a free port)\n",
         ),
         (
             ["--modbus-tcp", "127.0.0.1:http"],
-            "c20sim: --modbus-tcp '127.0.0.1:http': the port 'http' is not a number; give HOST:PORT\n",
+            "c20sim: --modbus-tcp '127.0.0.1:http': the port 'http' is not a number; give HOST:PORT, such as "
+            "127.0.0.1:5020 or [::1]:5020 (port 0 picks a free port)\n",
         ),
         (
             ["--serial", "/dev/ttyNOPE0"],

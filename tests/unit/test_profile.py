@@ -119,7 +119,10 @@ def test_overload_curves_and_new_keys_load() -> None:
         ("[[1.16, 3600.0], [1.5, 3600.0]]", "protection.motor_overload_curve[1]: multiples must rise and times fall"),
         ("[[0.9, 3600.0]]", "protection.motor_overload_curve[0][0]: 0.9 is out of range; allowed 1.01 to 20 x rated"),
         ("[[1.5]]", "protection.motor_overload_curve[0]: must be a pair [multiple, seconds], not [1.5]"),
-        ("[[1.5, nan]]", "protection.motor_overload_curve[0]: must be finite numbers, not nan"),
+        (
+            "[[1.5, nan]]",
+            "protection.motor_overload_curve[0][1]: must be a finite number, not nan; allowed 0.01 to 36000 s",
+        ),
         ("60.0", "protection.motor_overload_curve: must be a non-empty array [[multiple of rated current, seconds]"),
     ],
 )

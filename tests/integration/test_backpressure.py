@@ -1,0 +1,174 @@
+"""No client can starve the bus: backpressure per connection, and a closed connection's requests dropped.
+
+Through real sockets: a raw client sends a burst of 5,000 read requests and
+closes, then a fresh pymodbus client must be answered, and the burst must not
+have been served behind its back. A client that sends without ever reading
+must not grow the server's memory while another client's polls are answered.
+``bench/abuse.py`` measures the reply times; tests count, they do not time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
+from pymodbus.exceptions import ModbusIOException
+
+from c20sim.bus import FrameRecord
+from c20sim.protocol import ReadRequest, ReadResponse, encode
+from c20sim.registers import Reg
+from tests.conftest import wait_for_ready_file
+from tests.integration.conftest import ServeFactory
+
+BURST = 5000
+
+RTU_READ = encode(ReadRequest(1, Reg.STATUS1, 1))
+#: The burst reads a register the poller does not, so the frame log tells the two apart.
+RTU_BURST_READ = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))
+
+
+def mbap_read(transaction: int, register: int) -> bytes:
+    pdu = struct.pack(">BHH", 3, register, 1)
+    return struct.pack(">HHHB", transaction & 0xFFFF, 0, len(pdu) + 1, 1) + pdu
+
+
+def burst_served(records: list[FrameRecord]) -> int:
+    return sum(1 for r in records if r.direction == "rx" and r.kind == "request" and r.data == RTU_BURST_READ)
+
+
+@pytest.mark.parametrize("protocol", ["tcp", "modbus_tcp"])
+async def test_a_closed_burst_is_dropped_and_a_fresh_client_is_answered(serve: ServeFactory, protocol: str) -> None:
+    served = await serve()
+    seen: list[FrameRecord] = []
+    served.sim.bus.subscribe(seen.append)
+    port = served.tcp_port if protocol == "tcp" else served.modbus_tcp_port
+    if protocol == "tcp":
+        burst = RTU_BURST_READ * BURST
+        framer = FramerType.RTU
+    else:
+        burst = b"".join(mbap_read(i, Reg.SPEED_SETPOINT) for i in range(BURST))
+        framer = FramerType.SOCKET
+    _reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(burst)
+    await writer.drain()
+    writer.close()
+    await writer.wait_closed()
+
+    client = AsyncModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=1.0, retries=0)
+    assert await client.connect()
+    try:
+        result = await client.read_holding_registers(Reg.STATUS1, count=1, device_id=1)
+    finally:
+        client.close()
+    assert not result.isError()
+    # Both connections gone and nothing waiting on the line: no more of the burst can be served.
+    tcp_server = served.server.endpoints.tcp if protocol == "tcp" else served.server.endpoints.modbus_tcp
+    assert tcp_server is not None
+    deadline = time.monotonic() + 5.0
+    while tcp_server.connections:
+        assert time.monotonic() < deadline, f"{len(tcp_server.connections)} connections still open"
+        await asyncio.sleep(0.01)
+    assert served.server.line.waiting == 0
+    count = burst_served(seen)
+    assert count < 50, f"{count} of the closed connection's {BURST} requests were served"
+
+
+def rss_kib(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], dict[str, str]]]:
+    ready = tmp_path / "ready.json"
+    command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]
+    proc = subprocess.Popen([*command, "--ready-file", str(ready)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        yield proc, wait_for_ready_file(ready, proc)
+    finally:
+        proc.kill()
+        proc.wait()
+        assert proc.stderr is not None
+        proc.stderr.close()
+
+
+def flood_without_reading(port: int, payload: bytes, stop: threading.Event, sent: list[int]) -> None:
+    """Send ``payload`` over and over, never read a byte back, until ``stop``."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.setblocking(False)
+        chunk = payload * 512
+        while not stop.is_set():
+            try:
+                sent[0] += sock.send(chunk)
+            except BlockingIOError:
+                stop.wait(0.01)  # the server stopped reading: exactly what it should do
+
+
+@pytest.mark.parametrize("protocol", ["tcp", "modbus_tcp"])
+def test_a_client_that_never_reads_costs_no_memory_and_locks_no_one_out(
+    server: tuple[subprocess.Popen[bytes], dict[str, str]], protocol: str
+) -> None:
+    proc, info = server
+    port = int(info[protocol].rsplit(":", 1)[1])
+    payload = RTU_READ if protocol == "tcp" else mbap_read(1, Reg.STATUS1)
+    framer = FramerType.RTU if protocol == "tcp" else FramerType.SOCKET
+    before = rss_kib(proc.pid)
+    stop, sent = threading.Event(), [0]
+    flooder = threading.Thread(target=flood_without_reading, args=(port, payload, stop, sent), daemon=True)
+    flooder.start()
+    answered = asked = 0
+    peak = before
+    poller = ModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=2.0, retries=0)
+    try:
+        assert poller.connect()
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end:
+            asked += 1
+            with contextlib.suppress(ModbusIOException):  # unanswered: counted by asked - answered
+                answered += not poller.read_holding_registers(Reg.STATUS1, count=1, device_id=1).isError()
+            peak = max(peak, rss_kib(proc.pid))
+            stop.wait(0.1)
+    finally:
+        poller.close()
+        stop.set()
+        flooder.join(5)
+    grown_mib = (peak - before) / 1024
+    assert sent[0] > 0
+    assert answered == asked, f"{asked - answered} of {asked} polls unanswered while a client flooded"
+    assert grown_mib < 20, f"RSS grew by {grown_mib:.1f} MiB ({before} KiB -> {peak} KiB) in 10 s of flooding"
+
+
+async def test_a_pipelined_frame_split_across_reads_is_not_broken_while_the_connection_waits(
+    serve: ServeFactory,
+) -> None:
+    """RTU over TCP, a reply delayed 100 ms: a second request sent meanwhile in two pieces is not read until the
+    first is answered, and its first piece must not be timed out as a broken frame (20 ms of silence) while
+    the second waits in the kernel's buffer."""
+    served = await serve()
+    served.sim.link_faults(1).delay = 0.1
+    first, second = RTU_READ, RTU_BURST_READ
+    reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
+    try:
+        writer.write(first + second[:3])
+        await writer.drain()
+        await asyncio.sleep(0.05)  # the rest of the second frame comes later, while the first is on the line
+        writer.write(second[3:])
+        await writer.drain()
+        replies = await asyncio.wait_for(reader.readexactly(14), timeout=2.0)
+    finally:
+        writer.close()
+    assert replies[:7] == encode(ReadResponse(1, (3,))), replies.hex(" ")
+    assert replies[7:] == encode(ReadResponse(1, (0,))), replies.hex(" ")

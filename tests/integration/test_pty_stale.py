@@ -1,0 +1,97 @@
+"""A pty master that goes away leaves nothing behind for the next one, as a real port loses what it is sent.
+
+``c20sim serve --pty`` as a subprocess. A master writes a burst of requests
+and closes without reading; the next program opens the device without
+flushing (as libmodbus and mbpoll do) and asks one question: every reply it
+reads must be the answer to its own question. It may lose its first request
+if it opened while the server was still dropping what the old master left
+(it then asks again); it must never read an old master's answer.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from c20sim.protocol import ReadRequest, ReadResponse, WriteSingleRequest, encode
+from c20sim.registers import Reg
+from tests.conftest import wait_for_ready_file
+
+OLD = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))  # the old master's question: 2001H (reads 1500)
+ASK = encode(ReadRequest(1, Reg.STATUS1, 1))  # the new master's question: 2100H
+ANSWER = encode(ReadResponse(1, (3,)))  # 2100H of a stopped drive: 3
+
+
+@pytest.fixture
+def pty(tmp_path: Path) -> Iterator[str]:
+    ready = tmp_path / "ready.json"
+    command = [sys.executable, "-m", "c20sim", "serve", "--pty", "--ready-file", str(ready)]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        path = wait_for_ready_file(ready, proc)["pty"]
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd, encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 1500)))
+            assert read_reply(fd, 8) is not None
+        finally:
+            os.close(fd)
+        yield path
+    finally:
+        proc.kill()
+        proc.wait()
+        assert proc.stderr is not None
+        proc.stderr.close()
+
+
+def read_reply(fd: int, length: int, timeout: float = 1.0) -> bytes | None:
+    data = b""
+    deadline = time.monotonic() + timeout
+    while len(data) < length:
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            return None
+        data += os.read(fd, length - len(data))
+    return data
+
+
+#: The next program: opens the device without flushing, asks 2100H (again after a timeout, up to 3 times),
+#: prints the reply it read in hex and how many times it had to ask again.
+NEXT_MASTER = f"""
+import os, select, sys, time
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY)
+for retry in range(3):
+    os.write(fd, bytes.fromhex("{ASK.hex()}"))
+    data, deadline = b"", time.monotonic() + 1.0
+    while len(data) < {len(ANSWER)} and select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0]:
+        data += os.read(fd, {len(ANSWER)} - len(data))
+    if len(data) == {len(ANSWER)}:
+        break
+print(data.hex(" "), retry)
+"""
+
+
+def test_the_next_master_never_reads_an_old_masters_replies(pty: str) -> None:
+    wrong: list[str] = []
+    retries = 0
+    for trial in range(20):
+        old = os.open(pty, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            os.write(old, OLD * (20 + trial))
+            assert read_reply(old, 7) is not None  # an answer came: more are on their way; gone without them
+        finally:
+            os.close(old)
+        done = subprocess.run(
+            [sys.executable, "-c", NEXT_MASTER, pty], capture_output=True, text=True, timeout=30, check=True
+        )
+        reply, again = done.stdout.rsplit(" ", 1)
+        retries += int(again)
+        if reply != ANSWER.hex(" "):
+            wrong.append(f"trial {trial}: read {reply!r}")
+    assert not wrong, f"{len(wrong)} of 20 programs read an old master's reply ({retries} retries): {wrong[:3]}"
