@@ -14,6 +14,7 @@ from pathlib import Path
 from .control import add_ctl_command
 from .decode import decode_frame
 from .errors import C20SimError
+from .plant import add_plant_commands
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
@@ -225,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)
+    add_plant_commands(sub)
     return parser
 
 
