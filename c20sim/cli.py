@@ -7,6 +7,7 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -96,7 +97,11 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
     )
     what.add_argument(
-        "--drives", default="1", metavar="LIST", help="drive addresses on the bus, such as 1,2,5 (default 1)"
+        "--drives",
+        # from the environment too: a container's drives come from a ConfigMap (c20sim.plant)
+        default=os.environ.get("C20SIM_DRIVES") or "1",
+        metavar="LIST",
+        help="drive addresses on the bus, such as 1,2,5 (default $C20SIM_DRIVES, or 1)",
     )
     what.add_argument(
         "--clock", default="realtime", choices=["realtime", "virtual"], help="time source (default realtime)"

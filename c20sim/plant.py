@@ -136,9 +136,9 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
             f"0.0.0.0:{MODBUS_PORT}",
             "--profile",
             "/etc/c20sim/profile.toml",
-            "--drives",
-            f"$({DRIVES_ENV})",
         ],
+        # serve and the readiness probe both take the drives from $C20SIM_DRIVES, so the ConfigMap is
+        # their one source (podman kube play does not expand $(VAR) in args, a cluster would)
         "env": [
             {
                 "name": DRIVES_ENV,
