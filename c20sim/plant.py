@@ -7,7 +7,7 @@ the profile and the drives list that every bus reads. The same file runs on a
 cluster (``kubectl apply -f``) and on one machine (``podman kube play``, which
 plays the Deployments with their hostPorts and ignores the Services).
 
-The manifests are written by hand-rolled YAML (block style, JSON-quoted
+The manifests are written by hand-rolled YAML (block style, double-quoted
 strings where a plain scalar could be misread), so the package needs no YAML
 library; the tests read the output back with an independent parser.
 """
@@ -205,19 +205,43 @@ def _scalar(value: object) -> str:
     return _quoted(value)
 
 
-def _quoted(value: str) -> str:
-    """A YAML double-quoted scalar: JSON's escapes are a subset of YAML's."""
-    import json
+_ESCAPES = {"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"}
 
-    return json.dumps(value)
+
+def _printable(char: str) -> bool:
+    """YAML's printable set, less the characters it reads as line breaks (NEL, LS, PS) and the BOM."""
+    code = ord(char)
+    return (
+        0x20 <= code <= 0x7E
+        or 0xA0 <= code <= 0xD7FF
+        or (0xE000 <= code <= 0xFFFD and code != 0xFEFF)
+        or code >= 0x10000
+    ) and code not in (0x2028, 0x2029)
+
+
+def _quoted(value: str) -> str:
+    """A YAML double-quoted scalar, with every character a reader could mistake escaped."""
+    out = []
+    for char in value:
+        if char in _ESCAPES:
+            out.append(_ESCAPES[char])
+        elif _printable(char):
+            out.append(char)
+        elif ord(char) <= 0xFF:
+            out.append(f"\\x{ord(char):02x}")
+        elif ord(char) <= 0xFFFF:
+            out.append(f"\\u{ord(char):04x}")
+        else:
+            out.append(f"\\U{ord(char):08x}")
+    return '"' + "".join(out) + '"'
 
 
 def _block(text: str, indent: str) -> list[str] | None:
     """A literal block scalar, or None where one cannot hold the text exactly."""
-    if "\t" in text or "\r" in text or not text.endswith("\n") or text.endswith("\n\n"):
+    if not text.endswith("\n") or text.endswith("\n\n"):
         return None
     lines = text[:-1].split("\n")
-    if any(line != line.rstrip(" ") for line in lines):
+    if any(line != line.rstrip(" ") or not all(map(_printable, line)) for line in lines):
         return None
     return ["|2"] + [f"{indent}{line}" if line else "" for line in lines]
 
