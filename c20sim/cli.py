@@ -7,7 +7,6 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,12 +14,12 @@ from pathlib import Path
 from .control import add_ctl_command
 from .decode import decode_frame
 from .errors import C20SimError
-from .plant import add_plant_commands
+from .plant import add_plant_commands, drive_addresses
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
 from .serve import ServeOptions, run, run_server
-from .simulator import Simulator, make_clock, parse_addresses
+from .simulator import Simulator, make_clock
 
 __all__ = ["main"]
 
@@ -98,8 +97,7 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     )
     what.add_argument(
         "--drives",
-        # from the environment too: a container's drives come from a ConfigMap (c20sim.plant)
-        default=os.environ.get("C20SIM_DRIVES") or "1",
+        # without it, $C20SIM_DRIVES: a container's drives come from a ConfigMap (c20sim.plant)
         metavar="LIST",
         help="drive addresses on the bus, such as 1,2,5 (default $C20SIM_DRIVES, or 1)",
     )
@@ -117,7 +115,7 @@ def build_simulator(args: argparse.Namespace) -> Simulator:
     profile = load_profile(args.profile)
     return Simulator(
         profile,
-        parse_addresses(args.drives),
+        drive_addresses(args.drives),
         clock=make_clock(args.clock, args.speed),
         state=Path(args.state) if args.state else None,
         seed=args.seed,

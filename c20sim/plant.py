@@ -356,6 +356,19 @@ def command_line(spec: PlantSpec, profile: str) -> str:
 # --- c20sim plant-check
 
 
+def drive_addresses(given: str | None) -> list[int]:
+    """``--drives`` when given, else ``$C20SIM_DRIVES`` when set, else drive 1; an error names its source."""
+    if given is not None:
+        return parse_addresses(given)
+    from_env = os.environ.get(DRIVES_ENV)
+    if not from_env:
+        return [1]
+    try:
+        return parse_addresses(from_env)
+    except C20SimError as exc:
+        raise C20SimError(f"${DRIVES_ENV}: {exc}") from None
+
+
 @dataclass(frozen=True)
 class DriveRow:
     bus: str
@@ -409,8 +422,7 @@ def render_table(rows: Sequence[DriveRow]) -> str:
 
 
 def cmd_plant_check(args: argparse.Namespace) -> int:
-    drives_text = args.drives or os.environ.get(DRIVES_ENV) or "1"
-    drives = parse_addresses(drives_text)
+    drives = drive_addresses(args.drives)
     if not 0.01 <= args.timeout <= 60:
         raise C20SimError(f"--timeout {args.timeout:g}: give 0.01-60 seconds")
     buses = [parse_host_port(host, "plant-check") for host in args.hosts]

@@ -199,3 +199,18 @@ def test_serve_and_the_probe_take_the_drives_from_the_environment(tmp_path: Path
         server.terminate()
         out, _ = server.communicate(timeout=30)
     assert "drives 5,6" in out
+
+
+@pytest.mark.parametrize("command", [["serve", "--tcp", "127.0.0.1:0"], ["plant-check", "127.0.0.1:502"]])
+def test_a_bad_drives_variable_is_named_in_one_line(command: list[str]) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "c20sim", *command],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "C20SIM_DRIVES": "1-300"},
+        check=False,
+    )
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr.startswith("c20sim: $C20SIM_DRIVES: bad drive list '1-300': "), result.stderr
+    assert result.stderr.count("\n") == 1
