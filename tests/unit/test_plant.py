@@ -184,3 +184,9 @@ def test_yaml_strings_that_look_like_something_else(text: str) -> None:
 def test_yaml_uses_a_literal_block_for_a_profile() -> None:
     out = to_yaml([{"data": {"profile.toml": "[motor]\npole_pairs = 4\n"}}])
     assert out == "---\ndata:\n  profile.toml: |2\n    [motor]\n    pole_pairs = 4\n"
+
+
+def test_the_shipped_plant_is_what_its_command_writes(capsys: pytest.CaptureFixture[str]) -> None:
+    shipped = (Path(__file__).resolve().parents[2] / "deploy" / "plant.yaml").read_text(encoding="utf-8")
+    assert main(["plant", "--buses", "3", "--drives", "1-32"]) == 0
+    assert capsys.readouterr().out == shipped, "regenerate: c20sim plant --buses 3 --drives 1-32 -o deploy/plant.yaml"
