@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import time
 from dataclasses import dataclass
 
 from ..protocol import (
@@ -47,6 +48,7 @@ class Prober:
     def __post_init__(self) -> None:
         self._sock: socket.socket | None = None
         self._transaction = 0
+        self._deadline = 0.0
 
     def close(self) -> None:
         if self._sock is not None:
@@ -60,7 +62,12 @@ class Prober:
         self.close()
 
     def read(self, drive: int, register: int) -> int | ExceptionResponse:
-        """The register's value, or the drive's exception reply; raises NoAnswer."""
+        """The register's value, or the drive's exception reply; raises NoAnswer.
+
+        ``timeout`` bounds the whole read (connect, send, every byte of the reply), so a peer that
+        trickles bytes cannot hold a probe longer than one timeout.
+        """
+        self._deadline = time.monotonic() + self.timeout
         try:
             sock = self._connect()
             request = encode(ReadRequest(drive, register, 1))
@@ -110,6 +117,10 @@ class Prober:
         return data
 
     def _recv(self, sock: socket.socket, count: int) -> bytes:
+        remaining = self._deadline - time.monotonic()
+        if remaining <= 0:
+            raise NoAnswer(f"timed out after {self.timeout:g} s")
+        sock.settimeout(remaining)
         try:
             chunk = sock.recv(min(count, _MAX_REPLY))
         except TimeoutError:

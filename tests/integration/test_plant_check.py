@@ -214,3 +214,29 @@ def test_a_bad_drives_variable_is_named_in_one_line(command: list[str]) -> None:
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr.startswith("c20sim: $C20SIM_DRIVES: bad drive list '1-300': "), result.stderr
     assert result.stderr.count("\n") == 1
+
+
+def test_a_peer_that_trickles_its_reply_cannot_hold_the_probe_past_its_timeout() -> None:
+    listener = socket.create_server(("127.0.0.1", 0))
+    reply = bytes.fromhex("01 03 02 00 20 B9 9C")
+    done = threading.Event()
+
+    def trickle() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(256)
+            for byte in reply:  # a right reply, one byte every 0.1 s: 0.7 s in all
+                if done.wait(0.1):
+                    return
+                conn.sendall(bytes([byte]))
+
+    thread = threading.Thread(target=trickle, daemon=True)
+    thread.start()
+    try:
+        prober = Prober("127.0.0.1", listener.getsockname()[1], timeout=0.3)
+        with prober, pytest.raises(NoAnswer, match=r"^timed out after 0\.3 s$"):
+            prober.read(1, 0x2103)
+    finally:
+        done.set()
+        thread.join(timeout=10)
+        listener.close()
