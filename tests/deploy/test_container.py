@@ -43,6 +43,10 @@ pytestmark = [
     pytest.mark.skipif(
         bool(missing), reason=f"{', '.join(missing)} absent: run deploy/ci-install as root to install them"
     ),
+    pytest.mark.skipif(
+        sys.version_info[:2] != (3, 11),
+        reason="the image's Python is Debian 12's 3.11, so deploy/build-image needs a 3.11 to build its wheels",
+    ),
 ]
 
 
