@@ -382,7 +382,7 @@ def check_bus(
     host: str, port: int, drives: Sequence[int], profile: Profile, *, modbus_tcp: bool = False, timeout: float = 0.5
 ) -> list[DriveRow]:
     """Poll every drive of one bus once: drive ID, status word 1, fault code, motor speed."""
-    label = f"{host}:{port}"
+    label = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     rows = []
     with Prober(host, port, modbus_tcp=modbus_tcp, timeout=timeout) as prober:
         for drive in drives:

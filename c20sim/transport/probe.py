@@ -80,6 +80,9 @@ class Prober:
             if isinstance(exc, NoAnswer):
                 raise
             raise NoAnswer(_describe(exc)) from None
+        except UnicodeError:  # a host name the resolver cannot even encode (a label over 63 characters)
+            self.close()
+            raise NoAnswer(f"not a host name: {self.host!r}") from None
         return self._check(reply, drive)
 
     def _connect(self) -> socket.socket:

@@ -156,6 +156,17 @@ def test_probe_takes_only_a_right_reply(peer: tuple[int, list[bytes]], reply: by
         assert str(excinfo.value) == expected
 
 
+def test_unreachable_and_unnamable_hosts_are_rows_not_tracebacks() -> None:
+    result = plant_check("--timeout", "0.2", "a" * 70 + ":502", "[::1]:1")
+    assert result.returncode == 1, result.stderr
+    rows = result.stdout.splitlines()[1:]
+    assert [row.split(None, 3)[0] for row in rows[:-1]] == ["a" * 70 + ":502", "[::1]:1"]
+    assert rows[0].endswith(f"no answer: not a host name: '{'a' * 70}'")
+    # refused where the machine has IPv6 loopback, some other reason where not: a row either way
+    assert rows[1].split(None, 3)[1:3] == ["1", "-"] and rows[1].split(None, 3)[3].startswith("no answer: ")
+    assert rows[-1] == "0 of 2 drives on 2 bus(es) answered"
+
+
 def test_probe_passes_on_an_exception_reply(peer: tuple[int, list[bytes]]) -> None:
     port, replies = peer
     replies.append(bytes.fromhex("01 83 02 C0 F1"))  # the sheet's 'read F00.50 (absent)' answer
