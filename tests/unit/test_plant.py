@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import kubernetes_validate
 import pytest
 import yaml
 from hypothesis import given
@@ -190,3 +191,33 @@ def test_the_shipped_plant_is_what_its_command_writes(capsys: pytest.CaptureFixt
     shipped = (Path(__file__).resolve().parents[2] / "deploy" / "plant.yaml").read_text(encoding="utf-8")
     assert main(["plant", "--buses", "3", "--drives", "1-32"]) == 0
     assert capsys.readouterr().out == shipped, "regenerate: c20sim plant --buses 3 --drives 1-32 -o deploy/plant.yaml"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--buses", "3", "--drives", "1-32"],
+        [
+            "--buses",
+            "1",
+            "--drives",
+            "1,2,5",
+            "--profile",
+            "c20-2200hv",
+            "--name",
+            "line-7",
+            "--image",
+            "r.example/c:1",
+        ],
+        ["--buses", "40", "--rtu-port-base", "30000", "--modbus-port-base", "31000"],
+    ],
+)
+def test_every_manifest_is_valid_against_kubernetes_own_schemas(
+    capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    """Strict: an unknown or misplaced field fails, as `kubectl apply --validate=strict` would."""
+    version = kubernetes_validate.latest_version()
+    docs = generate(capsys, *args)
+    for doc in docs:
+        kubernetes_validate.validate(doc, version, strict=True)
+    assert len(docs) == 1 + 2 * int(args[1])
