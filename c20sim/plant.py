@@ -241,8 +241,8 @@ def _block(text: str, indent: str) -> list[str] | None:
     if not text.endswith("\n") or text.endswith("\n\n"):
         return None
     lines = text[:-1].split("\n")
-    if any(line != line.rstrip(" ") or not all(map(_printable, line)) for line in lines):
-        return None
+    if not any(lines) or any(line != line.rstrip(" ") or not all(map(_printable, line)) for line in lines):
+        return None  # a block of blank lines only reads back as ""; trailing spaces and escapes need quotes
     return ["|2"] + [f"{indent}{line}" if line else "" for line in lines]
 
 

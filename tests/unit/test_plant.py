@@ -170,6 +170,8 @@ def test_yaml_reads_back_as_written(doc: dict[str, object]) -> None:
         "tab\there\n",
         "crlf\r\nline\n",
         "blank\n\nline inside\n",
+        "\n",
+        "\nleading blank line\n",
         "trailing space \nx\n",
         "ünïcode ✓ 48 V\n",
         "astral 𐀀 and bell \x07 and nel \x85 and ls \u2028 and bom \ufeff",
