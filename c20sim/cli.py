@@ -14,12 +14,13 @@ from pathlib import Path
 from .control.ctl import add_ctl_command
 from .decode import decode_frame
 from .errors import C20SimError
+from .plant import add_plant_commands, drive_addresses
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
 from .scenario import add_run_scenario_command
 from .schema import add_schema_command
 from .serve import ServeOptions, pty_supported, run, run_server
-from .simulator import Simulator, make_clock, parse_addresses
+from .simulator import Simulator, make_clock
 
 __all__ = ["main"]
 
@@ -98,7 +99,10 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
     )
     what.add_argument(
-        "--drives", default="1", metavar="LIST", help="drive addresses on the bus, such as 1,2,5 (default 1)"
+        "--drives",
+        # without it, $C20SIM_DRIVES: a container's drives come from a ConfigMap (c20sim.plant)
+        metavar="LIST",
+        help="drive addresses on the bus, such as 1,2,5 (default $C20SIM_DRIVES, or 1)",
     )
     what.add_argument(
         "--clock", default="realtime", choices=["realtime", "virtual"], help="time source (default realtime)"
@@ -120,7 +124,7 @@ def build_simulator(args: argparse.Namespace) -> Simulator:
     profile = load_profile(args.profile)
     return Simulator(
         profile,
-        parse_addresses(args.drives),
+        drive_addresses(args.drives),
         clock=make_clock(args.clock, args.speed),
         state=Path(args.state) if args.state else None,
         seed=args.seed,
@@ -240,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_ctl_command(sub)
     add_run_scenario_command(sub)
     add_schema_command(sub)
+    add_plant_commands(sub)
     return parser
 
 
