@@ -16,9 +16,9 @@ from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
-from .scenario import add_run_scenario_command
 from .serve import ServeOptions, run, run_server
 from .simulator import Simulator, make_clock, parse_addresses
+from .suite import add_run_scenario_command
 
 __all__ = ["main"]
 

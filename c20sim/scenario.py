@@ -32,11 +32,9 @@ master reads them (3008H = 480 is 48.0 V). Loading raises
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import functools
 import math
-import sys
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -63,7 +61,6 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "Step",
-    "add_run_scenario_command",
     "apply_step",
     "apply_step_on_line",
     "load_scenario",
@@ -561,33 +558,3 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
         verdict = "passed" if report.ok else f"FAILED ({len(report.failures)} of {len(outcomes)} checks)"
         print(f"scenario {scenario.name}: {verdict}", file=out, flush=True)
     return report
-
-
-# --- ``c20sim run-scenario``.
-
-
-def cmd_run_scenario(args: argparse.Namespace) -> int:
-    from .profile import DEFAULT_PROFILE, load_profile
-    from .simulator import parse_addresses
-
-    scenario = load_scenario(args.file)
-    profile = load_profile(args.profile or scenario.profile or DEFAULT_PROFILE)
-    addresses = parse_addresses(args.drives) if args.drives else list(scenario.drives or (1,))
-    sim = Simulator(profile, addresses, seed=args.seed)
-    report = run(scenario, sim)
-    sys.stdout.write(report.render())
-    return 0 if report.ok else 1
-
-
-def add_run_scenario_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    run_parser = sub.add_parser(
-        "run-scenario",
-        help="play a scenario file in virtual time; exit 1 if an expectation fails",
-        description="Play a TOML scenario in virtual time, instantly, and print every check. "
-        "Exit 0 if all hold, 1 if one fails, 2 if the file is bad.",
-    )
-    run_parser.add_argument("file", help="the scenario, such as scenarios/undervoltage.toml")
-    run_parser.add_argument("--profile", help="profile name or path (default: the scenario's, or c20-400hr)")
-    run_parser.add_argument("--drives", metavar="LIST", help="drive addresses (default: the scenario's, or 1)")
-    run_parser.add_argument("--seed", type=int, default=1, help="seed for random link faults (default 1)")
-    run_parser.set_defaults(func=cmd_run_scenario)
