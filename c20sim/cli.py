@@ -11,8 +11,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from .capture import add_decode_command
 from .control.ctl import add_ctl_command
-from .decode import decode_frame
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .registers import BAUD_RATES, format_fcode
@@ -25,34 +25,6 @@ __all__ = ["main"]
 
 class UsageError(C20SimError):
     """A bad command line: printed as one line, exit code 2."""
-
-
-def parse_hex(words: Sequence[str]) -> bytes:
-    """``01 06 20 00``, ``01:06:20:00``, ``0x01,0x06`` or ``01062000`` -> bytes."""
-    text = " ".join(words)
-    for sep in (":", ",", "-", "\n", "\t"):
-        text = text.replace(sep, " ")
-    tokens = [t[2:] if t.lower().startswith("0x") else t for t in text.split()]
-    joined = (
-        "".join(t if len(t) % 2 == 0 else "0" + t for t in tokens)
-        if all(len(t) <= 2 for t in tokens)
-        else "".join(tokens)
-    )
-    try:
-        return bytes.fromhex(joined)
-    except ValueError:
-        raise UsageError(f"not hex bytes: {text.strip()!r}; give a frame such as '01 06 20 00 00 01 43 CA'") from None
-
-
-def cmd_decode(args: argparse.Namespace) -> int:
-    data = parse_hex(args.hex)
-    if not data:
-        raise UsageError("no bytes given; give a frame such as '01 06 20 00 00 01 43 CA'")
-    profile = load_profile(args.profile)
-    decoded = decode_frame(data, profile.registers)
-    print(f"{data.hex(' ').upper()}")
-    print(f"  {decoded.kind}: {decoded.text}")
-    return 0 if decoded.ok else 1
 
 
 def cmd_profiles(args: argparse.Namespace) -> int:
@@ -202,10 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    decode = sub.add_parser("decode", help="print a captured frame in words, or say what is wrong with it")
-    decode.add_argument("hex", nargs="+", help="the frame's bytes in hex, e.g. 01 06 20 00 00 01 43 CA")
-    decode.add_argument("--profile", default=DEFAULT_PROFILE, help="profile whose register names to use")
-    decode.set_defaults(func=cmd_decode)
+    add_decode_command(sub)
 
     profiles = sub.add_parser("profiles", help="list the shipped profiles, or show one")
     profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")
