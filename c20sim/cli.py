@@ -15,7 +15,9 @@ from .capture import add_decode_command
 from .control.ctl import add_ctl_command
 from .errors import C20SimError
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
+from .record import add_record_command
 from .registers import BAUD_RATES, format_fcode
+from .replay import add_replay_command
 from .serve import ServeOptions, run, run_server
 from .simulator import Simulator, make_clock, parse_addresses
 from .suite import add_run_scenario_command
@@ -194,6 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)
+    add_record_command(sub)
+    add_replay_command(sub)
     return parser
 
 
