@@ -165,7 +165,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"{result.exchanges} replayed: every reply matches")
         return 0
     print(
-        f"{result.exchanges} replayed: {len(result.differences)} repl{'y' if len(result.differences) == 1 else 'ies'} differ"
+        f"{result.exchanges} replayed: {len(result.differences)} "
+        + ("reply differs" if len(result.differences) == 1 else "replies differ")
     )
     return 1
 
