@@ -48,8 +48,8 @@ class Result:
     @property
     def line(self) -> str:
         """The one line ``run-scenario`` prints for this scenario."""
-        if self.status == "error":
-            return f"ERROR {self.path}: {self.report}"
+        if self.status == "error":  # the error names its file already, as ScenarioError does
+            return f"ERROR {self.report}" if self.report.startswith(self.path) else f"ERROR {self.path}: {self.report}"
         head = f"{'PASS ' if self.status == 'passed' else 'FAIL '} {self.name} ({self.path})"
         if self.status == "passed":
             return f"{head}: {self.checks} check(s)"
