@@ -314,9 +314,7 @@ class Recorder:
 
     def _words(self, direction: str, event: FrameEvent) -> tuple[str, str]:
         if event.kind is not FrameKind.FRAME:
-            return event.kind.value, decode_frame(event.data, self.registers).text if len(
-                event.data
-            ) >= 4 else event.kind.value
+            return event.kind.value, decode_frame(event.data, self.registers).text
         try:
             if direction == "rx":
                 request = decode_request(event.data)
