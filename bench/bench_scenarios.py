@@ -9,7 +9,10 @@ interleaved, and prints the wall time of the whole command (median, min,
 max) and per scenario (median / 100); one file alone is the command's fixed
 cost (interpreter, imports, one profile). The JUnit file of each run is parsed
 and must count 100 tests and no failure. ``python -c pass`` is timed in the
-same run as the floor of any Python process on this machine.
+same run as the floor of any Python process on this machine. The CPU time to
+load and play one scenario in this process (``time.process_time``, which
+other processes' load does not inflate) is printed first: the work the
+worker processes share out.
 
     .venv/bin/python bench/bench_scenarios.py [--runs 5] [--count 100] [--jobs 1,2]
 """
@@ -80,6 +83,18 @@ def run_suite(files: list[str], jobs: int, junit: Path) -> float:
     return elapsed
 
 
+def cpu_per_scenario(files: list[str]) -> float:
+    """Mean CPU seconds (process_time: not inflated by other processes' load) of run_file, in this process."""
+    sys.path.insert(0, str(ROOT))
+    from c20sim.suite import run_file
+
+    run_file(files[0])  # imports and caches first
+    start = time.process_time()
+    for path in files:
+        assert run_file(path).status == "passed", path
+    return (time.process_time() - start) / len(files)
+
+
 def time_pass() -> float:
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", "pass"], check=True)
@@ -103,7 +118,9 @@ def main() -> None:
             times["one file"].append(run_suite(files[:1], 1, directory / "one.xml"))
             for j in jobs:
                 times[f"--jobs {j}"].append(run_suite(files, j, directory / "junit.xml"))
+        cpu = cpu_per_scenario(files)
     print(f"{args.count} scenarios, {args.runs} runs each, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}")
+    print(f"CPU to load and play one scenario, in this process: {cpu * 1000:.1f} ms (mean of {len(files)})")
     print(f"{'case':<16} {'median':>8} {'min':>8} {'max':>8} (s)   per scenario (ms, median)")
     for case, values in times.items():
         per = "" if not case.startswith("--jobs") else f"{statistics.median(values) / args.count * 1000:8.1f}"
