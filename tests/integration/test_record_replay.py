@@ -10,9 +10,13 @@ the other it differs exactly where the profiles do: the DC bus voltage
 from __future__ import annotations
 
 import json
+import os
+import select
 import signal
 import subprocess
 import sys
+import time
+import tty
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -164,3 +168,37 @@ def test_record_refuses_a_bad_command_line(tmp_path: Path) -> None:
     assert (
         result.stderr == "c20sim: --baud 1234: not one the C20 supports: 1200, 2400, 4800, 9600, 19200, 38400, 57600\n"
     )
+
+
+def test_record_between_two_serial_ports(drive: str, tmp_path: Path) -> None:
+    """The master's cable on one serial port (here a pty whose other end the test holds), the drive on another."""
+    cable, device = os.openpty()
+    tty.setraw(device)
+    tty.setraw(cable)
+    log = tmp_path / "serial.jsonl"
+    try:
+        recorder, ready = start(
+            ["record", "--master-serial", os.ttyname(device), "--drive-serial", drive, "--out", str(log)],
+            tmp_path / "rec.json",
+        )
+        try:
+            assert ready["master"] == os.ttyname(device)
+            os.write(cable, bytes.fromhex("01 03 30 08 00 01 0A C8"))
+            reply = b""
+            deadline = time.monotonic() + 5
+            while len(reply) < 7:
+                left = deadline - time.monotonic()
+                assert left > 0, f"no reply through the sniffer in time: {reply.hex(' ')}"
+                if select.select([cable], [], [], left)[0]:
+                    reply += os.read(cable, 64)
+        finally:
+            stop(recorder)
+    finally:
+        os.close(cable)
+        os.close(device)
+    assert reply == bytes.fromhex("01 03 02 01 E0 B8 5C")
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [(r["dir"], r["kind"], r["text"]) for r in records] == [
+        ("rx", "request", "read 3008H (DC bus voltage)"),
+        ("tx", "reply", "3008H = 01E0: 48.0 V"),
+    ]
