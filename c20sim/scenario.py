@@ -30,8 +30,9 @@ time has then moved on, and a later step whose time has passed runs at once.
 
 Within a step the actions run in a fixed order: ``set``, ``link``,
 ``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
-``keypad``, then ``expect`` (polled for ``within`` seconds). Expected values are raw register values, as a
-master reads them (3008H = 480 is 48.0 V). Loading raises
+``keypad``, then ``expect`` (polled for ``within`` seconds). Expected values
+are raw register values, as a master reads them (3008H = 480 is 48.0 V).
+The format's reference is docs/scenarios.md. Loading raises
 :class:`ScenarioError` naming the file, the step and the key, like a profile.
 
 :func:`run` plays a scenario in virtual time, instantly, and returns a
