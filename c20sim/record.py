@@ -338,6 +338,17 @@ def _master_side(args: Any) -> Side:
     return TcpSide(args.master_tcp)
 
 
+def _write_ready(path: str, data: dict[str, str]) -> None:
+    """The ready file, whole or not at all: written aside, then renamed (a reader never sees half of it)."""
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(data) + "\n")
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
+
+
 async def record(args: Any, out: IO[str]) -> Recorder:
     """Sniff until SIGINT or SIGTERM; returns the recorder (its count of records)."""
     registers = load_profile(args.profile).registers
@@ -366,8 +377,7 @@ async def record(args: Any, out: IO[str]) -> Recorder:
         master.start(from_master)
         drive.start(from_drive)
         if args.ready_file:
-            ready = {"master": master.name, "drive": drive.name, "log": args.out}
-            Path(args.ready_file).write_text(json.dumps(ready) + "\n")
+            _write_ready(args.ready_file, {"master": master.name, "drive": drive.name, "log": args.out})
         print(f"c20sim record: master {master.name} <-> drive {drive.name}; frames to {args.out}", flush=True)
         await stop.wait()
     finally:
