@@ -165,22 +165,23 @@ def cmd_run_scenario(args: argparse.Namespace) -> int:
     paths = expand(args.files)
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, MAX_JOBS)
     results: list[Result] = []
-    single = len(paths) == 1 and not args.junit
+    single = len(paths) == 1  # one file: its full report, or its error as one line on stderr, as before
     for result in run_files(paths, profile=args.profile, drives=args.drives, seed=args.seed, jobs=jobs):
         results.append(result)
-        if single and result.status != "error":
-            sys.stdout.write(result.report)
-        elif single:
-            raise C20SimError(result.report)  # one bad file: one line on stderr, exit 2, as before
-        else:
-            print(result.line, flush=True)
-            if args.verbose and result.status != "error":
+        if single:
+            if result.status != "error":
                 sys.stdout.write(result.report)
+            continue
+        print(result.line, flush=True)
+        if args.verbose and result.status != "error":
+            sys.stdout.write(result.report)
     if args.junit:
         try:
             Path(args.junit).write_bytes(junit_xml(results))
         except OSError as exc:
             raise C20SimError(f"--junit {args.junit}: cannot write: {exc.strerror}") from None
+    if single and results[0].status == "error":
+        raise C20SimError(results[0].report)
     passed = sum(r.status == "passed" for r in results)
     failed = sum(r.status == "failed" for r in results)
     errors = sum(r.status == "error" for r in results)

@@ -135,3 +135,19 @@ def test_junit_escapes_what_xml_cannot_hold_raw(tmp_path: Path) -> None:
     case = root.find("testsuite/testcase")
     assert case is not None
     assert case.get("name") == 'a <b> & "c"'
+
+
+def test_one_file_prints_its_full_report_and_still_writes_junit(tmp_path: Path) -> None:
+    junit = tmp_path / "one.xml"
+    result = c20sim("run-scenario", str(SCENARIOS / "overload.toml"), "--junit", str(junit))
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[-1] == "passed: 12 check(s)"
+    node = ET.parse(junit).getroot().find("testsuite")
+    assert node is not None and (node.get("tests"), node.get("failures"), node.get("errors")) == ("1", "0", "0")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[step]]\nat = -1\n")
+    result = c20sim("run-scenario", str(bad), "--junit", str(junit))
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == f"c20sim: {bad}: step 1, key 'at': give the step's time in seconds from the start, >= 0\n"
+    node = ET.parse(junit).getroot().find("testsuite")
+    assert node is not None and (node.get("tests"), node.get("errors")) == ("1", "1")
