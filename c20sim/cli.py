@@ -7,6 +7,7 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -214,3 +215,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        if not _stdout_gone():
+            raise
+        # a reader that stopped early (`c20sim decode -f log | head -1`): end quietly, and let the
+        # interpreter's last flush at exit go to /dev/null rather than print a second traceback
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return 0
+
+
+def _stdout_gone() -> bool:
+    """True when stdout is a pipe whose reader has closed it (POLLERR), so a BrokenPipeError was ours."""
+    try:
+        import select
+
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), or no stdout to ask
+        return True

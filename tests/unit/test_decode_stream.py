@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -233,3 +234,21 @@ def test_decode_with_no_input_on_a_terminal_says_what_to_give() -> None:
     )
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == "c20sim: /nonexistent/cap: cannot read: No such file or directory\n"
+
+
+def test_a_closed_pipe_ends_decode_quietly(tmp_path: Path) -> None:
+    log = tmp_path / "big.jsonl"
+    log.write_text("".join(record(i * 0.01, "rx", READ) + "\n" for i in range(200)))
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader has gone, as after `| head -1`
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "c20sim", "decode", "--file", str(log)],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            timeout=30,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+    assert (result.returncode, result.stderr) == (0, b"")
