@@ -10,6 +10,8 @@ silence) and written as one JSON line per frame, in the format of
 frame's last byte), ``dir`` (``rx`` master to drive, ``tx`` drive to master),
 ``hex``, ``kind``, ``slave``, ``text`` (in words, with the profile's register
 names) and ``note``. ``c20sim replay`` and ``c20sim decode`` read it.
+Recording stops at SIGINT or SIGTERM (exit 0), or when a serial port or the
+pty is lost (an adapter unplugged: exit 1, the log kept).
 
 The serial settings are fixed for the session: a baud change by 2009H is
 passed on, but the sniffer's ports keep the baud they were opened at.
@@ -44,6 +46,7 @@ MAX_UNSENT = 64 * 1024
 DEFAULT_MAX_RECORDS = 1_000_000
 
 Receive = Callable[[bytes], None]
+Lost = Callable[[str], None]
 
 
 class _FdSide:
@@ -55,19 +58,24 @@ class _FdSide:
         self._unsent = bytearray()
         self.dropped = 0
 
-    def start(self, receive: Receive) -> None:
+    def start(self, receive: Receive, lost: Lost) -> None:
         os.set_blocking(self.fd, False)
-        asyncio.get_running_loop().add_reader(self.fd, self._readable, receive)
+        asyncio.get_running_loop().add_reader(self.fd, self._readable, receive, lost)
 
-    def _readable(self, receive: Receive) -> None:
+    def _readable(self, receive: Receive, lost: Lost) -> None:
         try:
             data = os.read(self.fd, 4096)
         except BlockingIOError:
             return
-        except OSError:
-            data = b""  # a pty whose other end is closed reads EIO: nothing to pass on
-        if data:
-            receive(data)
+        except OSError as exc:  # an unplugged adapter, a pty whose other end is gone (EIO)
+            asyncio.get_running_loop().remove_reader(self.fd)
+            lost(f"{self.name}: {exc.strerror}")
+            return
+        if not data:  # readable with nothing to read: hung up
+            asyncio.get_running_loop().remove_reader(self.fd)
+            lost(f"{self.name}: hung up")
+            return
+        receive(data)
 
     def send(self, data: bytes) -> None:
         if self._unsent:
@@ -189,8 +197,8 @@ class TcpSide:
         host, port = self._server.sockets[0].getsockname()[:2]
         self.name = f"{host}:{port}"
 
-    def start(self, receive: Receive) -> None:
-        self._receive = receive
+    def start(self, receive: Receive, lost: Lost) -> None:
+        self._receive = receive  # a master that hangs up may connect again: never lost
 
     def send(self, data: bytes) -> None:
         if self._transport is None or self._transport.is_closing():
@@ -349,14 +357,20 @@ def _write_ready(path: str, data: dict[str, str]) -> None:
         raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
 
 
-async def record(args: Any, out: IO[str]) -> Recorder:
-    """Sniff until SIGINT or SIGTERM; returns the recorder (its count of records)."""
+async def record(args: Any, out: IO[str]) -> tuple[Recorder, str | None]:
+    """Sniff until SIGINT or SIGTERM, or a port is lost; the recorder (its count of records), and the loss."""
     registers = load_profile(args.profile).registers
     master = _master_side(args)
     drive = SerialSide(args.drive_serial, args.baud, args.parity, args.stopbits)
     recorder = Recorder(out, registers, args.baud, max_records=args.max_records)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+    losses: list[str] = []
+
+    def lost(why: str) -> None:
+        losses.append(why)
+        stop.set()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     opened: list[Side] = []
@@ -374,8 +388,8 @@ async def record(args: Any, out: IO[str]) -> Recorder:
             master.send(data)
             recorder.heard("tx", data)
 
-        master.start(from_master)
-        drive.start(from_drive)
+        master.start(from_master, lost)
+        drive.start(from_drive, lost)
         if args.ready_file:
             _write_ready(args.ready_file, {"master": master.name, "drive": drive.name, "log": args.out})
         print(f"c20sim record: master {master.name} <-> drive {drive.name}; frames to {args.out}", flush=True)
@@ -386,7 +400,7 @@ async def record(args: Any, out: IO[str]) -> Recorder:
         recorder.flush()
         for side in opened:
             side.close()
-    return recorder
+    return recorder, (losses[0] if losses else None)
 
 
 def cmd_record(args: Any) -> int:
@@ -400,8 +414,11 @@ def cmd_record(args: Any) -> int:
     except OSError as exc:
         raise C20SimError(f"--out {args.out}: cannot write: {exc.strerror}") from None
     with contextlib.closing(out):
-        recorder = asyncio.run(record(args, out))
+        recorder, loss = asyncio.run(record(args, out))
     print(f"c20sim record: {recorder.records} frame(s) written to {args.out}", flush=True)
+    if loss is not None:
+        print(f"c20sim record: stopped: the port was lost ({loss})", file=sys.stderr, flush=True)
+        return 1
     return 0
 
 

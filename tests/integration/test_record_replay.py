@@ -202,3 +202,25 @@ def test_record_between_two_serial_ports(drive: str, tmp_path: Path) -> None:
         ("rx", "request", "read 3008H (DC bus voltage)"),
         ("tx", "reply", "3008H = 01E0: 48.0 V"),
     ]
+
+
+def test_record_stops_when_the_drive_port_is_lost(tmp_path: Path) -> None:
+    serve, ready = start(["serve", "--pty"], tmp_path / "serve.json")
+    log = tmp_path / "lost.jsonl"
+    try:
+        recorder, _ = start(
+            ["record", "--drive-serial", ready["pty"], "--master-tcp", "127.0.0.1:0", "--out", str(log)],
+            tmp_path / "rec.json",
+        )
+    finally:
+        stop(serve)  # the pty goes with the server: the sniffer's drive port hangs up
+    try:
+        out, err = recorder.communicate(timeout=10)
+    finally:
+        if recorder.poll() is None:
+            recorder.kill()
+            recorder.wait()
+    assert recorder.returncode == 1
+    assert out.splitlines()[-1] == f"c20sim record: 0 frame(s) written to {log}"
+    assert err == f"c20sim record: stopped: the port was lost ({ready['pty']}: hung up)\n"
+    assert log.read_text() == ""
