@@ -157,3 +157,34 @@ async def test_play_polls_a_realtime_clock_until_true() -> None:
     assert [(o.step.index, o.ok) for o in report.outcomes] == [(1, True), (1, True), (2, True)]
     assert 0 < report.outcomes[-1].t < 5.0
     assert sim.drive().telemetry().speed_rpm == 1500
+
+
+async def test_served_refusal_and_silence_go_through_the_line() -> None:
+    from c20sim.scenario import play
+    from c20sim.transport.line import Line
+
+    sim = Simulator(load_profile(), (1,))  # a virtual clock: play advances it to each step
+    line = Line(sim)
+    scenario = parse_scenario(
+        {
+            "step": [
+                START,
+                {"at": 0.1, "write": {"2002H": 4}, "expect_exception": 8},
+                {"at": 0.2, "link": {"offline": True}, "expect_silence": True},
+            ]
+        },
+        "s.toml",
+    )
+    report = await play(scenario, sim, line=line)
+    assert [(o.step.index, o.ok, o.text) for o in report.outcomes] == [
+        (1, True, "write 2001H = 1500: taken"),
+        (1, True, "write 2000H = 1: taken"),
+        (
+            2,
+            True,
+            "write 2002H = 4: refused with exception 0x08 (parameter cannot be changed while running), as expected",
+        ),
+        (3, True, "read 2100H: no reply, as expected"),
+    ]
+    rx = [(r.direction, r.data.hex(" ").upper(), r.note) for r in sim.bus.records][-1]
+    assert rx == ("rx", "01 03 21 00 00 01 8E 36", "drive offline (injected)")
