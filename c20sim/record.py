@@ -25,7 +25,6 @@ import json
 import os
 import signal
 import sys
-import tty
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, Literal, cast
@@ -155,6 +154,8 @@ class PtySide(_FdSide):
     async def open(self) -> None:
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
             raise C20SimError(f"--master-link {self.link}: a file that is not a symlink is in the way")
+        import tty  # POSIX only: imported here, so that c20sim imports where there are no ptys (Windows)
+
         self.fd, self._slave = os.openpty()
         tty.setraw(self._slave)
         self.name = os.ttyname(self._slave)
@@ -371,8 +372,13 @@ async def record(args: Any, out: IO[str]) -> tuple[Recorder, str | None]:
         losses.append(why)
         stop.set()
 
+    handled: list[signal.Signals] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+        try:
+            loop.add_signal_handler(sig, stop.set)
+            handled.append(sig)
+        except NotImplementedError:  # Windows' loops: Ctrl-C raises KeyboardInterrupt, and the finally flushes
+            pass
     opened: list[Side] = []
     try:
         for side in (drive, master):
@@ -395,7 +401,7 @@ async def record(args: Any, out: IO[str]) -> tuple[Recorder, str | None]:
         print(f"c20sim record: master {master.name} <-> drive {drive.name}; frames to {args.out}", flush=True)
         await stop.wait()
     finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in handled:
             loop.remove_signal_handler(sig)
         recorder.flush()
         for side in opened:
