@@ -358,9 +358,8 @@ def _write_ready(path: str, data: dict[str, str]) -> None:
         raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
 
 
-async def record(args: Any, out: IO[str]) -> tuple[Recorder, str | None]:
+async def record(args: Any, out: IO[str], registers: RegisterMap) -> tuple[Recorder, str | None]:
     """Sniff until SIGINT or SIGTERM, or a port is lost; the recorder (its count of records), and the loss."""
-    registers = load_profile(args.profile).registers
     master = _master_side(args)
     drive = SerialSide(args.drive_serial, args.baud, args.parity, args.stopbits)
     recorder = Recorder(out, registers, args.baud, max_records=args.max_records)
@@ -414,13 +413,14 @@ def cmd_record(args: Any) -> int:
         raise C20SimError(f"--baud {args.baud}: not one the C20 supports: {', '.join(map(str, BAUD_RATES))}")
     if args.max_records < 1:
         raise C20SimError(f"--max-records {args.max_records}: must be at least 1")
-    _master_side(args)  # the check, before the log file is made
+    _master_side(args)  # the checks, before the log file is made
+    registers = load_profile(args.profile).registers
     try:
         out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the loop
     except OSError as exc:
         raise C20SimError(f"--out {args.out}: cannot write: {exc.strerror}") from None
     with contextlib.closing(out):
-        recorder, loss = asyncio.run(record(args, out))
+        recorder, loss = asyncio.run(record(args, out, registers))
     print(f"c20sim record: {recorder.records} frame(s) written to {args.out}", flush=True)
     if loss is not None:
         print(f"c20sim record: stopped: the port was lost ({loss})", file=sys.stderr, flush=True)
