@@ -113,10 +113,10 @@ def test_record_then_replay_across_profiles(drive: str, tmp_path: Path, master: 
         if master == "tcp":
             host, port = ready["master"].rsplit(":", 1)
             client: ModbusTcpClient | ModbusSerialClient = ModbusTcpClient(
-                host, port=int(port), framer=FramerType.RTU, timeout=3, retries=0
+                host, port=int(port), framer=FramerType.RTU, timeout=10, retries=0
             )
         else:
-            client = ModbusSerialClient(ready["master"], framer=FramerType.RTU, baudrate=19200, timeout=3, retries=0)
+            client = ModbusSerialClient(ready["master"], framer=FramerType.RTU, baudrate=19200, timeout=10, retries=0)
         master_session(client)
     finally:
         out, err = stop(recorder)
