@@ -7,54 +7,29 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from .capture import add_decode_command
 from .control.ctl import add_ctl_command
-from .decode import decode_frame
 from .errors import C20SimError
 from .plant import add_plant_commands, drive_addresses
 from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
+from .record import add_record_command
 from .registers import BAUD_RATES, format_fcode
-from .scenario import add_run_scenario_command
+from .replay import add_replay_command
 from .schema import add_schema_command
 from .serve import ServeOptions, pty_supported, run, run_server
 from .simulator import Simulator, make_clock
+from .suite import add_run_scenario_command
 
 __all__ = ["main"]
 
 
 class UsageError(C20SimError):
     """A bad command line: printed as one line, exit code 2."""
-
-
-def parse_hex(words: Sequence[str]) -> bytes:
-    """``01 06 20 00``, ``01:06:20:00``, ``0x01,0x06`` or ``01062000`` -> bytes."""
-    text = " ".join(words)
-    for sep in (":", ",", "-", "\n", "\t"):
-        text = text.replace(sep, " ")
-    tokens = [t[2:] if t.lower().startswith("0x") else t for t in text.split()]
-    joined = (
-        "".join(t if len(t) % 2 == 0 else "0" + t for t in tokens)
-        if all(len(t) <= 2 for t in tokens)
-        else "".join(tokens)
-    )
-    try:
-        return bytes.fromhex(joined)
-    except ValueError:
-        raise UsageError(f"not hex bytes: {text.strip()!r}; give a frame such as '01 06 20 00 00 01 43 CA'") from None
-
-
-def cmd_decode(args: argparse.Namespace) -> int:
-    data = parse_hex(args.hex)
-    if not data:
-        raise UsageError("no bytes given; give a frame such as '01 06 20 00 00 01 43 CA'")
-    profile = load_profile(args.profile)
-    decoded = decode_frame(data, profile.registers)
-    print(f"{data.hex(' ').upper()}")
-    print(f"  {decoded.kind}: {decoded.text}")
-    return 0 if decoded.ok else 1
 
 
 def cmd_profiles(args: argparse.Namespace) -> int:
@@ -220,10 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    decode = sub.add_parser("decode", help="print a captured frame in words, or say what is wrong with it")
-    decode.add_argument("hex", nargs="+", help="the frame's bytes in hex, e.g. 01 06 20 00 00 01 43 CA")
-    decode.add_argument("--profile", default=DEFAULT_PROFILE, help="profile whose register names to use")
-    decode.set_defaults(func=cmd_decode)
+    add_decode_command(sub)
 
     profiles = sub.add_parser("profiles", help="list the shipped profiles, or show one")
     profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")
@@ -245,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_scenario_command(sub)
     add_schema_command(sub)
     add_plant_commands(sub)
+    add_record_command(sub)
+    add_replay_command(sub)
     return parser
 
 
@@ -273,3 +247,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        if not _stdout_gone():
+            raise
+        # a reader that stopped early (`c20sim decode -f log | head -1`): end quietly, and let the
+        # interpreter's last flush at exit go to /dev/null rather than print a second traceback
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return 0
+
+
+def _stdout_gone() -> bool:
+    """True when stdout is a pipe whose reader has closed it (POLLERR), so a BrokenPipeError was ours."""
+    try:
+        import select
+
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), or no stdout to ask
+        return True

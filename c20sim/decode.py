@@ -4,11 +4,20 @@
 established)``; ``exception 0x02 to read: illegal data address``. A broken
 frame is named for what is wrong with it: the CRC it should have had, or the
 length its function code needs.
+
+:func:`split_frames` cuts a captured byte stream into frames by the protocol:
+a request's function code gives its length (a 0x10 request's byte count),
+the reply that follows is read as the answer to it (a 0x03 reply's byte
+count, 8 bytes for an echo, 5 for an exception), and the CRC decides; bytes
+that start no frame are gathered as noise until one does. One case cannot be
+told apart: a 0x06 request that got no answer, then the same request again,
+reads as a request and its echo.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, cast
 
 from .protocol import (
     ExceptionCode,
@@ -24,12 +33,14 @@ from .protocol import (
     WriteSingleRequest,
     WriteSingleResponse,
     crc16,
+    crc_ok,
     decode_request,
     decode_response,
+    expected_length,
 )
 from .registers import Reg, RegisterMap, address_label, status2_words
 
-__all__ = ["Decoded", "decode_frame", "describe", "register_label"]
+__all__ = ["Decoded", "Piece", "decode_frame", "describe", "register_label", "split_frames"]
 
 _FUNCTION_WORDS: dict[int, str] = {
     FunctionCode.READ_REGISTERS: "read",
@@ -147,3 +158,99 @@ def _length_problem(data: bytes) -> str:
         return f"wrong length: {n} bytes; a 0x06 request and its echo have 8"
     count = f" ({9 + data[6]} for this byte count)" if n >= 7 else ""
     return f"wrong length: {n} bytes; a 0x10 request has 9 + its byte count{count}, a reply 8"
+
+
+# --- A stream of frames.
+
+#: The longest an RTU frame is (Modbus serial line): a function the C20 does not know is cut at a CRC within it.
+_MAX_FRAME = 256
+
+
+@dataclass(frozen=True)
+class Piece:
+    """One frame of a stream (a request, a reply or an exception), or bytes that are no frame."""
+
+    offset: int  #: where it starts in the stream
+    data: bytes
+    kind: Literal["request", "reply", "exception", "noise"]
+    text: str
+    message: Request | Response | None = None
+    request: Request | None = None  #: for a reply: the request it answers, when the stream had it
+
+
+def _at(data: bytes, i: int, direction: Literal["request", "response"]) -> int | None:
+    """The length of a frame with a good CRC at ``data[i:]`` read as ``direction``, or None."""
+    length = expected_length(data[i : i + 7], direction)
+    if length is not None:
+        return length if i + length <= len(data) and crc_ok(data[i : i + length]) else None
+    if direction == "request" and len(data) - i >= 4 and data[i + 1] not in _FUNCTION_WORDS and not data[i + 1] & 0x80:
+        # a function the C20 does not know: its length is unknown, the first good CRC ends it
+        for end in range(i + 4, min(len(data), i + _MAX_FRAME) + 1):
+            if crc_ok(data[i:end]):
+                return end - i
+    return None
+
+
+def _reply_to(message: Response, pending: Request | None) -> bool:
+    return pending is not None and message.slave == pending.slave and message.function & 0x7F == pending.function
+
+
+def _piece(
+    data: bytes,
+    i: int,
+    direction: Literal["request", "response"],
+    pending: Request | None,
+    registers: RegisterMap | None,
+) -> Piece | None:
+    """The frame at ``data[i:]`` read as ``direction`` (a reply: to ``pending``), or None."""
+    length = _at(data, i, direction)
+    if length is None:
+        return None
+    frame = data[i : i + length]
+    who = "broadcast" if frame[0] == 0 else f"slave {frame[0]}"
+    try:
+        if direction == "request":
+            request = decode_request(frame)
+            return Piece(i, frame, "request", f"{who}: {describe(request, registers)}", request)
+        response = decode_response(frame)
+    except ValueError:
+        return None
+    answered = pending if _reply_to(response, pending) else None
+    kind: Literal["reply", "exception"] = "exception" if frame[1] & 0x80 else "reply"
+    return Piece(i, frame, kind, f"{who}: {describe(response, registers, answered)}", response, answered)
+
+
+def split_frames(data: bytes, registers: RegisterMap | None = None, after: Request | None = None) -> list[Piece]:
+    """Cut a captured stream into frames by the protocol (request, then its reply), and noise.
+
+    ``after``: the request sent just before the stream starts (its reply may come first).
+    """
+    out: list[Piece] = []
+    pending: Request | None = after  # the request whose reply may come next
+    noise_from: int | None = None
+    i = 0
+    while i < len(data):
+        # after a request, its reply is the likelier reading (a 0x06 request and its echo are the same bytes);
+        # a reply that answers nothing before it comes last (a capture that starts mid-exchange)
+        reply = _piece(data, i, "response", pending, registers)
+        found = reply if reply is not None and reply.request is not None else None
+        found = found or _piece(data, i, "request", pending, registers) or reply
+        if found is None:
+            noise_from = i if noise_from is None else noise_from
+            i += 1
+            continue
+        if noise_from is not None:
+            out.append(_noise(data, noise_from, i))
+            noise_from = None
+        out.append(found)
+        i += len(found.data)
+        pending = None
+        if found.kind == "request" and found.data[0] != 0:  # a broadcast is never answered
+            pending = cast(Request, found.message)
+    if noise_from is not None:
+        out.append(_noise(data, noise_from, len(data)))
+    return out
+
+
+def _noise(data: bytes, start: int, end: int) -> Piece:
+    return Piece(start, data[start:end], "noise", f"{end - start} byte(s) that start no frame")

@@ -20,10 +20,19 @@ A fault is given by its cause, as a bench brings it about
 cause), or latched by code (``fault = { code = 16, persistent = true }``);
 ``clear_fault = { cause = "undervoltage" }`` ends a cause and presses reset.
 
+A step may expect its writes to be refused (``expect_exception = 8``: each
+write answered with exception 0x08) or unanswered (``expect_silence = true``:
+no reply, as from a drive that is offline; with no write in the step, a read
+of 2100H is sent to check it). ``within = 2.0`` makes the step's ``expect``
+an eventual state: the registers are read every :data:`POLL` seconds of
+model time until they all match, or fail after 2 s with the last value seen;
+time has then moved on, and a later step whose time has passed runs at once.
+
 Within a step the actions run in a fixed order: ``set``, ``link``,
 ``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
-``keypad``, then ``expect``. Expected values are raw register values, as a
-master reads them (3008H = 480 is 48.0 V). Loading raises
+``keypad``, then ``expect`` (polled for ``within`` seconds). Expected values
+are raw register values, as a master reads them (3008H = 480 is 48.0 V).
+The format's reference is docs/scenarios.md. Loading raises
 :class:`ScenarioError` naming the file, the step and the key, like a profile.
 
 :func:`run` plays a scenario in virtual time, instantly, and returns a
@@ -32,11 +41,9 @@ master reads them (3008H = 480 is 48.0 V). Loading raises
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import functools
 import math
-import sys
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -46,8 +53,17 @@ from typing import IO, TYPE_CHECKING, Any, TypeVar
 from .control import causes, ops
 from .errors import C20SimError
 from .profile import FaultCause
-from .protocol import FrameEvent, FrameKind, WriteSingleRequest, decode_response, encode
-from .registers import format_fcode
+from .protocol import (
+    ExceptionCode,
+    FrameEvent,
+    FrameKind,
+    ReadRequest,
+    Request,
+    WriteSingleRequest,
+    decode_response,
+    encode,
+)
+from .registers import Reg, format_fcode
 from .simulator import Simulator
 
 if TYPE_CHECKING:
@@ -63,7 +79,6 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "Step",
-    "add_run_scenario_command",
     "apply_step",
     "apply_step_on_line",
     "load_scenario",
@@ -111,6 +126,9 @@ class Step:
     write: tuple[tuple[str, int, int], ...] = ()  #: (register as written, address, value)
     keypad: str | int | None = None
     expect: tuple[Expect, ...] = ()
+    expect_exception: int | None = None  #: every write of the step must be refused with this code
+    expect_silence: bool = False  #: no write (or a read of 2100H, with none) may be answered
+    within: float | None = None  #: poll ``expect`` in model time for up to this long
 
     @property
     def label(self) -> str:
@@ -140,7 +158,15 @@ STEP_KEYS = (
     "write",
     "keypad",
     "expect",
+    "expect_exception",
+    "expect_silence",
+    "within",
 )
+
+#: Model seconds between two reads of a ``within`` step's registers.
+POLL = 0.01
+#: The longest ``within`` (model seconds).
+MAX_WITHIN = 3600.0
 TOP_KEYS = ("name", "description", "profile", "drives", "step")
 
 
@@ -308,6 +334,29 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
             raise fail("expect", f"{register}: tolerance must be a whole number >= 0, got {tolerance!r}")
         expects.append(Expect(register, address, value, tolerance))
 
+    expect_exception = raw.get("expect_exception")
+    if expect_exception is not None:
+        codes = [int(c) for c in ExceptionCode]
+        if isinstance(expect_exception, bool) or expect_exception not in codes:
+            raise fail("expect_exception", f"expected an exception code {codes[0]}-{codes[-1]}, such as 8")
+        if not writes:
+            raise fail("expect_exception", "the step has no write to be refused; give write = { ... } too")
+    expect_silence = flag("expect_silence")
+    if expect_silence and expect_exception is not None:
+        raise fail("expect_silence", "a write cannot be both refused and unanswered; give one of the two")
+    within = raw.get("within")
+    if within is not None:
+        if (
+            isinstance(within, bool)
+            or not isinstance(within, int | float)
+            or not math.isfinite(within)
+            or not 0 < within <= MAX_WITHIN
+        ):
+            raise fail("within", f"expected seconds of model time, > 0 and <= {MAX_WITHIN:g}, such as 2.0")
+        if not expects:
+            raise fail("within", "nothing to wait for; give expect = { ... } too")
+        within = float(within)
+
     return Step(
         index=index,
         at=float(at),
@@ -324,6 +373,9 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         write=tuple(writes),
         keypad=keypad,
         expect=tuple(expects),
+        expect_exception=expect_exception,
+        expect_silence=expect_silence,
+        within=within,
     )
 
 
@@ -438,6 +490,12 @@ def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Ou
     if step.keypad is not None:
         taken = ops.press_key(sim, address, step.keypad)
         out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
+    return out + _expectations(step, sim, address, t)
+
+
+def _expectations(step: Step, sim: Simulator, address: int, t: float, since: float | None = None) -> list[Outcome]:
+    """The step's expectations read now; ``since``: the time a ``within`` step began to wait."""
+    out: list[Outcome] = []
     for expect in step.expect:
         info = ops.read_register(sim, address, expect.address)
         ok = abs(info["raw"] - expect.value) <= expect.tolerance
@@ -446,25 +504,61 @@ def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Ou
         wanted = spec.describe(expect.value & 0xFFFF)
         text = f"{info['register']} ({info['name']}) = {info['raw']} ({info['text']})"
         text += f", expected {expect.value}{within} ({wanted})" if not ok else f", expected {expect.value}{within}"
+        if since is not None and step.within is not None:
+            text += f" (after {t - since:.3g} s)" if ok else f" (still after {step.within:g} s)"
         out.append(Outcome(step, t, ok, text))
     return out
+
+
+def _settled(step: Step, outcomes: list[Outcome]) -> bool:
+    """True unless the step waits (``within``) and its expectations, the last outcomes, do not all hold yet."""
+    return step.within is None or all(o.ok for o in outcomes[len(outcomes) - len(step.expect) :])
+
+
+def _poll_times(step: Step, start: float) -> list[float]:
+    """The model times a ``within`` step reads its registers again, every POLL s up to ``start + within``."""
+    assert step.within is not None
+    count = math.ceil(step.within / POLL - 1e-9)
+    return [min(start + POLL * i, start + step.within) for i in range(1, count + 1)]
+
+
+def _recheck(step: Step, sim: Simulator, outcomes: list[Outcome], start: float) -> list[Outcome]:
+    """The step's outcomes with its expectations read again at the simulator's time."""
+    address = _drive_of(step, sim)
+    fresh = _expectations(step, sim, address, sim.now(), since=start)
+    return outcomes[: len(outcomes) - len(step.expect)] + fresh
 
 
 def _written(
     sim: Simulator, step: Step, t: float, register: str, request: WriteSingleRequest, reply: Reply | None
 ) -> Outcome:
     """The outcome of a master's write, from the reply the bus gave it."""
-    label = f"write {register} = {request.value}"
+    return _answered(sim, step, t, f"write {register} = {request.value}", request, reply)
+
+
+def _answered(sim: Simulator, step: Step, t: float, label: str, request: Request, reply: Reply | None) -> Outcome:
+    """A master's request and its reply, judged by what the step expects: taken, refused, or silence."""
+    from .decode import describe
+
+    wanted = step.expect_exception
+    wanted_text = f"exception 0x{wanted:02X} ({ExceptionCode(wanted).meaning})" if wanted is not None else ""
     if reply is None:
-        return Outcome(step, t, False, f"{label}: no reply")
+        if step.expect_silence:
+            return Outcome(step, t, True, f"{label}: no reply, as expected")
+        return Outcome(step, t, False, f"{label}: no reply" + (f", expected {wanted_text}" if wanted else ""))
     try:
         response = decode_response(reply.data)
     except ValueError:
         return Outcome(step, t, False, f"{label}: a broken reply {reply.data.hex(' ').upper()}")
+    said = describe(response, sim.profile.registers, request)
+    if step.expect_silence:
+        return Outcome(step, t, False, f"{label}: answered ({said}), expected no reply")
     if response.function & 0x80:
-        from .decode import describe
-
-        return Outcome(step, t, False, f"{label}: {describe(response, sim.profile.registers, request)}")
+        if wanted is not None and reply.data[2] == wanted:
+            return Outcome(step, t, True, f"{label}: refused with {wanted_text}, as expected")
+        return Outcome(step, t, False, f"{label}: {said}" + (f", expected {wanted_text}" if wanted else ""))
+    if wanted is not None:
+        return Outcome(step, t, False, f"{label}: taken, expected {wanted_text}")
     return Outcome(step, t, True, f"{label}: taken")
 
 
@@ -483,6 +577,10 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
         request = WriteSingleRequest(address, reg, value)
         reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(request), sim.now()))
         out.append(_written(sim, step, t, register, request, reply))
+    if step.expect_silence and not step.write:
+        poll = ReadRequest(address, Reg.STATUS1, 1)
+        reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(poll), sim.now()))
+        out.append(_answered(sim, step, t, "read 2100H", poll, reply))
     return out + _after_writes(step, sim, address, t)
 
 
@@ -497,6 +595,10 @@ async def apply_step_on_line(step: Step, sim: Simulator, line: Line) -> list[Out
         request = WriteSingleRequest(address, reg, value)
         reply = await _submit(line, encode(request))
         out.append(_written(sim, step, t, register, request, reply))
+    if step.expect_silence and not step.write:
+        poll = ReadRequest(address, Reg.STATUS1, 1)
+        reply = await _submit(line, encode(poll))
+        out.append(_answered(sim, step, t, "read 2100H", poll, reply))
     return out + _after_writes(step, sim, address, t)
 
 
@@ -529,9 +631,17 @@ def run(scenario: Scenario, sim: Simulator) -> Report:
     for step in scenario.steps:
         sim.run_until(start + step.at)
         try:
-            outcomes += apply_step(step, sim)
+            results = apply_step(step, sim)
         except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
+        if not _settled(step, results):
+            began = sim.now()
+            for t in _poll_times(step, began):
+                sim.run_until(t)
+                results = _recheck(step, sim, results, began)
+                if _settled(step, results):
+                    break
+        outcomes += results
     return Report(scenario, tuple(outcomes))
 
 
@@ -549,6 +659,14 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
             results = apply_step(step, sim) if line is None else await apply_step_on_line(step, sim, line)
         except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
+        if not _settled(step, results):
+            began = sim.now()
+            for t in _poll_times(step, began):
+                while (wait := sim.wall_seconds_to(t)) > 0:
+                    await asyncio.sleep(min(0.5, wait))
+                results = _recheck(step, sim, results, began)
+                if _settled(step, results):
+                    break
         outcomes += results
         if out is not None:
             for o in results:
@@ -563,33 +681,3 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
         verdict = "passed" if report.ok else f"FAILED ({len(report.failures)} of {len(outcomes)} checks)"
         print(f"scenario {scenario.name}: {verdict}", file=out, flush=True)
     return report
-
-
-# --- ``c20sim run-scenario``.
-
-
-def cmd_run_scenario(args: argparse.Namespace) -> int:
-    from .profile import DEFAULT_PROFILE, load_profile
-    from .simulator import parse_addresses
-
-    scenario = load_scenario(args.file)
-    profile = load_profile(args.profile or scenario.profile or DEFAULT_PROFILE)
-    addresses = parse_addresses(args.drives) if args.drives else list(scenario.drives or (1,))
-    sim = Simulator(profile, addresses, seed=args.seed)
-    report = run(scenario, sim)
-    sys.stdout.write(report.render())
-    return 0 if report.ok else 1
-
-
-def add_run_scenario_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    run_parser = sub.add_parser(
-        "run-scenario",
-        help="play a scenario file in virtual time; exit 1 if an expectation fails",
-        description="Play a TOML scenario in virtual time, instantly, and print every check. "
-        "Exit 0 if all hold, 1 if one fails, 2 if the file is bad.",
-    )
-    run_parser.add_argument("file", help="the scenario, such as scenarios/undervoltage.toml")
-    run_parser.add_argument("--profile", help="profile name or path (default: the scenario's, or c20-400hr)")
-    run_parser.add_argument("--drives", metavar="LIST", help="drive addresses (default: the scenario's, or 1)")
-    run_parser.add_argument("--seed", type=int, default=1, help="seed for random link faults (default 1)")
-    run_parser.set_defaults(func=cmd_run_scenario)

@@ -207,6 +207,22 @@ def scenario_schema() -> dict[str, Any]:
                 "description": "registers a master writes (2001H, F00.10, status1 ...) = raw value",
             },
             "keypad": {"oneOf": [{"enum": list(ops.KEYS)}, {"type": "integer", "minimum": 1, "maximum": 8}]},
+            "expect_exception": {
+                "type": "integer",
+                "minimum": 1,
+                "maximum": 8,
+                "description": "every write of the step must be refused with this exception code",
+            },
+            "expect_silence": {
+                "type": "boolean",
+                "description": "the step's writes (or a read of 2100H) must get no reply",
+            },
+            "within": {
+                "type": "number",
+                "exclusiveMinimum": 0,
+                "maximum": 3600,
+                "description": "seconds of model time the expectations may take to hold (polled every 10 ms)",
+            },
             "expect": {
                 "type": "object",
                 "additionalProperties": {

@@ -1,20 +1,30 @@
 """``c20sim ctl``: the control API from a shell, with the standard library only.
 
 Every action is one route of :mod:`c20sim.control.http`; an error answer is
-one line on stderr and exit 2, as for every other command.
+one line on stderr and exit 2, as for every other command. An action the
+drive refuses (a key press, a reset while the cause persists) prints the
+answer, one line on stderr saying so, and exits 1. ``--format json`` prints
+the answer as JSON, ``--format text`` as ``key: value`` lines (the frame log:
+one line per frame); floats are rounded to 3 decimals (times to 6). A reader
+that closes the pipe early (``ctl frames | head -1``) ends the output quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
 from ..errors import C20SimError
 from .ops import CONDITIONS, KEYS
 
-__all__ = ["add_ctl_command", "call"]
+__all__ = ["add_ctl_command", "call", "render", "rounded"]
+
+#: Keys whose floats are times: kept to the microsecond, where other floats get 3 decimals.
+TIME_KEYS = ("t", "model_t", "seconds")
 
 
 def _ctl_url(args: argparse.Namespace) -> str:
@@ -126,6 +136,84 @@ def _service(url: str, args: argparse.Namespace, at: str) -> Any:
     return call(url, "GET", f"{at}/generators")
 
 
+def rounded(value: Any, key: str = "") -> Any:
+    """``value`` with its floats rounded: 3 decimals, 6 for times (:data:`TIME_KEYS`)."""
+    if isinstance(value, float):
+        return round(value, 6 if key in TIME_KEYS else 3)
+    if isinstance(value, dict):
+        return {k: rounded(v, k) for k, v in value.items()}
+    if isinstance(value, list):
+        return [rounded(v, key) for v in value]
+    return value
+
+
+def _text_lines(value: Any, prefix: str = "") -> list[str]:
+    if isinstance(value, dict):
+        if not value:
+            return [f"{prefix}: (none)"] if prefix else []
+        lines: list[str] = []
+        for key, item in value.items():
+            lines += _text_lines(item, f"{prefix}.{key}" if prefix else str(key))
+        return lines
+    if isinstance(value, list) and any(isinstance(v, dict | list) for v in value):
+        lines = []
+        for i, item in enumerate(value):
+            lines += _text_lines(item, f"{prefix}[{i}]")
+        return lines
+    if isinstance(value, list):
+        shown = ", ".join(map(_scalar, value)) or "(none)"
+    else:
+        shown = _scalar(value)
+    return [f"{prefix}: {shown}" if prefix else shown]
+
+
+def _scalar(value: object) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return str(value)
+
+
+def render(result: Any, fmt: str) -> str:
+    """The answer as printed: JSON, or ``key: value`` lines (nested keys joined with dots)."""
+    result = rounded(result)
+    if fmt == "json":
+        return json.dumps(result, indent=2) + "\n"
+    return "\n".join(_text_lines(result)) + "\n"
+
+
+def _frame_lines(records: list[dict[str, Any]]) -> str:
+    out = []
+    for record in records:
+        note = f"  ({record['note']})" if record["note"] else ""
+        out.append(f"{record['t']:>12.6f} {record['dir']} {record['hex']:<26} {record['text']}{note}\n")
+    return "".join(out)
+
+
+def _write(text: str) -> None:
+    """Print ``text``; a reader that closed the pipe ends the output, with no traceback."""
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the interpreter flushes stdout again at exit: point it at /dev/null so that flush is quiet too
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
+    """Why the drive refused what was asked, or None if it did it."""
+    if not isinstance(result, dict):
+        return None
+    if action == "key" and result.get("accepted") is False:
+        return f"key {args.key}: refused by the drive ({result.get('state')}, run channel {result.get('run_channel')})"
+    if action == "clear" and not args.no_reset and result.get("reset") is False:
+        return f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}"
+    return None
+
+
 def cmd_ctl(args: argparse.Namespace) -> int:
     url = _ctl_url(args)
     action: str = args.action
@@ -184,12 +272,14 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     else:  # frames
         query = "&".join(f"{k}={v}" for k, v in (("last", args.last), ("slave", args.slave)) if v is not None)
         result = call(url, "GET", "/frames" + (f"?{query}" if query else ""))
-        if not args.json:
-            for record in result["frames"]:
-                note = f"  ({record['note']})" if record["note"] else ""
-                print(f"{record['t']:>12.6f} {record['dir']} {record['hex']:<26} {record['text']}{note}")
+        if args.format != "json" and not args.json:
+            _write(_frame_lines(result["frames"]))
             return 0
-    print(json.dumps(result, indent=2))
+    _write(render(result, args.format or "json"))
+    why = _refused(action, args, result)
+    if why is not None:
+        print(f"c20sim: {why}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -204,9 +294,15 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     where.add_argument("--url", help="the API's address, such as http://127.0.0.1:8020")
     where.add_argument("--ready-file", metavar="PATH", help="read the API's address from serve's ready file")
     ctl.add_argument("--drive", type=int, metavar="N", help="drive address (default: the first drive)")
+    ctl.add_argument(
+        "--format",
+        choices=["text", "json"],
+        help="print the answer as JSON or as key: value lines (default: json; text for frames)",
+    )
     # --drive is taken before or after the action; after, it must not reset the value given before
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--drive", type=int, metavar="N", default=argparse.SUPPRESS, help="drive address")
+    common.add_argument("--format", choices=["text", "json"], default=argparse.SUPPRESS, help="json or text")
     actions = ctl.add_subparsers(dest="action", metavar="ACTION", required=True)
 
     def action(name: str, help: str) -> argparse.ArgumentParser:
@@ -253,5 +349,5 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     log = action("frames", help="the frame log")
     log.add_argument("--last", type=_at_least_one, metavar="N", help="only the newest N frames (N >= 1)")
     log.add_argument("--slave", type=int, metavar="N")
-    log.add_argument("--json", action="store_true", help="print JSON, not one line per frame")
+    log.add_argument("--json", action="store_true", help="print JSON, not one line per frame (as --format json)")
     ctl.set_defaults(func=cmd_ctl)

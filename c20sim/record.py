@@ -1,0 +1,454 @@
+"""``c20sim record``: a pass-through sniffer between a master and a drive, writing the JSONL frame log.
+
+The master talks to the sniffer (a serial port, a pty it creates, or raw RTU
+over TCP); the sniffer talks to the drive (a serial port). Every byte is
+passed on at once, unchanged, both ways; on the side, each direction is cut
+into frames by the protocol (a request's length from its function code, a
+reply's from its byte count, the CRC deciding, broken bytes ended by 20 ms of
+silence) and written as one JSON line per frame, in the format of
+``serve --log-frames``: ``t`` (seconds since the recording began, at the
+frame's last byte), ``dir`` (``rx`` master to drive, ``tx`` drive to master),
+``hex``, ``kind``, ``slave``, ``text`` (in words, with the profile's register
+names) and ``note``. ``c20sim replay`` and ``c20sim decode`` read it.
+Recording stops at SIGINT or SIGTERM (exit 0), or when a serial port or the
+pty is lost (an adapter unplugged: exit 1, the log kept).
+
+The serial settings are fixed for the session: a baud change by 2009H is
+passed on, but the sniffer's ports keep the baud they were opened at.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any, Literal, cast
+
+from .decode import decode_frame, describe
+from .errors import C20SimError
+from .profile import DEFAULT_PROFILE, load_profile
+from .protocol import FrameEvent, FrameKind, Request, RtuFramer, decode_request, decode_response
+from .registers import BAUD_RATES, RegisterMap
+from .transport.endpoint import UNTIMED_SILENCE
+from .transport.tcp import parse_host_port
+
+__all__ = ["Recorder", "add_record_command"]
+
+#: Bytes waiting to be written to one side before the sniffer drops them (a side that reads nothing).
+MAX_UNSENT = 64 * 1024
+#: Records written before ``--max-records`` stops the log (the bytes are still passed on).
+DEFAULT_MAX_RECORDS = 1_000_000
+
+Receive = Callable[[bytes], None]
+Lost = Callable[[str], None]
+
+
+class _FdSide:
+    """A serial port or a pty master: a file descriptor read and written without blocking."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.fd = -1
+        self._unsent = bytearray()
+        self.dropped = 0
+
+    def start(self, receive: Receive, lost: Lost) -> None:
+        os.set_blocking(self.fd, False)
+        asyncio.get_running_loop().add_reader(self.fd, self._readable, receive, lost)
+
+    def _readable(self, receive: Receive, lost: Lost) -> None:
+        try:
+            data = os.read(self.fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:  # an unplugged adapter, a pty whose other end is gone (EIO)
+            asyncio.get_running_loop().remove_reader(self.fd)
+            lost(f"{self.name}: {exc.strerror}")
+            return
+        if not data:  # readable with nothing to read: hung up
+            asyncio.get_running_loop().remove_reader(self.fd)
+            lost(f"{self.name}: hung up")
+            return
+        receive(data)
+
+    def send(self, data: bytes) -> None:
+        if self._unsent:
+            self._queue(data)
+            return
+        try:
+            written = os.write(self.fd, data)
+        except BlockingIOError:
+            written = 0
+        except OSError:
+            self.dropped += len(data)
+            return
+        if written < len(data):
+            self._queue(data[written:])
+            asyncio.get_running_loop().add_writer(self.fd, self._writable)
+
+    def _queue(self, data: bytes) -> None:
+        room = MAX_UNSENT - len(self._unsent)
+        self._unsent += data[:room]
+        self.dropped += max(0, len(data) - room)
+
+    def _writable(self) -> None:
+        try:
+            written = os.write(self.fd, self._unsent)
+        except BlockingIOError:
+            return
+        except OSError:
+            written = len(self._unsent)
+        del self._unsent[:written]
+        if not self._unsent:
+            asyncio.get_running_loop().remove_writer(self.fd)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(self.fd)
+            loop.remove_writer(self.fd)
+
+
+class SerialSide(_FdSide):
+    def __init__(self, device: str, baud: int, parity: str, stopbits: int) -> None:
+        super().__init__(device)
+        self.device, self.baud, self.parity, self.stopbits = device, baud, parity, stopbits
+        self._port: Any = None
+
+    async def open(self) -> None:
+        import serial
+
+        parities = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+        try:
+            self._port = serial.Serial(
+                self.device,
+                self.baud,
+                parity=parities[self.parity],
+                stopbits=serial.STOPBITS_TWO if self.stopbits == 2 else serial.STOPBITS_ONE,
+                timeout=0,
+                exclusive=True,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise C20SimError(f"{self.device}: cannot open the serial port: {exc}") from None
+        self.fd = self._port.fileno()
+
+    def close(self) -> None:
+        super().close()
+        if self._port is not None:
+            self._port.close()
+
+
+class PtySide(_FdSide):
+    """A pty the master opens like a serial device; ``link`` a stable symlink to it."""
+
+    def __init__(self, link: str | None) -> None:
+        super().__init__("pty")
+        self.link = Path(link) if link else None
+        self._slave = -1
+
+    async def open(self) -> None:
+        if self.link is not None and self.link.exists() and not self.link.is_symlink():
+            raise C20SimError(f"--master-link {self.link}: a file that is not a symlink is in the way")
+        import tty  # POSIX only: imported here, so that c20sim imports where there are no ptys (Windows)
+
+        self.fd, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.name = os.ttyname(self._slave)
+        if self.link is not None:
+            try:
+                if self.link.is_symlink():
+                    self.link.unlink()
+                self.link.symlink_to(self.name)
+            except OSError as exc:
+                raise C20SimError(f"--master-link {self.link}: cannot create the symlink: {exc.strerror}") from None
+
+    def close(self) -> None:
+        super().close()
+        for fd in (self.fd, self._slave):
+            if fd >= 0:
+                os.close(fd)
+        self.fd = self._slave = -1
+        if self.link is not None and self.link.is_symlink():
+            self.link.unlink()
+
+
+class TcpSide:
+    """Raw RTU over TCP, as a serial device server: one master connection at a time."""
+
+    def __init__(self, where: str) -> None:
+        self.host, self.port = parse_host_port(where, "--master-tcp")
+        self.name = where
+        self._server: asyncio.Server | None = None
+        self._transport: asyncio.Transport | None = None
+        self._receive: Receive | None = None
+        self.dropped = 0
+
+    async def open(self) -> None:
+        try:
+            self._server = await asyncio.get_running_loop().create_server(
+                lambda: _TcpConnection(self), self.host, self.port
+            )
+        except OSError as exc:
+            raise C20SimError(f"--master-tcp {self.name}: cannot listen: {exc.strerror}") from None
+        host, port = self._server.sockets[0].getsockname()[:2]
+        self.name = f"{host}:{port}"
+
+    def start(self, receive: Receive, lost: Lost) -> None:
+        self._receive = receive  # a master that hangs up may connect again: never lost
+
+    def send(self, data: bytes) -> None:
+        if self._transport is None or self._transport.is_closing():
+            self.dropped += len(data)
+            return
+        if self._transport.get_write_buffer_size() > MAX_UNSENT:
+            self.dropped += len(data)
+            return
+        self._transport.write(data)
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+        if self._server is not None:
+            self._server.close()
+
+
+class _TcpConnection(asyncio.Protocol):
+    def __init__(self, side: TcpSide) -> None:
+        self.side = side
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.Transport, transport)
+        if self.side._transport is not None and not self.side._transport.is_closing():
+            self.transport.close()  # one master at a time: the line has one
+            return
+        self.side._transport = self.transport
+
+    def data_received(self, data: bytes) -> None:
+        if self.side._transport is self.transport and self.side._receive is not None:
+            self.side._receive(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.side._transport is self.transport:
+            self.side._transport = None
+
+
+Side = SerialSide | PtySide | TcpSide
+
+#: Each direction of the log, and how its frames are cut: the master sends requests, the drive replies.
+_SIDES: tuple[tuple[str, Literal["request", "response"]], ...] = (("rx", "request"), ("tx", "response"))
+
+
+class Recorder:
+    """Frames both directions of a master-drive conversation and writes each frame as a JSON line."""
+
+    def __init__(self, out: IO[str], registers: RegisterMap, baud: int, *, max_records: int = DEFAULT_MAX_RECORDS):
+        self.out = out
+        self.registers = registers
+        self.max_records = max_records
+        self.records = 0
+        self.full = False
+        self.t0 = 0.0
+        self._last_request: Request | None = None
+        self.framers = {
+            direction: RtuFramer(
+                baud, direction=side, complete_on_length=True, check_gaps=False, silence=UNTIMED_SILENCE
+            )
+            for direction, side in _SIDES
+        }
+        self._timers: dict[str, asyncio.TimerHandle] = {}
+
+    def start(self) -> None:
+        self.t0 = asyncio.get_running_loop().time()
+
+    def heard(self, direction: str, data: bytes) -> None:
+        """Bytes seen going ``direction`` (rx: from the master, tx: from the drive), arriving now."""
+        loop = asyncio.get_running_loop()
+        framer = self.framers[direction]
+        framer.feed(data, loop.time() - self.t0)
+        self._drain(direction)
+        timer = self._timers.pop(direction, None)
+        if timer is not None:
+            timer.cancel()
+        deadline = framer.deadline()
+        if deadline is not None:
+            self._timers[direction] = loop.call_at(deadline + self.t0, self._silence, direction)
+
+    def _silence(self, direction: str) -> None:
+        self._timers.pop(direction, None)
+        self.framers[direction].tick(asyncio.get_running_loop().time() - self.t0)
+        self._drain(direction)
+
+    def flush(self) -> None:
+        for direction, framer in self.framers.items():
+            framer.flush()
+            self._drain(direction)
+        for timer in self._timers.values():
+            timer.cancel()
+        self._timers.clear()
+
+    def _drain(self, direction: str) -> None:
+        for event in self.framers[direction].events():
+            self.write(direction, event)
+
+    def write(self, direction: str, event: FrameEvent) -> None:
+        kind, text = self._words(direction, event)
+        if self.records >= self.max_records:
+            if not self.full:
+                self.full = True
+                print(
+                    f"c20sim record: {self.max_records} records written; the rest is passed on, not logged",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            return
+        record = {
+            "t": round(event.t, 6),
+            "model_t": None,
+            "dir": direction,
+            "hex": event.data.hex(" ").upper(),
+            "kind": kind,
+            "slave": event.data[0] if event.data else None,
+            "text": text,
+            "note": event.note,
+        }
+        self.out.write(json.dumps(record) + "\n")
+        self.out.flush()
+        self.records += 1
+
+    def _words(self, direction: str, event: FrameEvent) -> tuple[str, str]:
+        if event.kind is not FrameKind.FRAME:
+            return event.kind.value, decode_frame(event.data, self.registers).text
+        try:
+            if direction == "rx":
+                request = decode_request(event.data)
+                self._last_request = request
+                return "request", describe(request, self.registers)
+            response = decode_response(event.data)
+        except ValueError as exc:
+            return "noise", str(exc)
+        words = describe(response, self.registers, self._last_request)
+        return ("exception" if response.function & 0x80 else "reply"), words
+
+
+def _master_side(args: Any) -> Side:
+    given = [x for x in (args.master_serial, args.master_tcp) if x] + (["pty"] if args.master_pty else [])
+    if len(given) != 1:
+        raise C20SimError("give the master's side once: --master-pty, --master-serial DEVICE or --master-tcp HOST:PORT")
+    if args.master_pty:
+        return PtySide(args.master_link)
+    if args.master_serial:
+        return SerialSide(args.master_serial, args.baud, args.parity, args.stopbits)
+    return TcpSide(args.master_tcp)
+
+
+def _write_ready(path: str, data: dict[str, str]) -> None:
+    """The ready file, whole or not at all: written aside, then renamed (a reader never sees half of it)."""
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(data) + "\n")
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None
+
+
+async def record(args: Any, out: IO[str], registers: RegisterMap) -> tuple[Recorder, str | None]:
+    """Sniff until SIGINT or SIGTERM, or a port is lost; the recorder (its count of records), and the loss."""
+    master = _master_side(args)
+    drive = SerialSide(args.drive_serial, args.baud, args.parity, args.stopbits)
+    recorder = Recorder(out, registers, args.baud, max_records=args.max_records)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    losses: list[str] = []
+
+    def lost(why: str) -> None:
+        losses.append(why)
+        stop.set()
+
+    handled: list[signal.Signals] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+            handled.append(sig)
+        except NotImplementedError:  # Windows' loops: Ctrl-C raises KeyboardInterrupt, and the finally flushes
+            pass
+    opened: list[Side] = []
+    try:
+        for side in (drive, master):
+            await side.open()
+            opened.append(side)
+        recorder.start()
+
+        def from_master(data: bytes) -> None:
+            drive.send(data)
+            recorder.heard("rx", data)
+
+        def from_drive(data: bytes) -> None:
+            master.send(data)
+            recorder.heard("tx", data)
+
+        master.start(from_master, lost)
+        drive.start(from_drive, lost)
+        if args.ready_file:
+            _write_ready(args.ready_file, {"master": master.name, "drive": drive.name, "log": args.out})
+        print(f"c20sim record: master {master.name} <-> drive {drive.name}; frames to {args.out}", flush=True)
+        await stop.wait()
+    finally:
+        for sig in handled:
+            loop.remove_signal_handler(sig)
+        recorder.flush()
+        for side in opened:
+            side.close()
+    return recorder, (losses[0] if losses else None)
+
+
+def cmd_record(args: Any) -> int:
+    if args.baud not in BAUD_RATES:
+        raise C20SimError(f"--baud {args.baud}: not one the C20 supports: {', '.join(map(str, BAUD_RATES))}")
+    if args.max_records < 1:
+        raise C20SimError(f"--max-records {args.max_records}: must be at least 1")
+    _master_side(args)  # the checks, before the log file is made
+    registers = load_profile(args.profile).registers
+    try:
+        out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the loop
+    except OSError as exc:
+        raise C20SimError(f"--out {args.out}: cannot write: {exc.strerror}") from None
+    with contextlib.closing(out):
+        recorder, loss = asyncio.run(record(args, out, registers))
+    print(f"c20sim record: {recorder.records} frame(s) written to {args.out}", flush=True)
+    if loss is not None:
+        print(f"c20sim record: stopped: the port was lost ({loss})", file=sys.stderr, flush=True)
+        return 1
+    return 0
+
+
+def add_record_command(sub: Any) -> None:
+    parser = sub.add_parser(
+        "record",
+        help="sniff a master and a drive, passing every byte on, and write the JSONL frame log",
+        description="A pass-through sniffer: the master connects here (--master-pty, --master-serial or "
+        "--master-tcp), the drive is on --drive-serial; every byte is passed on and every frame logged "
+        "as a JSON line with its time. Stop with Ctrl-C or SIGTERM. Replay the log with c20sim replay.",
+    )
+    master = parser.add_argument_group("the master's side (one of)")
+    master.add_argument("--master-pty", action="store_true", help="create a pty for the master and print its path")
+    master.add_argument("--master-link", metavar="PATH", help="a stable symlink to that pty, such as /tmp/ttyMaster")
+    master.add_argument("--master-serial", metavar="DEVICE", help="a serial port the master is wired to")
+    master.add_argument("--master-tcp", metavar="HOST:PORT", help="listen for the master's raw RTU over TCP")
+    parser.add_argument("--drive-serial", metavar="DEVICE", required=True, help="the serial port the drive is on")
+    parser.add_argument("--baud", type=int, default=19200, help="both ports' baud rate (default 19200)")
+    parser.add_argument("--parity", default="N", choices=["N", "E", "O"], help="serial parity (default N)")
+    parser.add_argument("--stopbits", type=int, default=1, choices=[1, 2], help="serial stop bits (default 1)")
+    parser.add_argument("--out", "-o", metavar="LOG", required=True, help="the JSONL frame log to write")
+    parser.add_argument("--profile", default=DEFAULT_PROFILE, help="profile whose register names the log uses")
+    parser.add_argument(
+        "--max-records", type=int, default=DEFAULT_MAX_RECORDS, metavar="N", help="stop logging after N frames"
+    )
+    parser.add_argument("--ready-file", metavar="PATH", help="write the master's address as JSON when ready")
+    parser.set_defaults(func=cmd_record)
