@@ -24,6 +24,7 @@ __all__ = [
     "BROADCAST",
     "MAX_ADU",
     "MAX_WRITE_REGISTERS",
+    "SHEET_CHAR_BITS",
     "Direction",
     "ExceptionCode",
     "ExceptionResponse",

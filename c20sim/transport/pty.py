@@ -3,8 +3,10 @@
 The simulator holds the pty's master side and keeps the slave side open too,
 so that a master may open, close and reopen the device without the simulator
 seeing an error. ``--link PATH`` adds a stable symlink such as /tmp/ttyC20.
-With ``line_timing`` replies are paced at the configured baud, byte by byte,
-and incoming frames are held to the sheet's 1.5/3.5-character rules.
+With ``line_timing`` the pty is a :class:`~c20sim.transport.timed.TimedEndpoint`:
+frames are strict and held to the sheet's 1.5/3.5-character rules for an 8N1
+line, and replies are paced at the line's baud, byte by byte, on a thread of
+their own.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ import tty
 from pathlib import Path
 
 from ..errors import C20SimError
-from ..protocol import char_time
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
+from .timed import TimedEndpoint
 
 __all__ = ["PtyPort"]
 
@@ -34,10 +36,8 @@ class PtyPort:
         self.path = ""
         self._master = -1
         self._slave = -1
-        self._endpoint: RtuEndpoint | None = None
+        self._endpoint: RtuEndpoint | TimedEndpoint | None = None
         self._unsent = bytearray()  # what the pty's buffer would not take yet
-        self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
-        self._pacer: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
         if self.link is not None and self.link.exists() and not self.link.is_symlink():
@@ -59,10 +59,11 @@ class PtyPort:
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
         framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
+        if self.line_timing:  # a pty has no line format: it is the sheet's 8N1
+            self._endpoint = TimedEndpoint(self.line, self._master, framer, pace=True, name=f"pty {self.path}")
+            return
         self._endpoint = RtuEndpoint(self.line, framer, self._send, name=f"pty {self.path}")
         asyncio.get_running_loop().add_reader(self._master, self._readable)
-        if self.line_timing:
-            self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
 
     @property
     def baud(self) -> int:
@@ -74,6 +75,7 @@ class PtyPort:
         return str(self.link) if self.link else self.path
 
     def _readable(self) -> None:
+        assert isinstance(self._endpoint, RtuEndpoint)
         try:
             data = os.read(self._master, 4096)
         except BlockingIOError:
@@ -86,9 +88,6 @@ class PtyPort:
             self._endpoint.feed(data)
 
     def _send(self, data: bytes, baud: int) -> None:
-        if self.line_timing:
-            self._paced.put_nowait((data, baud))
-            return
         if self._unsent:
             self._unsent += data
             return
@@ -108,29 +107,9 @@ class PtyPort:
         if not self._unsent:
             asyncio.get_running_loop().remove_writer(self._master)
 
-    async def _pace(self) -> None:
-        """Put replies on the pty one character time apart, at the line's baud."""
-        loop = asyncio.get_running_loop()
-        while True:
-            data, baud = await self._paced.get()
-            per_char = char_time(baud)  # the reply's own baud: the old one after a 2009H write
-            start = loop.time()
-            sent = 0
-            while sent < len(data):
-                due = max(sent + 1, min(len(data), int((loop.time() - start) / per_char) + 1))
-                chunk = data[sent:due]
-                while (written := self._write_some(chunk)) == 0:
-                    await asyncio.sleep(per_char)
-                sent += written
-                if sent < len(data):
-                    await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
-
     def close(self) -> None:
         if self._endpoint is not None:
             self._endpoint.close()
-        if self._pacer is not None:
-            self._pacer.cancel()
-            self._pacer = None
         if self._master >= 0:
             with contextlib.suppress(RuntimeError):
                 loop = asyncio.get_running_loop()
