@@ -457,8 +457,14 @@ class RtuFramer:
         return bool(self._buffer)
 
     def deadline(self) -> float | None:
-        """Time at which silence ends the buffered frame, or None if nothing is buffered."""
-        return self._last_t + self.t35 if self._buffer else None
+        """Time at which silence ends the buffered frame, or None if nothing is buffered.
+
+        Strict: t3.5 of silence is known only one character later, since a byte is seen when it has
+        arrived whole: one that started within t3.5 of the last has arrived by then.
+        """
+        if not self._buffer:
+            return None
+        return self._last_t + self.t35 + (self._char if self.strict else 0.0)
 
     def feed(self, data: bytes, t: float) -> None:
         if not data:
@@ -484,7 +490,8 @@ class RtuFramer:
             self._close()
 
     def tick(self, t: float) -> None:
-        if self._buffer and t - self._last_t >= self.t35 - _EPSILON:
+        deadline = self.deadline()
+        if deadline is not None and t >= deadline - _EPSILON:
             self._close()
 
     def flush(self) -> None:

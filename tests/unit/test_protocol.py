@@ -441,3 +441,17 @@ def test_strict_framer_never_raises_and_never_splits_without_silence(chunks: lis
     events = framer.events()
     assert all(0 < len(e.data) <= 256 for e in events)
     assert sum(len(e.data) for e in events) <= sum(len(c) for c in chunks)
+
+
+def test_strict_silence_is_known_one_character_after_t35() -> None:
+    # A byte that started just inside t3.5 arrives whole one character later: it still belongs to the frame.
+    framer = RtuFramer(1200, strict=True)
+    char, (_, t35) = 10 / 1200, silence_times(1200)
+    framer.feed(H("FF 00"), 1.0)
+    assert framer.deadline() == pytest.approx(1.0 + t35 + char)
+    framer.tick(1.0 + t35 + 0.5 * char)
+    assert framer.next_event() is None
+    framer.feed(READ[:1], 1.0 + 0.0265 + char)  # 26.5 ms of silence, then a byte
+    framer.feed(READ[1:], 1.0 + 0.0265 + 8 * char)
+    framer.tick(5.0)
+    assert [e.kind for e in framer.events()] == [FrameKind.NOISE]  # one frame, broken by a gap over t1.5
