@@ -220,7 +220,7 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             "run command channel",
             _RW,
             0,
-            3,
+            4,  # sheet: "(0-4)", though it names 0-3 only
             values={0: "keypad", 1: "terminals", 2: "communication", 3: "dial switch (SW3)"},
         ),
         _spec(

@@ -96,3 +96,14 @@ def test_a_mirror_cannot_widen_the_sheets_range(tmp_path: Path) -> None:
     assert text != DEFAULT_TEXT
     message = bad(tmp_path, text)
     assert message.endswith("parameter F08.00.max: 1-250 goes beyond 2008H's range in the sheet, 1-247")
+
+
+def test_protocol_quirks_of_the_sheets_edges(tmp_path: Path) -> None:
+    protocol = load_profile().protocol
+    assert (protocol.run_while_faulted_exception, protocol.byte_count_exception) == (1, 6)
+    assert (protocol.simple_plc, protocol.lacking_feature_exception) == (False, 3)
+    path = tmp_path / "bad.toml"
+    path.write_text(DEFAULT_TEXT.replace("byte_count_exception = 6", "byte_count_exception = 4"))
+    with pytest.raises(ProfileError) as info:
+        load_profile(str(path))
+    assert "protocol.byte_count_exception: 4 is not allowed; allowed: 3, 6" in str(info.value)
