@@ -43,8 +43,6 @@ READ = encode(ReadRequest(1, 0x2103, 1))  # read the drive ID
 READ2 = encode(ReadRequest(2, 0x2103, 1))
 ID_REPLY = encode(ReadResponse(1, (0x0020,)))
 TURNAROUND = 0.002  # the default profile's
-#: A trial whose master wrote a byte later than this after its time is void, and run again.
-MASTER_SLACK = 0.0002
 EXTRA: list[str] = []  # more serve options, for a diagnosis by hand
 
 
@@ -54,7 +52,7 @@ class Master:
 
     fd: int
     baud: int
-    faithful: bool = True  #: the last send's bytes left within MASTER_SLACK of their times
+    lateness: float = 0.0  #: how late the last send's latest byte left, seconds
 
     @property
     def char(self) -> float:
@@ -70,7 +68,7 @@ class Master:
         if not gaps:
             os.write(self.fd, data)
             return time.perf_counter()
-        self.faithful = True
+        self.lateness = 0.0
         t = time.perf_counter()
         for i in range(len(data)):
             # From when the last byte really went: this process running late lengthens a gap, never shortens it.
@@ -79,8 +77,7 @@ class Master:
                 pass
             os.write(self.fd, data[i : i + 1])
             t = time.perf_counter()
-            if t - due > MASTER_SLACK:
-                self.faithful = False  # this process was descheduled: the line was not what the trial meant
+            self.lateness = max(self.lateness, t - due)  # this process was descheduled, or the write was slow
         return t
 
     def receive(self, deadline: float) -> tuple[bytes, list[float]]:
@@ -179,16 +176,20 @@ def m1200(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Master]:
     yield from _server(tmp_path_factory.mktemp("lt"), 1200)
 
 
-def answered(master: Master, data: bytes, gaps: dict[int, float], trials: int) -> tuple[int, str]:
+def answered(
+    master: Master, data: bytes, gaps: dict[int, float], trials: int, slack: float | None = None
+) -> tuple[int, str]:
     """How many of ``trials`` sends of ``data`` with ``gaps`` got the drive ID reply, and the counts in words.
 
-    Only trials in which this process wrote every byte on time count; the void ones are run again
-    (up to 5 times as many attempts), and their number is in the words.
+    With ``slack``, a trial in which this process wrote a byte more than ``slack`` late is void and run
+    again (up to 5 times as many attempts): a late byte lengthens the silence before it, which could
+    break a frame that should pass. Where the frame should fail, a late byte only makes it fail more
+    surely: no slack, every trial counts.
     """
     got = done = void = 0
     while done < trials and done + void < 5 * trials:
         reply = master.ask(data, gaps)[0]
-        if not master.faithful:
+        if slack is not None and master.lateness > slack:
             void += 1
             continue
         done += 1
@@ -226,7 +227,9 @@ def test_garbage_glued_in_front_of_a_frame_spoils_it(m19200: Master) -> None:
 def test_a_frame_after_t35_of_silence_is_a_frame_of_its_own(m19200: Master) -> None:
     t35 = silence_times(19200)[1]
     n = 20
-    got, words = answered(m19200, b"\xff\x00" + READ, {2: t35 + 0.0005}, n)  # garbage, t3.5 + 0.5 ms, a request
+    got, words = answered(
+        m19200, b"\xff\x00" + READ, {2: t35 + 0.0005}, n, slack=0.0002
+    )  # garbage, t3.5 + 0.5 ms, a request
     assert got > n // 2, f"after garbage and t3.5 of silence: {words}"
 
 
@@ -237,8 +240,8 @@ def test_a_1ms_gap_inside_a_frame_at_19200_is_discarded(m19200: Master) -> None:
     # t1.5 = 0.78 ms at 19200 8N1: a 1.0 ms gap makes the frame invalid; 0.5 ms does not.
     n = 40
     over, over_words = answered(m19200, READ, {4: 0.0010}, n)
-    under, under_words = answered(m19200, READ, {4: 0.0005}, n)
-    assert over < n // 4, f"a 1.0 ms gap: {over_words}; expected (almost) none"
+    under, under_words = answered(m19200, READ, {4: 0.0005}, n, slack=0.0002)
+    assert over <= n // 10, f"a 1.0 ms gap: {over_words}; expected (almost) none"
     assert under > n * 3 // 4, f"a 0.5 ms gap: {under_words}; expected (almost) all"
 
 
@@ -246,7 +249,7 @@ def test_t15_at_1200_baud_is_12_5_ms(m1200: Master) -> None:
     # 8N1 at 1200: t1.5 = 12.5 ms. With 11-bit characters it was 13.75 ms, and a 13 ms gap passed.
     n = 12
     over, over_words = answered(m1200, READ, {4: 0.0130}, n)
-    under, under_words = answered(m1200, READ, {4: 0.0115}, n)
+    under, under_words = answered(m1200, READ, {4: 0.0115}, n, slack=0.0005)
     assert over <= n // 4, f"a 13 ms gap at 1200 baud: {over_words}; expected (almost) none"
     assert under >= n * 3 // 4, f"an 11.5 ms gap at 1200 baud: {under_words}; expected (almost) all"
 
@@ -255,7 +258,7 @@ def test_t35_at_1200_baud_is_29_2_ms(m1200: Master) -> None:
     # Garbage, then silence, then a request: a new frame only after t3.5 = 29.2 ms (8N1; 32.1 ms at 11 bits).
     n = 12
     joined, joined_words = answered(m1200, b"\xff\x00" + READ, {2: 0.0265}, n)
-    split, split_words = answered(m1200, b"\xff\x00" + READ, {2: 0.0310}, n)
+    split, split_words = answered(m1200, b"\xff\x00" + READ, {2: 0.0310}, n, slack=0.0005)
     assert joined <= n // 4, f"26.5 ms of silence: {joined_words}; expected (almost) none"
     assert split >= n * 3 // 4, f"31 ms of silence: {split_words}; expected (almost) all"
 
@@ -268,7 +271,7 @@ def test_reply_bytes_at_1200_baud_come_8_33_ms_apart(m1200: Master) -> None:
         assert reply == ID_REPLY
         intervals += [b - a for a, b in itertools.pairwise(stamps)]
     near = sum(abs(i - char) < 0.04 * char for i in intervals)  # 9.17 ms is 10 % off: not near
-    assert near > len(intervals) * 3 // 4, f"{near} of {len(intervals)} intervals within 4 % of {char * 1000:.2f} ms"
+    assert near > len(intervals) // 2, f"{near} of {len(intervals)} intervals within 4 % of {char * 1000:.2f} ms"
 
 
 # --- item 3: replies paced byte by byte, starting t3.5 + turnaround after the request
@@ -282,7 +285,7 @@ def test_reply_bytes_at_19200_baud_are_paced_one_character_apart(m19200: Master)
         assert reply == ID_REPLY
         intervals += [b - a for a, b in itertools.pairwise(stamps)]
     paced = sum(0.5 * char <= i <= 1.5 * char for i in intervals)
-    assert paced > len(intervals) * 3 // 4, f"{paced} of {len(intervals)} intervals within 0.5-1.5 characters"
+    assert paced > len(intervals) // 2, f"{paced} of {len(intervals)} intervals within 0.5-1.5 characters"
 
 
 def test_a_reply_starts_t35_plus_turnaround_after_the_request(m19200: Master) -> None:
