@@ -172,14 +172,20 @@ def report(result: Result, turnaround: float) -> str:
     char = char_time(result.baud) * 1000
     _, t35 = silence_times(result.baud)
     ideal_start = (t35 + turnaround) * 1000
+    # The silence that ends a frame is known one character after t3.5: with a turnaround shorter than a
+    # character (1200 baud), the earliest start is t3.5 + one character.
+    earliest = (t35 + max(turnaround, char_time(result.baud))) * 1000
     share = 100.0 * result.answered / result.requests
     if not result.spacing_ms:
-        return f"| {result.baud:>5} | {char:.3f} | - | - | - | {ideal_start:.3f} | - | - | {share:.2f} % ({result.answered}/{result.requests}) |"
+        return (
+            f"| {result.baud:>5} | {char:.3f} | - | - | - | - | {ideal_start:.3f} / {earliest:.3f} | - | - | "
+            f"{share:.2f} % ({result.answered}/{result.requests}) |"
+        )
     sp, st = result.spacing_ms, result.start_ms
     within = sum(abs(s - char) <= 0.1 * char for s in sp)
     return (
         f"| {result.baud:>5} | {char:.3f} | {statistics.median(sp):.3f} | {percentile(sp, 5):.3f} | "
-        f"{percentile(sp, 95):.3f} | {100.0 * within / len(sp):.1f} % | {ideal_start:.3f} | "
+        f"{percentile(sp, 95):.3f} | {100.0 * within / len(sp):.1f} % | {ideal_start:.3f} / {earliest:.3f} | "
         f"{statistics.median(st):.3f} | {percentile(st, 5):.3f}-{percentile(st, 95):.3f} | "
         f"{share:.2f} % ({result.answered}/{result.requests}) |"
     )
@@ -196,15 +202,18 @@ def main() -> None:
     print(
         f"cpus: {os.cpu_count()}, python {sys.version.split()[0]}, turnaround {turnaround * 1000:g} ms (default profile)"
     )
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} (other work on the machine included)")
     print()
     print(
-        "| baud | ideal spacing ms | median | p5 | p95 | within +-0.1 char | ideal start ms | "
+        "| baud | ideal spacing ms | median | p5 | p95 | within +-0.1 char | ideal start ms (t3.5 + turnaround / "
+        "earliest the framing allows) | "
         "start median | start p5-p95 | answered |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for baud in (int(b) for b in args.bauds.split(",")):
         result = run(baud, args.requests, args.load, turnaround)
         print(report(result, turnaround), flush=True)
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":
