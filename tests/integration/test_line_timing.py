@@ -302,3 +302,66 @@ def test_a_reply_starts_t35_plus_turnaround_after_the_request(m19200: Master) ->
     assert on_time > len(starts) // 2, (
         f"{on_time} of {len(starts)} replies started within 1 ms of {ideal * 1000:.2f} ms"
     )
+
+
+# --- a serial port: the character of its own format, and a baud change after the reply
+
+
+def _serial_server(tmp: Path, parity: str) -> Iterator[Master]:
+    """A line-timed simulator on a serial port, here the far end of a pty: this master holds the other end."""
+    ours, theirs = os.openpty()
+    tty.setraw(ours)
+    tty.setraw(theirs)
+    ready = tmp / "ready-serial.json"
+    ready.unlink(missing_ok=True)
+    device = os.ttyname(theirs)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "c20sim",
+            "serve",
+            "--serial",
+            device,
+            "--parity",
+            parity,
+            "--line-timing",
+            "--baud",
+            "1200",
+            "--ready-file",
+            str(ready),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while not ready.exists():
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            assert time.monotonic() < deadline, "server not ready"
+            time.sleep(0.02)
+        os.set_blocking(ours, False)
+        master = Master(ours, 1200)
+        reply, _ = master.receive(master.send(READ) + 10.0)
+        assert reply == ID_REPLY, reply.hex(" ")
+        master.quiet()
+        yield master
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        os.close(ours)
+        os.close(theirs)
+
+
+@pytest.fixture(scope="module")
+def serial_8e1(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Master]:
+    yield from _serial_server(tmp_path_factory.mktemp("lt"), "E")
+
+
+def test_a_serial_ports_character_follows_its_parity(serial_8e1: Master) -> None:
+    # 8E1 at 1200 baud: 11 bits, t1.5 = 13.75 ms. A 13 ms gap, which breaks an 8N1 frame, passes here.
+    n = 12
+    got, words = answered(serial_8e1, READ, {4: 0.0130}, n, slack=0.0005)
+    assert got >= n * 3 // 4, f"a 13 ms gap on an 8E1 port: {words}; expected (almost) all"
+    over, over_words = answered(serial_8e1, READ, {4: 0.0150}, n)
+    assert over <= n // 4, f"a 15 ms gap on an 8E1 port: {over_words}; expected (almost) none"
