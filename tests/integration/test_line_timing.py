@@ -23,7 +23,7 @@ import sys
 import time
 import tty
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -52,7 +52,7 @@ class Master:
 
     fd: int
     baud: int
-    lateness: float = 0.0  #: how late the last send's latest byte left, seconds
+    silences: list[float] = field(default_factory=list)  #: silence before each byte of the last send, as written
 
     @property
     def char(self) -> float:
@@ -62,13 +62,13 @@ class Master:
         """Write ``data`` as a line would deliver it, with ``gaps[i]`` seconds of silence before byte i.
 
         Without gaps, ``data`` is written at once: back to back, whatever this process's scheduling.
-        Returns the time the last byte ended.
+        Returns the time the last byte ended; :attr:`silences` has the silence before each byte as written.
         """
         self.drain()
+        self.silences = []
         if not gaps:
             os.write(self.fd, data)
             return time.perf_counter()
-        self.lateness = 0.0
         t = time.perf_counter()
         for i in range(len(data)):
             # From when the last byte really went: this process running late lengthens a gap, never shortens it.
@@ -76,8 +76,9 @@ class Master:
             while time.perf_counter() < due:
                 pass
             os.write(self.fd, data[i : i + 1])
-            t = time.perf_counter()
-            self.lateness = max(self.lateness, t - due)  # this process was descheduled, or the write was slow
+            now = time.perf_counter()
+            self.silences.append(now - t - self.char)
+            t = now
         return t
 
     def receive(self, deadline: float) -> tuple[bytes, list[float]]:
@@ -181,15 +182,18 @@ def answered(
 ) -> tuple[int, str]:
     """How many of ``trials`` sends of ``data`` with ``gaps`` got the drive ID reply, and the counts in words.
 
-    With ``slack``, a trial in which this process wrote a byte more than ``slack`` late is void and run
-    again (up to 5 times as many attempts): a late byte lengthens the silence before it, which could
-    break a frame that should pass. Where the frame should fail, a late byte only makes it fail more
-    surely: no slack, every trial counts.
+    With ``slack``, the trial is one that should pass, and a late byte from this process could make it
+    fail: a trial is void, and run again (up to 5 times as many attempts), if the silence before a gap's
+    byte was more than ``slack`` over the gap, or the silence before any other byte came within 0.1 ms
+    of t1.5. Where the frame should fail, a late byte only makes it fail more surely: every trial counts.
     """
+    t15 = silence_times(master.baud)[0]
     got = done = void = 0
     while done < trials and done + void < 5 * trials:
         reply = master.ask(data, gaps)[0]
-        if slack is not None and master.lateness > slack:
+        if slack is not None and any(
+            silence > (gaps[i] + slack if i in gaps else t15 - 0.0001) for i, silence in enumerate(master.silences)
+        ):
             void += 1
             continue
         done += 1
