@@ -8,7 +8,11 @@ line-timed stream does its timing off the loop:
 - a reader thread waits on the port with ``select`` (microsecond timeouts),
   stamps every chunk with ``time.perf_counter`` as it arrives, feeds the
   strict framer and ticks it at its t3.5 deadline; the framing events go to
-  the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`;
+  the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`.
+  Inside a frame at 19200 baud and above (t1.5 under 1 ms) it polls without
+  sleeping until the frame ends, since a thread's wake-up can be late by more
+  than t1.5 on a busy machine: a frame costs that thread's CPU for its own
+  length plus t3.5 (about 6.5 ms for an 8-byte request at 19200 baud);
 - a writer thread puts each reply on the port starting t3.5 + the reply's
   turnaround after the request's last byte, and, where the port does not pace
   bytes itself (a pty), one byte every character time: it sleeps to just
@@ -48,6 +52,8 @@ log = logging.getLogger(__name__)
 
 #: The last stretch before a byte's time is spun, not slept: a sleep overshoots by 50-100 us.
 SPIN = 0.0003
+#: Inside a frame whose t1.5 is shorter than this, the reader polls the port without sleeping (seconds).
+SPIN_READ_BELOW = 0.001
 #: Replies waiting for the writer at most; more means the master does not wait for answers: they are dropped.
 MAX_PENDING_REPLIES = 8
 #: The nice value the timing threads ask for (granted to root or with CAP_SYS_NICE only).
@@ -152,6 +158,8 @@ class TimedEndpoint:
             with self._lock:
                 deadline = self.framer.deadline()
             timeout = None if deadline is None else max(0.0, deadline - time.perf_counter())
+            if timeout is not None and self.framer.t15 < SPIN_READ_BELOW:
+                timeout = 0.0  # inside a fast frame: poll without sleeping, so that no wake-up delays a stamp
             try:
                 ready, _, _ = select.select([fd, wake], [], [], timeout)
             except (OSError, ValueError) as exc:

@@ -20,6 +20,7 @@ import os
 import select
 import subprocess
 import sys
+import threading
 import time
 import tty
 from collections.abc import Iterator
@@ -67,8 +68,9 @@ class Master:
         self.drain()
         self.silences = []
         if not gaps:
+            before = time.perf_counter()  # the bytes cannot have arrived before this; after is later still
             os.write(self.fd, data)
-            return time.perf_counter()
+            return before
         t = time.perf_counter()
         for i in range(len(data)):
             # From when the last byte really went: this process running late lengthens a gap, never shortens it.
@@ -123,6 +125,16 @@ class Master:
                 return
 
 
+def _raise_priority() -> bool:
+    """Give this thread nice -10 where allowed, as the simulator's timing threads have: the master
+    busy-waits to write its bytes on time, and loses its CPU to them otherwise on a small machine."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), -10)
+    except OSError:
+        return False
+    return True
+
+
 def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
     ready = tmp / f"ready-{baud}.json"
     ready.unlink(missing_ok=True)
@@ -153,6 +165,7 @@ def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
             time.sleep(0.02)
         fd = os.open(json.loads(ready.read_text())["pty"], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         tty.setraw(fd)
+        raised = _raise_priority()
         try:
             master = Master(fd, baud)
             # The first request of a fresh server is served late (imports, the model's first step): warm it up.
@@ -161,6 +174,8 @@ def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
             master.quiet()
             yield master
         finally:
+            if raised:
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 0)
             os.close(fd)
     finally:
         proc.terminate()
@@ -179,17 +194,17 @@ def m1200(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Master]:
 
 def answered(
     master: Master, data: bytes, gaps: dict[int, float], trials: int, slack: float | None = None
-) -> tuple[int, str]:
-    """How many of ``trials`` sends of ``data`` with ``gaps`` got the drive ID reply, and the counts in words.
+) -> tuple[float, str]:
+    """The share of ``trials`` sends of ``data`` with ``gaps`` got the drive ID reply, and the counts in words.
 
     With ``slack``, the trial is one that should pass, and a late byte from this process could make it
-    fail: a trial is void, and run again (up to 5 times as many attempts), if the silence before a gap's
+    fail: a trial is void, and run again (up to 10 times as many attempts), if the silence before a gap's
     byte was more than ``slack`` over the gap, or the silence before any other byte came within 0.1 ms
     of t1.5. Where the frame should fail, a late byte only makes it fail more surely: every trial counts.
     """
     t15 = silence_times(master.baud)[0]
     got = done = void = 0
-    while done < trials and done + void < 5 * trials:
+    while done < trials and done + void < 10 * trials:
         reply = master.ask(data, gaps)[0]
         if slack is not None and any(
             silence > (gaps[i] + slack if i in gaps else t15 - 0.0001) for i, silence in enumerate(master.silences)
@@ -198,8 +213,8 @@ def answered(
             continue
         done += 1
         got += reply == ID_REPLY
-    assert done >= trials // 2, f"only {done} of {done + void} trials were written on time: the machine is too busy"
-    return got, f"{got} of {done} answered ({void} void trials: the master was late)"
+    assert done >= 10, f"only {done} of {done + void} trials were written on time: the machine is too busy"
+    return got / done, f"{got} of {done} answered ({void} void trials: the master was late)"
 
 
 # --- item 1: bytes not separated by t3.5 are one frame
@@ -234,7 +249,7 @@ def test_a_frame_after_t35_of_silence_is_a_frame_of_its_own(m19200: Master) -> N
     got, words = answered(
         m19200, b"\xff\x00" + READ, {2: t35 + 0.0005}, n, slack=0.0002
     )  # garbage, t3.5 + 0.5 ms, a request
-    assert got > n // 2, f"after garbage and t3.5 of silence: {words}"
+    assert got > 0.5, f"after garbage and t3.5 of silence: {words}"
 
 
 # --- items 2 and 4: t1.5 and t3.5 from 10-bit characters
@@ -245,8 +260,8 @@ def test_a_1ms_gap_inside_a_frame_at_19200_is_discarded(m19200: Master) -> None:
     n = 40
     over, over_words = answered(m19200, READ, {4: 0.0010}, n)
     under, under_words = answered(m19200, READ, {4: 0.0005}, n, slack=0.0002)
-    assert over <= n // 10, f"a 1.0 ms gap: {over_words}; expected (almost) none"
-    assert under > n * 3 // 4, f"a 0.5 ms gap: {under_words}; expected (almost) all"
+    assert over <= 0.2, f"a 1.0 ms gap: {over_words}; expected (almost) none"
+    assert under >= 0.75, f"a 0.5 ms gap: {under_words}; expected (almost) all"
 
 
 def test_t15_at_1200_baud_is_12_5_ms(m1200: Master) -> None:
@@ -254,8 +269,8 @@ def test_t15_at_1200_baud_is_12_5_ms(m1200: Master) -> None:
     n = 12
     over, over_words = answered(m1200, READ, {4: 0.0130}, n)
     under, under_words = answered(m1200, READ, {4: 0.0115}, n, slack=0.0005)
-    assert over <= n // 4, f"a 13 ms gap at 1200 baud: {over_words}; expected (almost) none"
-    assert under >= n * 3 // 4, f"an 11.5 ms gap at 1200 baud: {under_words}; expected (almost) all"
+    assert over <= 0.25, f"a 13 ms gap at 1200 baud: {over_words}; expected (almost) none"
+    assert under >= 0.75, f"an 11.5 ms gap at 1200 baud: {under_words}; expected (almost) all"
 
 
 def test_t35_at_1200_baud_is_29_2_ms(m1200: Master) -> None:
@@ -263,8 +278,8 @@ def test_t35_at_1200_baud_is_29_2_ms(m1200: Master) -> None:
     n = 12
     joined, joined_words = answered(m1200, b"\xff\x00" + READ, {2: 0.0265}, n)
     split, split_words = answered(m1200, b"\xff\x00" + READ, {2: 0.0310}, n, slack=0.0005)
-    assert joined <= n // 4, f"26.5 ms of silence: {joined_words}; expected (almost) none"
-    assert split >= n * 3 // 4, f"31 ms of silence: {split_words}; expected (almost) all"
+    assert joined <= 0.25, f"26.5 ms of silence: {joined_words}; expected (almost) none"
+    assert split >= 0.75, f"31 ms of silence: {split_words}; expected (almost) all"
 
 
 def test_reply_bytes_at_1200_baud_come_8_33_ms_apart(m1200: Master) -> None:
@@ -366,6 +381,6 @@ def test_a_serial_ports_character_follows_its_parity(serial_8e1: Master) -> None
     # 8E1 at 1200 baud: 11 bits, t1.5 = 13.75 ms. A 13 ms gap, which breaks an 8N1 frame, passes here.
     n = 12
     got, words = answered(serial_8e1, READ, {4: 0.0130}, n, slack=0.0005)
-    assert got >= n * 3 // 4, f"a 13 ms gap on an 8E1 port: {words}; expected (almost) all"
+    assert got >= 0.75, f"a 13 ms gap on an 8E1 port: {words}; expected (almost) all"
     over, over_words = answered(serial_8e1, READ, {4: 0.0150}, n)
-    assert over <= n // 4, f"a 15 ms gap on an 8E1 port: {over_words}; expected (almost) none"
+    assert over <= 0.25, f"a 15 ms gap on an 8E1 port: {over_words}; expected (almost) none"
