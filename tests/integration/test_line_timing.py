@@ -247,8 +247,8 @@ def test_a_frame_after_t35_of_silence_is_a_frame_of_its_own(m19200: Master) -> N
     t35 = silence_times(19200)[1]
     n = 20
     got, words = answered(
-        m19200, b"\xff\x00" + READ, {2: t35 + 0.0005}, n, slack=0.0002
-    )  # garbage, t3.5 + 0.5 ms, a request
+        m19200, b"\xff\x00" + READ, {2: t35 + 0.001}, n, slack=0.0002
+    )  # garbage, t3.5 + 1 ms, a request
     assert got > 0.5, f"after garbage and t3.5 of silence: {words}"
 
 
