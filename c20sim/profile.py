@@ -74,6 +74,26 @@ class ProtocolParams:
     turnaround_ms: float = field(
         default=2.0, metadata=_num(0, 1000, "ms", "delay between a request's end and the reply")
     )
+    run_while_faulted_exception: int = field(
+        default=1,
+        metadata=_num(
+            0, 8, "", "exception answering a run or jog command (2000H = 1-4) while faulted; 0 = echo, ignore"
+        ),
+    )
+    byte_count_exception: int = field(
+        default=6,
+        metadata={
+            **_num(3, 6, "", "exception answering a 0x10 whose byte count is not 2 x N: 6 (sheet) or 3 (Modbus)"),
+            "choices": (3, 6),
+        },
+    )
+    lacking_feature_exception: int = field(
+        default=3,
+        metadata=_num(1, 8, "", "exception refusing a setting for a feature this model lacks (simple_plc = false)"),
+    )
+    simple_plc: bool = field(
+        default=False, metadata={"doc": "the model runs a simple PLC program (2007H = 6); false: refused"}
+    )
     password: int = field(default=0, metadata=_num(0, 65535, "", "user password; 0 = none"))
     password_register: str = field(default="F07.00", metadata={"doc": "function code where the password is written"})
 
@@ -390,6 +410,8 @@ class _Checker:
             else:
                 meta = f.metadata
                 value = self.number(value, key, kind, meta.get("min"), meta.get("max"), meta.get("unit", ""))
+                if "choices" in meta and value not in meta["choices"]:
+                    raise self.fail(key, f"{value} is not allowed; allowed: {', '.join(map(str, meta['choices']))}")
             values[fname] = value
         return cls(**values)
 

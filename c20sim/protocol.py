@@ -3,10 +3,13 @@
 Sans-I/O (after h11): :class:`RtuFramer` is fed bytes with their arrival time
 and hands back :class:`FrameEvent` values; it never reads a port or a clock.
 A frame ends after 3.5 character times of silence; a gap of more than 1.5
-characters inside a frame makes it invalid (sheet, section 1). Transports
+characters inside a frame makes it invalid (sheet, section 1). A character is
+as long as the line's format makes it: 10 bits for the sheet's 8N1. Transports
 without line timing (TCP) also complete a frame as soon as the expected length
-of a known function code is reached. Garbage, truncated frames and frames sent
-back to back are split apart so that none of them costs the next valid frame.
+of a known function code is reached, and garbage, truncated frames and frames
+sent back to back are split apart so that none of them costs the next valid
+frame. A strict framer (``--line-timing``) does what the drive does instead:
+whatever lies between two silences of t3.5 is one frame, good or bad.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ __all__ = [
     "BROADCAST",
     "MAX_ADU",
     "MAX_WRITE_REGISTERS",
+    "SHEET_CHAR_BITS",
     "Direction",
     "ExceptionCode",
     "ExceptionResponse",
@@ -37,6 +41,7 @@ __all__ = [
     "WriteMultipleResponse",
     "WriteSingleRequest",
     "WriteSingleResponse",
+    "char_bits",
     "char_time",
     "crc16",
     "crc_ok",
@@ -346,16 +351,29 @@ def decode_response(frame: bytes) -> Response:
 # --- Framing.
 
 
-def char_time(baud: int) -> float:
-    """Seconds one character takes on the line: 11 bits (start, 8 data, parity or 2nd stop, stop)."""
-    return 11.0 / baud
+def char_bits(data_bits: int = 8, parity: str = "N", stop_bits: int = 1) -> int:
+    """Bits one character takes on the line: start, data, parity if any, stop.
+
+    The sheet's line is 8N1 ("start bit: 1bit data bit: 8bit check bit: no check
+    stop bit: 1bit"): 10 bits. 8E1, 8O1 and 8N2 take 11.
+    """
+    return 1 + data_bits + (0 if parity.upper() == "N" else 1) + stop_bits
 
 
-def silence_times(baud: int) -> tuple[float, float]:
+#: Bits of one character of the sheet's 8N1 line.
+SHEET_CHAR_BITS = char_bits()
+
+
+def char_time(baud: int, bits: int = SHEET_CHAR_BITS) -> float:
+    """Seconds one character of ``bits`` bits (see :func:`char_bits`) takes at ``baud``."""
+    return bits / baud
+
+
+def silence_times(baud: int, bits: int = SHEET_CHAR_BITS) -> tuple[float, float]:
     """(t1.5, t3.5) in seconds; fixed at 0.75 ms and 1.75 ms above 19200 baud (Modbus serial line spec)."""
     if baud > 19200:
         return 0.00075, 0.00175
-    return 1.5 * char_time(baud), 3.5 * char_time(baud)
+    return 1.5 * char_time(baud, bits), 3.5 * char_time(baud, bits)
 
 
 class FrameKind(enum.Enum):
@@ -392,6 +410,13 @@ class RtuFramer:
     CRC, without waiting for silence. ``check_gaps``: enforce the sheet's
     1.5-character rule (only meaningful on a line with real byte timing).
     ``silence``: override t3.5, for transports whose timing is not the line's.
+    ``bits``: bits of one character on the line (:func:`char_bits`; 10 for 8N1).
+    ``strict``: a frame is exactly what lies between two silences of t3.5, as
+    the sheet says ("if the time interval between two characters is more than
+    3.5 times, it is considered that one frame of data has been transmitted");
+    two requests with no silence between them, or garbage glued to a request,
+    are one bad frame, never split apart. Strict framing cannot complete on
+    length.
     """
 
     def __init__(
@@ -402,8 +427,14 @@ class RtuFramer:
         complete_on_length: bool = False,
         check_gaps: bool = True,
         silence: float | None = None,
+        bits: int = SHEET_CHAR_BITS,
+        strict: bool = False,
     ) -> None:
+        if strict and complete_on_length:
+            raise ValueError("a strict framer ends frames by silence only; it cannot complete on length")
         self.direction: Direction = direction
+        self.bits = bits
+        self.strict = strict
         self.complete_on_length = complete_on_length
         self.check_gaps = check_gaps
         self._silence_override = silence
@@ -416,8 +447,8 @@ class RtuFramer:
     def set_baud(self, baud: int) -> None:
         """Change the line speed (after a 2009H write); the timing follows."""
         self.baud = baud
-        self._char = char_time(baud)
-        self.t15, t35 = silence_times(baud)
+        self._char = char_time(baud, self.bits)
+        self.t15, t35 = silence_times(baud, self.bits)
         self.t35 = self._silence_override if self._silence_override is not None else t35
 
     @property
@@ -426,8 +457,14 @@ class RtuFramer:
         return bool(self._buffer)
 
     def deadline(self) -> float | None:
-        """Time at which silence ends the buffered frame, or None if nothing is buffered."""
-        return self._last_t + self.t35 if self._buffer else None
+        """Time at which silence ends the buffered frame, or None if nothing is buffered.
+
+        Strict: t3.5 of silence is known only one character later, since a byte is seen when it has
+        arrived whole: one that started within t3.5 of the last has arrived by then.
+        """
+        if not self._buffer:
+            return None
+        return self._last_t + self.t35 + (self._char if self.strict else 0.0)
 
     def feed(self, data: bytes, t: float) -> None:
         if not data:
@@ -439,15 +476,22 @@ class RtuFramer:
                 self._close()
             elif self.check_gaps and gap > self.t15 + _EPSILON and not self._broken:
                 self._broken = f"gap of {gap * 1000:.2f} ms (> t1.5 = {self.t15 * 1000:.2f} ms) inside the frame"
-        self._buffer += data
         self._last_t = t
+        if self.strict:
+            room = MAX_ADU - len(self._buffer)
+            if len(data) > room and not self._broken:
+                self._broken = f"more than {MAX_ADU} bytes without a silence of t3.5"
+            self._buffer += data[: max(0, room)]  # bounded: the rest of a runaway stream is dropped
+            return
+        self._buffer += data
         if self.complete_on_length and not self._broken:
             self._split(final=False)
         if len(self._buffer) > MAX_ADU:
             self._close()
 
     def tick(self, t: float) -> None:
-        if self._buffer and t - self._last_t >= self.t35 - _EPSILON:
+        deadline = self.deadline()
+        if deadline is not None and t >= deadline - _EPSILON:
             self._close()
 
     def flush(self) -> None:
@@ -470,9 +514,23 @@ class RtuFramer:
         if self._broken:
             self._emit(FrameKind.NOISE, bytes(self._buffer), self._broken)
             self._buffer.clear()
+        elif self.strict:
+            # Sheet, section 1: bytes not separated by 3.5 character times are one frame. Two requests sent
+            # back to back, or garbage glued to one, are one frame of the wrong length or CRC: the drive
+            # answers it with 0x06 (or silence, where the profile says so), never with two replies.
+            data = bytes(self._buffer)
+            self._buffer.clear()
+            if self._complete_at_all(data):
+                self._emit(FrameKind.FRAME, data)
+            else:
+                self._emit(*_classify(data, self.direction))
         else:
             self._split(final=True)
         self._broken = ""
+
+    def _complete_at_all(self, data: bytes) -> bool:
+        """True if ``data`` is exactly one CRC-valid frame of a known function code."""
+        return expected_length(data[:7], self.direction) == len(data) and crc_ok(data)
 
     def _emit(self, kind: FrameKind, data: bytes, note: str = "") -> None:
         self._events.append(FrameEvent(kind, data, self._last_t, note))

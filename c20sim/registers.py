@@ -291,7 +291,7 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
             "run command channel",
             _RW,
             0,
-            3,
+            4,  # sheet: "(0-4)", though it names 0-3 only
             values=RUN_CHANNELS,
         ),
         _spec(

@@ -6,7 +6,13 @@ with 0x03 even while function codes are locked):
 
     0x02 unknown address -> 0x07 read-only -> 0x03 value out of range
     -> 0x04 function code while 200EH = 0 -> 0x05 password not given
-    -> 0x08 W/R* register while running -> the drive's own refusals
+    -> 0x08 W/R* register while running -> a run command while faulted (the
+    profile's code, 0x01 by default) -> a feature the model lacks (the profile's
+    code) -> the drive's own refusals
+
+A 0x10 whose byte count is not twice its register count is refused with the
+profile's code, 0x06 by default (the sheet's "length of data frame is
+incorrect"), 0x03 where the profile says so.
 
 A 0x10 write is checked whole against the state before the frame, then
 applied whole: all or nothing. The drive behind it is any
@@ -34,6 +40,15 @@ from .protocol import (
 )
 from .registers import BAUD_RATES, Access, Reg, RegisterSpec, is_fcode
 
+#: 2000H values that run or jog the motor (sheet: 1 forward, 2 reverse, 3 forward jog, 4 reverse jog).
+RUN_COMMAND_VALUES = frozenset({1, 2, 3, 4})
+#: 2100H status word 1: "0004h: drive in fault" (sheet).
+STATUS_FAULT = 4
+#: 2007H: "6: simple PLC setting" (sheet).
+SPEED_SOURCE_PLC = 6
+#: 2006H: inside the sheet's range "(0-4)" but not among the channels it names.
+RUN_CHANNEL_UNNAMED = 4
+
 __all__ = ["Slave"]
 
 
@@ -49,6 +64,8 @@ class Slave:
         self._unlocked = not self._password
         self._address_cell = self.registers.canonical(Reg.ADDRESS)
         self._baud_cell = self.registers.canonical(Reg.BAUD)
+        self._speed_source_cell = self.registers.canonical(Reg.SPEED_SOURCE)
+        self._run_channel_cell = self.registers.canonical(Reg.RUN_CHANNEL)
 
     def attach(self, drive: DrivePort) -> None:
         """Answer for ``drive`` from now on (a reset to a set-up): as a drive switched on, the password locks."""
@@ -100,8 +117,15 @@ class Slave:
                 self._write({register: value})
                 return WriteSingleResponse(slave, register, value)
             case WriteMultipleRequest(slave, start, values, count, byte_count):
-                if not 1 <= count <= MAX_WRITE_REGISTERS or byte_count != 2 * count or len(values) != count:
-                    raise ModbusError(ExceptionCode.ILLEGAL_VALUE, f"count {count}, byte count {byte_count}")
+                if byte_count != 2 * count or len(values) != count:
+                    # Sheet, 0x06: "The length of data frame is incorrect". Modbus-standard stacks answer
+                    # 0x03 instead; the profile chooses (protocol.byte_count_exception, 6 by default).
+                    raise ModbusError(
+                        ExceptionCode(self.profile.protocol.byte_count_exception),
+                        f"byte count {byte_count}, {count} registers need {2 * count}",
+                    )
+                if not 1 <= count <= MAX_WRITE_REGISTERS:
+                    raise ModbusError(ExceptionCode.ILLEGAL_VALUE, f"count {count}")
                 if start + count > 0x10000:
                     raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, "write past FFFFH")
                 self._write({start + i: v for i, v in enumerate(values)})
@@ -145,18 +169,51 @@ class Slave:
         for spec, value in checked:
             self.drive.write(spec.storage, value)
 
-    def _check(self, spec: RegisterSpec, value: int, unlocked: bool) -> None:
+    def panel_write(self, address: int, value: int) -> None:
+        """A parameter set from the drive's own panel: every rule a master meets but the communication locks
+        (200EH and the password), which guard the bus, not the keypad. Raises ModbusError with the code a
+        master would get."""
+        spec = self.registers.get(address)
+        if spec is None:
+            raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is not in the map")
+        self._check(spec, value, unlocked=True, comm_locks=False)
+        self.drive.write(spec.storage, value)
+
+    def _check(self, spec: RegisterSpec, value: int, unlocked: bool, *, comm_locks: bool = True) -> None:
         if not spec.access.writable:
             raise ModbusError(ExceptionCode.READ_ONLY, f"{spec.label} is read-only")
         if not spec.accepts(value):
             raise ModbusError(
                 ExceptionCode.ILLEGAL_VALUE, f"{spec.label} = {value}; allowed {spec.minimum} to {spec.maximum}"
             )
-        if is_fcode(spec.address):
+        if is_fcode(spec.address) and comm_locks:
             if not self.drive.read(Reg.WRITE_ENABLE):
                 raise ModbusError(ExceptionCode.OPERATION_FAILED, "function codes are locked (200EH = 0)")
             if not unlocked:
                 raise ModbusError(ExceptionCode.PASSWORD_ERROR, "password not given")
         if spec.access is Access.RW_STOPPED and self.drive.running:
             raise ModbusError(ExceptionCode.NOT_WHILE_RUNNING, f"{spec.label} is W/R*: stop the drive first")
+        quirks = self.profile.protocol
+        # Sheet, 0x01 "Illegal order": "The slave does not support this command or processes the request
+        # in an error state". A run or jog command while faulted gets the profile's code (0x01 by
+        # default; 0 = echoed and ignored, as the state table ignores it). Assumed: the sheet does not say.
+        if (
+            spec.storage == Reg.COMMAND
+            and value in RUN_COMMAND_VALUES
+            and quirks.run_while_faulted_exception
+            and self.drive.read(Reg.STATUS1) == STATUS_FAULT
+        ):
+            raise ModbusError(ExceptionCode(quirks.run_while_faulted_exception), "the drive is faulted: reset it first")
+        if spec.storage == self._speed_source_cell and value == SPEED_SOURCE_PLC and not quirks.simple_plc:
+            # Sheet, 2007H: "6: simple PLC setting", with "model related" beside the dial switch settings.
+            # This model has no PLC program (protocol.simple_plc = false): the profile's code refuses it.
+            raise ModbusError(
+                ExceptionCode(quirks.lacking_feature_exception), f"{spec.label} = 6: this model has no simple PLC"
+            )
+        if spec.storage == self._run_channel_cell and value == RUN_CHANNEL_UNNAMED:
+            # Sheet, 2006H: "Operation instruction selection (0-4)", but it names 0-3 only: no model is known
+            # to have a fifth channel, so the profile's code for a feature the model lacks refuses it (assumed).
+            raise ModbusError(
+                ExceptionCode(quirks.lacking_feature_exception), f"{spec.label} = 4: this model has no such channel"
+            )
         self.drive.check_write(spec.storage, value)

@@ -29,7 +29,7 @@ from typing import Any
 from ..clock import RealtimeClock
 from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.params import ParameterStore
-from ..errors import C20SimError
+from ..errors import C20SimError, ModbusError
 from ..generators import GeneratorError, parse_generator
 from ..linkfaults import KNOBS, LinkFaults
 from ..protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
@@ -375,6 +375,16 @@ CONDITIONS: Mapping[str, Condition] = {
         _ranged("ai2_v", "V", 0, 10, lambda d: d.ai(2), lambda d, v: d.set_ai(2, v)),
         _ranged("ai3_v", "V", 0, 10, lambda d: d.ai(3), lambda d, v: d.set_ai(3, v)),
         Condition(
+            "dial_switches",
+            "",
+            0,
+            7,
+            lambda d: sum(1 << i for i, on in enumerate(d.dial_switches) if on),
+            lambda d, v: d.set_dial_switches(bool(v & 1), bool(v & 2), bool(v & 4)),
+            lambda k, v: integer(k, v, 0, 7),
+            help="the dial switches, bit 0 SW1, bit 1 SW2, bit 2 SW3 (they act where 2005H = 3, 2006H = 3, 2007H = 5)",
+        ),
+        Condition(
             "terminal_inputs",
             "",
             0,
@@ -522,29 +532,22 @@ def press_key(sim: Simulator, address: int, key: object) -> bool:
 
 
 def keypad_edit(sim: Simulator, address: int, register: str | int, value: object) -> dict[str, Any]:
-    """Set a parameter from the drive's own panel: its range and W/R* apply, the communication locks
-    (200EH, password) do not, as on the drive's keypad. A refusal raises ControlError (409) naming the code a
-    master would get for the same write."""
-    found = drive(sim, address)
+    """Set a parameter from the drive's own panel: the slave's rules (range, W/R*, the model's own refusals)
+    apply, the communication locks (200EH, password) do not, as on the drive's keypad. A refusal raises
+    ControlError (409) naming the code a master would get for the same write."""
+    drive(sim, address)
     reg = parse_register(sim, register)
-    spec = sim.profile.registers[reg]
     raw = integer("value", value, 0, 0xFFFF)
     sim.sync()
-    refusal: tuple[ExceptionCode, str] | None = None
-    if not spec.access.writable:
-        refusal = ExceptionCode.READ_ONLY, "read-only"
-    elif not spec.accepts(raw):
-        refusal = ExceptionCode.ILLEGAL_VALUE, f"allowed {spec.minimum} to {spec.maximum}"
-    elif spec.access is Access.RW_STOPPED and found.running:
-        refusal = ExceptionCode.NOT_WHILE_RUNNING, "W/R*: stop the drive first"
-    if refusal is not None:
-        code, why = refusal
+    try:
+        sim.slaves[address].panel_write(reg, raw)
+    except ModbusError as exc:
+        label = sim.profile.registers[reg].label
         raise ControlError(
-            f"{spec.label} = {raw} refused ({why}): exception 0x{int(code):02X} ({code.meaning}) for a master",
+            f"{label} = {raw} refused: exception 0x{int(exc.code):02X} ({exc.code.meaning}) for a master",
             status=409,
-            exception=int(code),
-        )
-    found.write(spec.storage, raw)
+            exception=int(exc.code),
+        ) from None
     return read_register(sim, address, reg)
 
 

@@ -38,7 +38,7 @@ from pathlib import Path
 from ..errors import ModbusError
 from ..profile import FaultCause, Profile
 from ..protocol import ExceptionCode
-from ..registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, RunChannel, fcode_address
+from ..registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, RunChannel, SpeedSource, fcode_address
 from . import physics
 from .params import ParameterStore
 from .physics import ACCEL, CONSTANT, DECEL, RPM, Segment
@@ -72,6 +72,14 @@ F_OV_STALL_LEVEL = fcode_address(11, 4)
 COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
 
 CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION
+# The dial switches SW1-SW3 (sheet: 2005H "3: dial switch setting (SW1 valid), model related", 2006H "3: dial
+# switch setting (SW3 valid)", 2007H "5: dial switch setting (SW2, SW3 valid)"). What each position selects is
+# not in the sheet: assumed, each switch on or off.
+#: 2006H = 3: SW3 on takes run commands from the terminals, off from the keypad (assumed).
+CHANNEL_DIAL = RunChannel.DIAL_SWITCH
+#: 2007H = 5: (SW2, SW3) select the speed source: keypad, AI1 knob, AI2 voltage, multi-segment (assumed).
+SOURCE_DIAL = SpeedSource.DIAL_SWITCH
+DIAL_SPEED_SOURCE = {(False, False): 0, (True, False): 1, (False, True): 2, (True, True): 4}
 RUN_COMMANDS = frozenset({Event.FORWARD, Event.REVERSE, Event.JOG_FORWARD, Event.JOG_REVERSE})
 RUNNING = frozenset({State.FORWARD, State.REVERSE, State.JOG_FORWARD, State.JOG_REVERSE})
 #: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
@@ -205,6 +213,7 @@ class Drive:
         self._hall_fault: HallFault | None = None
         self._ai = [0.0, 0.0, 0.0]
         self._physical_inputs = 0
+        self._dial = (False, False, False)  # SW1, SW2, SW3
         self._temp = self._ambient
         self._power_up()
 
@@ -357,6 +366,20 @@ class Drive:
         if channel not in (1, 2, 3):
             raise ValueError(f"analog input must be 1, 2 or 3, not {channel}")
         self._ai[channel - 1] = min(max(float(volts), 0.0), 10.0)
+        self._changed()
+
+    @property
+    def dial_switches(self) -> tuple[bool, bool, bool]:
+        """The dial switches (SW1, SW2, SW3) as set; True is on."""
+        return self._dial
+
+    def set_dial_switches(self, sw1: bool, sw2: bool, sw3: bool) -> None:
+        """Set the dial switches SW1-SW3; they act where 2005H = 3, 2006H = 3 or 2007H = 5 select them.
+
+        SW1 (2005H = 3) picks the control mode, which the model does not simulate; SW3 (2006H = 3)
+        the run channel; SW2 and SW3 (2007H = 5) the speed source: see :data:`DIAL_SPEED_SOURCE`.
+        """
+        self._dial = (bool(sw1), bool(sw2), bool(sw3))
         self._changed()
 
     def set_terminal_inputs(self, bits: int) -> None:
@@ -539,6 +562,11 @@ class Drive:
         pole_pairs = max(P.get(Reg.POLE_PAIRS), 1)
         inputs = (self._physical_inputs | self._ram[Reg.VIRTUAL_INPUTS]) & 0x1FF
         source = P.get(Reg.SPEED_SOURCE)
+        if source == SOURCE_DIAL:
+            source = DIAL_SPEED_SOURCE[self._dial[1], self._dial[2]]
+        channel = P.get(Reg.RUN_CHANNEL)
+        if channel == CHANNEL_DIAL:
+            channel = CHANNEL_TERMINAL if self._dial[2] else CHANNEL_KEYPAD
         reference = 0.0
         if source == 0 and F_KEYPAD_SPEED in P:
             reference = P.get(F_KEYPAD_SPEED) * regs[F_KEYPAD_SPEED].scale * 60.0 / pole_pairs
@@ -567,7 +595,7 @@ class Drive:
             down=max_rpm / decel * STEP,
             reference_rpm=self._limit_speed(reference, max_rpm),
             jog_rpm=self._limit_speed(jog, max_rpm),
-            channel=P.get(Reg.RUN_CHANNEL),
+            channel=channel,
             source=source,
             comm_timeout=timeout,
             inertia=inertia,

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable
 
 from ..bus import Reply
-from ..protocol import FrameEvent, RtuFramer, char_time
+from ..protocol import SHEET_CHAR_BITS, FrameEvent, RtuFramer, char_time
 from .line import Line
 
 __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
@@ -47,10 +47,13 @@ log = logging.getLogger(__name__)
 FEED_SLICE = 512
 
 
-def stream_framer(baud: int, *, line_timing: bool = False) -> RtuFramer:
-    """The framer of a byte stream: held to t1.5/t3.5 with line timing, else completed on length."""
+def stream_framer(baud: int, *, line_timing: bool = False, bits: int = SHEET_CHAR_BITS) -> RtuFramer:
+    """The framer of a byte stream: strict, held to t1.5/t3.5 with line timing, else completed on length.
+
+    ``bits``: bits of one character in the line's format (10 for 8N1; see :func:`~c20sim.protocol.char_bits`).
+    """
     if line_timing:
-        return RtuFramer(baud)
+        return RtuFramer(baud, bits=bits, strict=True)
     return RtuFramer(baud, complete_on_length=True, check_gaps=False, silence=UNTIMED_SILENCE)
 
 

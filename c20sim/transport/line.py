@@ -29,12 +29,30 @@ from ..bus import Reply
 from ..protocol import FrameEvent
 from ..simulator import Simulator
 
-__all__ = ["Line", "Respond"]
+__all__ = ["Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
 #: Called with the reply to put on the wire, or None where the line stays silent.
 Respond = Callable[[Reply | None], None]
+
+
+class SelfTimed:
+    """A respond callback that waits out a reply's delay on its own, finer clock (a line-timed port).
+
+    The line hands it the reply as soon as it is built, and stays busy for the
+    reply's delay all the same.
+    """
+
+    def __init__(self, respond: Respond) -> None:
+        self.respond = respond
+
+    def __call__(self, reply: Reply | None) -> None:
+        self.respond(reply)
+
+
+def _nothing(reply: Reply | None) -> None:
+    """The respond of a delay whose reply was handed over already."""
 
 
 class Line:
@@ -98,6 +116,9 @@ class Line:
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 continue
             if reply is not None and reply.delay > 0:
+                if isinstance(respond, SelfTimed):
+                    _deliver(respond, reply)
+                    respond = _nothing
                 self._busy = True
                 loop = asyncio.get_running_loop()
                 self._timer = loop.call_later(reply.delay, self._release, reply, respond)

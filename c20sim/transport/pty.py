@@ -3,8 +3,10 @@
 The simulator holds the pty's master side and keeps the slave side open too,
 so that a master may open, close and reopen the device without the simulator
 seeing an error. ``--link PATH`` adds a stable symlink such as /tmp/ttyC20.
-With ``line_timing`` replies are paced at the configured baud, byte by byte,
-and incoming frames are held to the sheet's 1.5/3.5-character rules.
+With ``line_timing`` the pty is a :class:`~c20sim.transport.timed.TimedEndpoint`:
+frames are strict and held to the sheet's 1.5/3.5-character rules for an 8N1
+line, and replies are paced at the line's baud, byte by byte, on a thread of
+their own.
 
 A real port loses what arrives while nobody has it open: when the last
 program that opened the device closes it (:class:`~.ptywatch.PtyOpeners`),
@@ -22,10 +24,10 @@ import os
 from pathlib import Path
 
 from ..errors import C20SimError
-from ..protocol import char_time
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 from .ptywatch import PtyOpeners
+from .timed import TimedEndpoint
 
 __all__ = ["PtyPort"]
 
@@ -40,11 +42,9 @@ class PtyPort:
         self.path = ""
         self._master = -1
         self._slave = -1
-        self._endpoint: RtuEndpoint | None = None
+        self._endpoint: RtuEndpoint | TimedEndpoint | None = None
         self._unsent = bytearray()  # what the pty's buffer would not take yet
-        self._paced: asyncio.Queue[tuple[bytes, int]] = asyncio.Queue()
         self._lock = -1  #: the open lock file beside --link, held while this port owns the link
-        self._pacer: asyncio.Task[None] | None = None
         self._openers: PtyOpeners | None = None
 
     async def start(self) -> None:
@@ -71,6 +71,10 @@ class PtyPort:
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
         framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
+        if self.line_timing:  # a pty has no line format: it is the sheet's 8N1
+            # Replies to a master that has gone are not dropped here: the timed writer owns the fd.
+            self._endpoint = TimedEndpoint(self.line, self._master, framer, pace=True, name=f"pty {self.path}")
+            return
         self._endpoint = RtuEndpoint(
             self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
         )
@@ -78,8 +82,6 @@ class PtyPort:
         self._openers = PtyOpeners(self.path, self._master_gone)
         if not self._openers.start():
             self._openers = None
-        if self.line_timing:
-            self._pacer = asyncio.create_task(self._pace(), name=f"c20sim pty pacer {self.path}")
 
     def _take_link_lock(self, link: Path) -> None:
         """Hold ``LINK.lock`` for as long as this port owns the link: a second c20sim is refused, naming the first.
@@ -124,6 +126,7 @@ class PtyPort:
             asyncio.get_running_loop().add_reader(self._master, self._readable)
 
     def _readable(self) -> None:
+        assert isinstance(self._endpoint, RtuEndpoint)
         try:
             data = os.read(self._master, 4096)
         except BlockingIOError:
@@ -147,16 +150,13 @@ class PtyPort:
         if self._unsent:
             self._unsent.clear()
             asyncio.get_running_loop().remove_writer(self._master)
-        if self._endpoint is not None:
+        if isinstance(self._endpoint, RtuEndpoint):
             self._endpoint.write_blocked(False)
             self._endpoint.reset()
 
     def _send(self, data: bytes, baud: int) -> None:
         if self._openers is not None and not self._openers.still_open():
             return  # the master that asked has gone: the reply is lost, as on a real port
-        if self.line_timing:
-            self._paced.put_nowait((data, baud))
-            return
         if self._unsent:
             self._unsent += data
             return
@@ -164,7 +164,7 @@ class PtyPort:
         if written < len(data):
             self._unsent += data[written:]
             asyncio.get_running_loop().add_writer(self._master, self._flush_unsent)
-            if self._endpoint is not None:
+            if isinstance(self._endpoint, RtuEndpoint):
                 self._endpoint.write_blocked(True)  # a master that does not read: read no more from it
 
     def _write_some(self, data: bytes | bytearray) -> int:
@@ -177,25 +177,8 @@ class PtyPort:
         del self._unsent[: self._write_some(self._unsent)]
         if not self._unsent:
             asyncio.get_running_loop().remove_writer(self._master)
-            if self._endpoint is not None:
+            if isinstance(self._endpoint, RtuEndpoint):
                 self._endpoint.write_blocked(False)
-
-    async def _pace(self) -> None:
-        """Put replies on the pty one character time apart, at the line's baud."""
-        loop = asyncio.get_running_loop()
-        while True:
-            data, baud = await self._paced.get()
-            per_char = char_time(baud)  # the reply's own baud: the old one after a 2009H write
-            start = loop.time()
-            sent = 0
-            while sent < len(data):
-                due = max(sent + 1, min(len(data), int((loop.time() - start) / per_char) + 1))
-                chunk = data[sent:due]
-                while (written := self._write_some(chunk)) == 0:
-                    await asyncio.sleep(per_char)
-                sent += written
-                if sent < len(data):
-                    await asyncio.sleep(max(0.0, start + sent * per_char - loop.time()))
 
     def close(self) -> None:
         if self._openers is not None:
@@ -203,9 +186,6 @@ class PtyPort:
             self._openers = None
         if self._endpoint is not None:
             self._endpoint.close()
-        if self._pacer is not None:
-            self._pacer.cancel()
-            self._pacer = None
         if self._master >= 0:
             with contextlib.suppress(RuntimeError):
                 loop = asyncio.get_running_loop()

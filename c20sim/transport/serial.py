@@ -7,6 +7,12 @@ port after its reply has left the wire, as the drive does.
 A port that goes away (a USB adapter unplugged) is reported in one line and
 tried again every :data:`REOPEN_EVERY` seconds; when it is back (the bench
 is replugged) it is served again, with a line saying so.
+
+With ``line_timing`` the port is a :class:`~c20sim.transport.timed.TimedEndpoint`:
+strict framing with the character time of the port's own format (10 bits for
+8N1, 11 for 8E1, 8O1 and 8N2), and replies written whole at their start time
+(the UART paces the bytes). Arrival times are only as fine as the adapter
+delivers bytes: see docs/line-timing.md for USB adapters.
 """
 
 from __future__ import annotations
@@ -19,8 +25,10 @@ import logging
 import serial
 
 from ..errors import C20SimError
+from ..protocol import char_bits
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
+from .timed import TimedEndpoint
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +59,7 @@ class SerialPort:
         self.stopbits = stopbits
         self.line_timing = line_timing
         self._port: serial.Serial | None = None
-        self._endpoint: RtuEndpoint | None = None
+        self._endpoint: RtuEndpoint | TimedEndpoint | None = None
         self._baud_change: asyncio.Task[None] | None = None
         self._reopen: asyncio.TimerHandle | None = None
 
@@ -80,7 +88,19 @@ class SerialPort:
             timeout=0,
             exclusive=True,
         )
-        framer = stream_framer(self.baud, line_timing=self.line_timing)
+        framer = stream_framer(self.baud, line_timing=self.line_timing, bits=char_bits(8, self.parity, self.stopbits))
+        if self.line_timing:
+            port = self._port
+            self._endpoint = TimedEndpoint(
+                self.line,
+                port.fileno(),
+                framer,
+                pace=False,
+                name=f"serial {self.device}",
+                write=lambda data: port.write(data) or 0,
+                on_baud=self._set_baud_now,
+            )
+            return
         self._endpoint = RtuEndpoint(
             self.line,
             framer,
@@ -102,7 +122,7 @@ class SerialPort:
             asyncio.get_running_loop().add_reader(self._port.fileno(), self._readable)
 
     def _readable(self) -> None:
-        assert self._port is not None and self._endpoint is not None
+        assert self._port is not None and isinstance(self._endpoint, RtuEndpoint)
         try:
             data = self._port.read(4096)
         except serial.SerialException as exc:
@@ -120,6 +140,14 @@ class SerialPort:
 
     def _set_baud(self, baud: int) -> None:
         self._baud_change = asyncio.get_running_loop().create_task(self._change_baud(baud))
+
+    def _set_baud_now(self, baud: int) -> None:
+        """On the line-timed writer thread, after the acknowledging reply was written: it leaves first."""
+        port = self._port
+        if port is not None and port.is_open:
+            port.flush()
+            port.baudrate = baud
+            self.baud = baud
 
     async def _change_baud(self, baud: int) -> None:
         port = self._port

@@ -65,7 +65,7 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `s` | STOP (from any channel) |
 | `x` | RESET a fault (refused while its cause is still there) |
 | `m` | run channel: keypad -> terminals -> communication (F00.01) |
-| `S` | speed source: keypad -> AI1 -> AI2 -> Modbus -> multi-speed (F00.02) |
+| `S` | speed source: keypad -> AI1 -> AI2 -> Modbus -> multi-speed -> dial switch (F00.02) |
 | `+` / `-` | keypad speed reference, 1.00 Hz a press (F00.10; used with the keypad speed source) |
 | `P` | power cycle |
 | `D` | restore default parameters (200FH = 1; only while stopped) |

@@ -246,11 +246,17 @@ class Workbench:
         return int(ops.set_run_channel(self.sim, address, (now + 1) % (RunChannel.COMMUNICATION + 1)))
 
     def cycle_speed_source(self, address: int) -> str:
-        """The keypad's edit of F00.02: the next speed source the profile allows; returns it in words."""
+        """The keypad's edit of F00.02: the next speed source this model takes; returns it in words."""
         spec = self.profile.registers[Reg.SPEED_SOURCE]
         now = self.register(address, Reg.SPEED_SOURCE)
-        value = spec.minimum if now >= spec.maximum else now + 1
-        return str(ops.keypad_edit(self.sim, address, Reg.SPEED_SOURCE, value)["text"])
+        span = spec.maximum - spec.minimum + 1
+        for step in range(1, span):
+            value = spec.minimum + (now - spec.minimum + step) % span
+            try:
+                return str(ops.keypad_edit(self.sim, address, Reg.SPEED_SOURCE, value)["text"])
+            except ops.ControlError:
+                continue  # a source this model lacks (simple PLC): the panel skips it
+        raise ops.ControlError("no other speed source is allowed here", status=409)
 
     def step_keypad_speed(self, address: int, steps: int) -> str:
         """The panel's up/down on the keypad speed reference (F00.10), one step of 1.00 Hz; returns it in words."""

@@ -210,3 +210,16 @@ def test_an_active_load_regenerates_through_the_operations() -> None:
     assert state["bus_v"] > sim.profile.supply.voltage_v  # the bus rises above the supply: energy flows back
     with pytest.raises(ops.ControlError, match=r"^active_load_nm: -1001 is outside -1000-1000$"):
         ops.set_conditions(sim, 1, {"active_load_nm": -1001})
+
+
+def test_the_dial_switches_are_a_condition_every_front_end_sets() -> None:
+    """2006H = 3 hands the run channel to SW3 (on: terminals, off: keypad; assumed, as the profile says)."""
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    assert ops.write_register(sim, 1, "2006H", 3)["text"] == "dial switch (SW3)"
+    ops.set_conditions(sim, 1, {"dial_switches": 0b100})
+    assert ops.conditions(sim, 1)["dial_switches"] == 4
+    assert ops.telemetry(sim, 1).run_channel == 1  # SW3 on: the terminals
+    ops.set_conditions(sim, 1, {"dial_switches": 0})
+    assert ops.telemetry(sim, 1).run_channel == 0  # SW3 off: the keypad
+    with pytest.raises(ops.ControlError, match=r"^dial_switches: 8 is outside 0-7$"):
+        ops.set_conditions(sim, 1, {"dial_switches": 8})

@@ -120,7 +120,7 @@ def test_a_refused_keypad_press_fails() -> None:
         (
             {"at": 1, "set": {"supply": 3}},
             "s.toml: step 1 (at 1 s), key 'set': unknown condition 'supply'; did you mean 'supply_v'? (known: "
-            "supply_v, load_torque_nm, active_load_nm, load_inertia_kg_m2, ambient_c, hall_fault, ai1_v, ai2_v, ai3_v, terminal_inputs)",
+            "supply_v, load_torque_nm, active_load_nm, load_inertia_kg_m2, ambient_c, hall_fault, ai1_v, ai2_v, ai3_v, dial_switches, terminal_inputs)",
         ),
         (
             {"at": 1, "set": {"supply_v": "low"}},

@@ -304,9 +304,9 @@ async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:
 
 async def test_speed_source_and_keypad_speed_from_the_panel(bench: Bench) -> None:
     await bench.press("m")  # run channel: keypad
-    await bench.press("S", "S", "S")  # speed source: Modbus -> multi-speed -> keypad -> AI1
-    assert await bench.read(0x0002) == 1
-    await bench.press("S", "S", "S", "S")  # AI2, Modbus, multi-speed, keypad
+    await bench.press("S", "S", "S", "S")  # speed source: Modbus -> multi-speed -> dial switch -> keypad -> AI1
+    assert await bench.read(0x0002) == 1  # the simple PLC (6) skipped: this model has none
+    await bench.press("S", "S", "S", "S", "S")  # AI2, Modbus, multi-speed, dial switch, keypad
     assert await bench.read(0x0002) == 0
     await bench.press("minus", "minus")  # keypad reference 50.00 Hz -> 48.00 Hz
     assert await bench.read(0x000A) == 4800

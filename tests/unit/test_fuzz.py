@@ -45,7 +45,7 @@ from c20sim.simulator import Simulator
 ADDRESSES = (1, 2, 5)
 BAUD = 19200
 T15, T35 = silence_times(BAUD)
-CHAR = 11 / BAUD
+CHAR = 10 / BAUD  # 8N1
 #: Silence that ends a frame on the TCP-style framer.
 TCP_SILENCE = 0.02
 

@@ -134,3 +134,14 @@ def test_a_bad_overload_curve_is_one_clear_line(tmp_path: Path, curve: str, mess
 def test_the_recover_level_lies_between_the_trip_and_the_supply(tmp_path: Path) -> None:
     text = DEFAULT_TEXT.replace("undervoltage_recover_v = 22.0", "undervoltage_recover_v = 19.0")
     assert "supply.undervoltage_recover_v: 19 V must be between supply.undervoltage_v = 20 V" in bad(tmp_path, text)
+
+
+def test_protocol_quirks_of_the_sheets_edges(tmp_path: Path) -> None:
+    protocol = load_profile().protocol
+    assert (protocol.run_while_faulted_exception, protocol.byte_count_exception) == (1, 6)
+    assert (protocol.simple_plc, protocol.lacking_feature_exception) == (False, 3)
+    path = tmp_path / "bad.toml"
+    path.write_text(DEFAULT_TEXT.replace("byte_count_exception = 6", "byte_count_exception = 4"))
+    with pytest.raises(ProfileError) as info:
+        load_profile(str(path))
+    assert "protocol.byte_count_exception: 4 is not allowed; allowed: 3, 6" in str(info.value)

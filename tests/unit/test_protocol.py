@@ -18,6 +18,8 @@ from c20sim.protocol import (
     WriteMultipleResponse,
     WriteSingleRequest,
     WriteSingleResponse,
+    char_bits,
+    char_time,
     crc16,
     decode_request,
     decode_response,
@@ -27,9 +29,9 @@ from c20sim.protocol import (
 )
 
 H = bytes.fromhex
-T35 = 3.5 * 11 / 19200
-T15 = 1.5 * 11 / 19200
-CHAR = 11 / 19200
+T35 = 3.5 * 10 / 19200  # the sheet's 8N1: 10 bits a character
+T15 = 1.5 * 10 / 19200
+CHAR = 10 / 19200
 
 
 def test_crc_of_the_sheets_frames() -> None:
@@ -91,7 +93,9 @@ def test_decode_rejects_bad_crc_and_length() -> None:
 
 def test_silence_times() -> None:
     assert silence_times(19200) == pytest.approx((T15, T35))
-    assert silence_times(9600) == pytest.approx((1.5 * 11 / 9600, 3.5 * 11 / 9600))
+    assert silence_times(9600) == pytest.approx((1.5 * 10 / 9600, 3.5 * 10 / 9600))
+    assert silence_times(1200) == pytest.approx((0.0125, 0.0291667), abs=1e-7)  # 8N1 at 1200: 12.5 ms, 29.2 ms
+    assert silence_times(1200, char_bits(8, "E", 1)) == pytest.approx((1.5 * 11 / 1200, 3.5 * 11 / 1200))
     assert silence_times(38400) == (0.00075, 0.00175)
     assert silence_times(57600) == (0.00075, 0.00175)
 
@@ -150,8 +154,8 @@ def test_gap_over_t15_inside_a_frame_makes_it_invalid() -> None:
     ],
 )
 def test_silence_inside_a_frame_is_measured_between_bytes(silence_chars: float, kinds: list[FrameKind]) -> None:
-    # At 9600 baud (t1.5 = 1.72 ms, t3.5 = 4.01 ms): the first 3 bytes end at 1.0, then silence, then 5 bytes.
-    char = 11 / 9600
+    # At 9600 baud 8N1 (t1.5 = 1.56 ms, t3.5 = 3.65 ms): the first 3 bytes end at 1.0, then silence, then 5 bytes.
+    char = 10 / 9600
     framer = RtuFramer(9600)
     framer.feed(READ[:3], 1.0)
     framer.feed(READ[3:], 1.0 + silence_chars * char + 5 * char)
@@ -275,7 +279,7 @@ def test_baud_change_changes_the_silence() -> None:
     framer.feed(READ, 1.0)
     framer.tick(1.0 + T35 * 1.5)  # enough at 19200, not at 9600
     assert framer.next_event() is None
-    framer.tick(1.0 + 3.5 * 11 / 9600)
+    framer.tick(1.0 + 3.5 * 10 / 9600)
     assert frames(framer) == [(FrameKind.FRAME, READ)]
 
 
@@ -342,3 +346,112 @@ def test_a_bit_flip_is_never_taken_for_the_original_frame(request: object, flip:
     events = framer.events()
     assert b"".join(e.data for e in events) == bytes(frame)
     assert all(e.kind is not FrameKind.FRAME or e.data != encode(request) for e in events)  # type: ignore[arg-type]
+
+
+# --- the character of the line's format, and strict framing (--line-timing)
+
+
+def test_a_character_has_the_bits_of_the_lines_format() -> None:
+    assert char_bits() == 10  # the sheet's 8N1
+    assert (char_bits(8, "E", 1), char_bits(8, "O", 1), char_bits(8, "N", 2)) == (11, 11, 11)
+    assert char_time(1200) == pytest.approx(0.0083333, abs=1e-7)  # 8.33 ms a byte at 1200 baud, not 9.17
+    assert char_time(1200, char_bits(8, "E", 1)) == pytest.approx(11 / 1200)
+
+
+@pytest.mark.parametrize(
+    ("gap_ms", "kinds"),
+    [
+        (12.0, [FrameKind.FRAME]),  # under t1.5 = 12.5 ms at 1200 8N1
+        (13.0, [FrameKind.NOISE]),  # over t1.5: the frame is invalid (11 bits made t1.5 13.75 ms)
+        (26.5, [FrameKind.NOISE]),  # under t3.5 = 29.2 ms: still one (broken) frame, not two
+        (30.0, [FrameKind.NOISE, FrameKind.CRC_ERROR]),  # over t3.5: two pieces
+    ],
+)
+def test_gaps_at_1200_baud_are_judged_with_10_bit_characters(gap_ms: float, kinds: list[FrameKind]) -> None:
+    char = 10 / 1200
+    framer = RtuFramer(1200, strict=True)
+    framer.feed(READ[:3], 1.0)
+    framer.feed(READ[3:], 1.0 + gap_ms / 1000 + 5 * char)
+    framer.tick(5.0)
+    assert [e.kind for e in framer.events()] == kinds
+
+
+def test_strict_back_to_back_requests_are_one_frame_of_the_wrong_length() -> None:
+    framer = RtuFramer(19200, strict=True)
+    framer.feed(READ + WRITE, 1.0)
+    framer.tick(2.0)
+    events = framer.events()
+    assert [(e.kind, e.data) for e in events] == [(FrameKind.LENGTH_ERROR, READ + WRITE)]
+    assert events[0].note == "16 bytes, a function 0x03 request has 8"
+
+
+def test_strict_back_to_back_in_two_writes_is_still_one_frame() -> None:
+    framer = RtuFramer(19200, strict=True)
+    framer.feed(READ, 1.0)
+    framer.feed(WRITE, 1.0 + 8 * CHAR)  # the second request's first byte right after the first's last
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.LENGTH_ERROR, READ + WRITE)]
+
+
+def test_strict_garbage_glued_in_front_spoils_the_frame() -> None:
+    framer = RtuFramer(19200, strict=True)
+    framer.feed(H("FF 00") + READ, 1.0)
+    framer.tick(2.0)
+    assert frames(framer) == [(FrameKind.CRC_ERROR, H("FF 00") + READ)]
+
+
+def test_strict_frame_and_unknown_function_frame_pass() -> None:
+    unknown = with_crc(H("01 04 30 00 00 01"))
+    framer = RtuFramer(19200, strict=True)
+    framer.feed(READ, 1.0)
+    framer.feed(unknown, 1.0 + 8 * CHAR + T35 + 8 * CHAR)
+    framer.tick(5.0)
+    assert frames(framer) == [(FrameKind.FRAME, READ), (FrameKind.FRAME, unknown)]
+
+
+def test_strict_runaway_stream_is_bounded_and_reported_once() -> None:
+    framer = RtuFramer(19200, strict=True)
+    for i in range(10):
+        framer.feed(bytes(100), 1.0 + i * 100 * CHAR)
+    assert framer.next_event() is None  # no silence yet
+    framer.tick(100.0)
+    events = framer.events()
+    assert [(e.kind, len(e.data)) for e in events] == [(FrameKind.NOISE, 256)]
+    assert events[0].note == "more than 256 bytes without a silence of t3.5"
+
+
+def test_strict_cannot_complete_on_length() -> None:
+    with pytest.raises(ValueError, match="cannot complete on length"):
+        RtuFramer(19200, strict=True, complete_on_length=True)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    chunks=st.lists(st.binary(min_size=0, max_size=80), max_size=12),
+    gaps=st.lists(st.floats(0, 0.01), min_size=12, max_size=12),
+)
+def test_strict_framer_never_raises_and_never_splits_without_silence(chunks: list[bytes], gaps: list[float]) -> None:
+    framer = RtuFramer(19200, strict=True)
+    t = 0.0
+    for chunk, gap in zip(chunks, gaps, strict=False):
+        t += gap + len(chunk) * CHAR
+        framer.feed(chunk, t)
+        framer.tick(t)
+    framer.flush()
+    events = framer.events()
+    assert all(0 < len(e.data) <= 256 for e in events)
+    assert sum(len(e.data) for e in events) <= sum(len(c) for c in chunks)
+
+
+def test_strict_silence_is_known_one_character_after_t35() -> None:
+    # A byte that started just inside t3.5 arrives whole one character later: it still belongs to the frame.
+    framer = RtuFramer(1200, strict=True)
+    char, (_, t35) = 10 / 1200, silence_times(1200)
+    framer.feed(H("FF 00"), 1.0)
+    assert framer.deadline() == pytest.approx(1.0 + t35 + char)
+    framer.tick(1.0 + t35 + 0.5 * char)
+    assert framer.next_event() is None
+    framer.feed(READ[:1], 1.0 + 0.0265 + char)  # 26.5 ms of silence, then a byte
+    framer.feed(READ[1:], 1.0 + 0.0265 + 8 * char)
+    framer.tick(5.0)
+    assert [e.kind for e in framer.events()] == [FrameKind.NOISE]  # one frame, broken by a gap over t1.5

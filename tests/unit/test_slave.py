@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 
 from c20sim.bus import Bus
 from c20sim.drive.store import RegisterStoreDrive
-from c20sim.profile import Profile
+from c20sim.profile import Profile, parse_profile
 from c20sim.protocol import (
     ExceptionCode,
     ExceptionResponse,
@@ -98,10 +99,38 @@ def test_03_function_code_range_is_checked_before_write_enable(slave: Slave) -> 
     assert exc(slave, WriteSingleRequest(1, 0x0000, 5)) is X.ILLEGAL_VALUE
 
 
-def test_03_mirror_takes_the_function_codes_range(slave: Slave) -> None:
-    # 2005H is 0-3 in the sheet, but this model's F00.00 accepts 0-2.
+def test_03_mirror_takes_the_function_codes_range(profile: Profile) -> None:
+    # 2005H is 0-3 in the sheet; a model whose F00.00 accepts 0-2 refuses 3 at either address.
+    text = (
+        Path(profile.path)
+        .read_text()
+        .replace("max = 3                           # sheet 2005H", "max = 2                           # sheet 2005H")
+    )
+    narrow = parse_profile(text, "narrow.toml")
+    slave = Slave(narrow, RegisterStoreDrive(narrow))
     assert exc(slave, WriteSingleRequest(1, 0x2005, 3)) is X.ILLEGAL_VALUE
     assert exc(slave, WriteSingleRequest(1, 0x2005, 1)) is None
+
+
+def test_dial_switch_settings_inside_the_sheets_ranges_are_taken(slave: Slave) -> None:
+    # Sheet: 2005H "3: dial switch setting (SW1 valid)", 2006H "3: dial switch setting (SW3 valid)",
+    # 2007H "5: dial switch setting (SW2, SW3 valid)".
+    for register, value in ((0x2005, 3), (0x2006, 3), (0x2007, 5)):
+        assert exc(slave, WriteSingleRequest(1, register, value)) is None, f"{register:04X}H = {value}"
+        assert slave.handle(ReadRequest(1, register, 1), 0.0) == ReadResponse(1, (value,))
+    assert exc(slave, WriteSingleRequest(1, 0x2005, 4)) is X.ILLEGAL_VALUE  # beyond the sheet's 0-3
+
+
+def test_a_feature_the_model_lacks_is_refused_with_the_profiles_code(profile: Profile) -> None:
+    slave = Slave(profile, RegisterStoreDrive(profile))
+    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is X.ILLEGAL_VALUE  # simple PLC: simple_plc = false
+    assert exc(slave, WriteSingleRequest(1, 0x2006, 4)) is X.ILLEGAL_VALUE  # 2006H = 4: named by no sheet line
+    other = dataclasses.replace(
+        profile, protocol=dataclasses.replace(profile.protocol, lacking_feature_exception=1, simple_plc=True)
+    )
+    slave = Slave(other, RegisterStoreDrive(other))
+    assert exc(slave, WriteSingleRequest(1, 0x2006, 4)) is X.ILLEGAL_FUNCTION
+    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is None
 
 
 def test_04_function_code_write_while_200e_is_0(slave: Slave) -> None:
@@ -193,9 +222,18 @@ def test_0x10_write_is_all_or_nothing(slave: Slave) -> None:
 
 
 def test_0x10_bad_counts(slave: Slave) -> None:
-    assert exc(slave, WriteMultipleRequest(1, 0x2000, (1, 1500), count=3)) is X.ILLEGAL_VALUE
-    assert exc(slave, WriteMultipleRequest(1, 0x2000, (1, 1500), byte_count=5)) is X.ILLEGAL_VALUE
+    # A byte count that is not 2 x N: the sheet's 0x06, "the length of data frame is incorrect".
+    assert exc(slave, WriteMultipleRequest(1, 0x2000, (1, 1500), count=3)) is X.FRAME_ERROR
+    assert exc(slave, WriteMultipleRequest(1, 0x2000, (1, 1500), byte_count=5)) is X.FRAME_ERROR
+    # A register count out of 1-123 with a matching byte count: a value not allowed.
     assert exc(slave, WriteMultipleRequest(1, 0x2000, (), count=0, byte_count=0)) is X.ILLEGAL_VALUE
+    assert slave.drive.read(0x2001) == 0  # nothing written
+
+
+def test_0x10_byte_count_exception_is_the_profiles(profile: Profile) -> None:
+    modbus = dataclasses.replace(profile, protocol=dataclasses.replace(profile.protocol, byte_count_exception=3))
+    slave = Slave(modbus, RegisterStoreDrive(modbus))
+    assert exc(slave, WriteMultipleRequest(1, 0x2000, (1, 1500), count=3)) is X.ILLEGAL_VALUE
 
 
 def test_restore_defaults(slave: Slave) -> None:

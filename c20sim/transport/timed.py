@@ -1,0 +1,274 @@
+"""A line-timed byte stream (``--line-timing``): framed and paced on threads of its own, on the monotonic clock.
+
+The event loop's timers are about 1 ms coarse, coarser than a character at
+19200 baud (0.52 ms) and than t1.5 (0.78 ms); and whatever else the loop does
+(the dashboard, the control API, other ports) would delay a byte further. So a
+line-timed stream does its timing off the loop:
+
+- a reader thread waits on the port with ``select`` (microsecond timeouts),
+  stamps every chunk with ``time.perf_counter`` as it arrives, feeds the
+  strict framer and ticks it at its t3.5 deadline; the framing events go to
+  the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`.
+  Inside a frame at 19200 baud and above (t1.5 under 1 ms) it polls without
+  sleeping until the frame ends, since a thread's wake-up can be late by more
+  than t1.5 on a busy machine: a frame costs that thread's CPU for its own
+  length plus t3.5 (about 6.5 ms for an 8-byte request at 19200 baud);
+- a writer thread puts each reply on the port starting t3.5 + the reply's
+  turnaround after the request's last byte, and, where the port does not pace
+  bytes itself (a pty), one byte every character time: it sleeps to just
+  before each byte's time and spins the rest, so a byte leaves within a few
+  microseconds of its time on an idle machine (bench/bench_line_timing.py).
+
+While a line-timed port is open the interpreter's switch interval is lowered
+to 0.2 ms (from 5 ms), so that a timing thread waking up gets the GIL from a
+busy loop thread within a fraction of a character. Each timing thread also
+asks the kernel for a higher priority (nice -10) where it is allowed (root or
+CAP_SYS_NICE); elsewhere it runs at the process's own, and on a loaded machine
+its arrival times are as late as the scheduler makes them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import functools
+import logging
+import os
+import queue
+import select
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+from ..bus import Reply
+from ..protocol import FrameEvent, RtuFramer, char_time
+from .line import Line, SelfTimed
+
+__all__ = ["TimedEndpoint"]
+
+log = logging.getLogger(__name__)
+
+#: The last stretch before a byte's time is spun, not slept: a sleep overshoots by 50-100 us.
+SPIN = 0.0003
+#: Inside a frame whose t1.5 is shorter than this, the reader polls the port without sleeping (seconds).
+SPIN_READ_BELOW = 0.001
+#: Replies waiting for the writer at most; more means the master does not wait for answers: they are dropped.
+MAX_PENDING_REPLIES = 8
+#: The nice value the timing threads ask for (granted to root or with CAP_SYS_NICE only).
+THREAD_NICE = -10
+#: The interpreter's switch interval while a line-timed port is open (seconds).
+SWITCH_INTERVAL = 0.0002
+
+_switch_lock = threading.Lock()
+_switch_users = 0
+_switch_saved = 0.005
+
+
+def _raise_thread_priority() -> None:
+    """Ask for :data:`THREAD_NICE` for the calling thread; where it is not allowed, nothing changes."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), THREAD_NICE)
+
+
+def _lower_switch_interval() -> None:
+    global _switch_users, _switch_saved
+    with _switch_lock:
+        if _switch_users == 0:
+            _switch_saved = sys.getswitchinterval()
+            sys.setswitchinterval(min(_switch_saved, SWITCH_INTERVAL))
+        _switch_users += 1
+
+
+def _restore_switch_interval() -> None:
+    global _switch_users
+    with _switch_lock:
+        _switch_users -= 1
+        if _switch_users == 0:
+            sys.setswitchinterval(_switch_saved)
+
+
+class TimedEndpoint:
+    """Frames what arrives on ``fd`` and puts replies on it, timed on the monotonic clock.
+
+    ``pace``: write a reply byte by byte at the character time (a pty, which
+    passes bytes on at once); without it the reply is written whole at its
+    start time (a UART paces it itself). ``write`` writes bytes to the port
+    and returns how many it took (default: ``os.write`` on ``fd``).
+    ``on_baud`` runs on the writer thread once every reply before a baud
+    change has been handed to the port.
+    """
+
+    def __init__(
+        self,
+        line: Line,
+        fd: int,
+        framer: RtuFramer,
+        *,
+        pace: bool,
+        name: str = "",
+        write: Callable[[bytes], int] | None = None,
+        on_baud: Callable[[int], None] | None = None,
+    ) -> None:
+        if not framer.strict:
+            raise ValueError("a line-timed endpoint needs a strict framer")
+        self.line = line
+        self.fd = fd
+        self.framer = framer
+        self.pace = pace
+        self.name = name
+        self._write = write if write is not None else functools.partial(os.write, fd)
+        self._on_baud = on_baud
+        self._loop = asyncio.get_running_loop()
+        self._lock = threading.Lock()  # the framer: fed by the reader, its baud set from the loop
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()
+        self._jobs: queue.SimpleQueue[tuple[bytes, int, float] | int | None] = queue.SimpleQueue()
+        self._pending = 0  # replies queued for the writer, bounded by MAX_PENDING_REPLIES
+        self._detach = line.on_baud(self._baud_changed)
+        _lower_switch_interval()
+        self._reader = threading.Thread(target=self._read_loop, name=f"c20sim reader {name}", daemon=True)
+        self._writer = threading.Thread(target=self._write_loop, name=f"c20sim writer {name}", daemon=True)
+        self._reader.start()
+        self._writer.start()
+
+    def close(self) -> None:
+        """Stop both threads (within a character time); a half-received frame and unsent replies are dropped."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._detach()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        self._jobs.put(None)
+        for thread in (self._reader, self._writer):
+            if thread is not threading.current_thread():
+                thread.join(timeout=2.0)
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+        _restore_switch_interval()
+
+    # --- the reader thread
+
+    def _read_loop(self) -> None:
+        _raise_thread_priority()
+        fd, wake = self.fd, self._wake_r
+        while not self._stop.is_set():
+            with self._lock:
+                deadline = self.framer.deadline()
+            timeout = None if deadline is None else max(0.0, deadline - time.perf_counter())
+            if timeout is not None and self.framer.t15 < SPIN_READ_BELOW:
+                timeout = 0.0  # inside a fast frame: poll without sleeping, so that no wake-up delays a stamp
+            try:
+                ready, _, _ = select.select([fd, wake], [], [], timeout)
+            except (OSError, ValueError) as exc:
+                log.error("line-timed port %s: cannot wait for bytes (%s); it no longer reads", self.name, exc)
+                return
+            now = time.perf_counter()
+            if wake in ready:
+                return
+            data = b""
+            if fd in ready:
+                try:
+                    data = os.read(fd, 4096)
+                except BlockingIOError:
+                    pass
+                except OSError as exc:
+                    if exc.errno != errno.EIO:  # EIO: no one has the device open; nothing to read
+                        log.error("line-timed port %s: read failed (%s); it no longer reads", self.name, exc)
+                        return
+                    self._stop.wait(0.05)
+            with self._lock:
+                if data:
+                    self.framer.feed(data, now)
+                self.framer.tick(now)
+                events = self.framer.events()
+            if events:
+                try:
+                    self._loop.call_soon_threadsafe(self._submit, events)
+                except RuntimeError:  # the loop has closed: the server is shutting down
+                    return
+
+    # --- on the loop
+
+    def _submit(self, events: list[FrameEvent]) -> None:
+        if self._stop.is_set():
+            return
+        for event in events:
+            self.line.submit(event, SelfTimed(functools.partial(self._respond, event.t, self.framer.t35)))
+
+    def _respond(self, request_end: float, t35: float, reply: Reply | None) -> None:
+        if reply is None or self._stop.is_set():
+            return
+        if self._pending >= MAX_PENDING_REPLIES:
+            log.info("reply on %s dropped: %d replies wait for the line already", self.name, self._pending)
+            return
+        self._pending += 1
+        # Handed over at once (SelfTimed): the reply starts t3.5 after the request's last byte (the end of
+        # the frame), plus its delay (the profile's turnaround, and any injected delay), on this clock.
+        self._jobs.put((reply.data, reply.baud, request_end + t35 + reply.delay))
+
+    def _baud_changed(self, baud: int) -> None:
+        with self._lock:
+            self.framer.set_baud(baud)
+        if self._on_baud is not None:
+            self._jobs.put(baud)  # after the replies queued before it, at the old baud
+
+    # --- the writer thread
+
+    def _write_loop(self) -> None:
+        _raise_thread_priority()
+        while True:
+            job = self._jobs.get()
+            if job is None or self._stop.is_set():
+                return
+            if isinstance(job, int):
+                assert self._on_baud is not None
+                try:
+                    self._on_baud(job)
+                except Exception:
+                    log.exception("bug while changing %s to %d baud; it keeps serving", self.name, job)
+                continue
+            data, baud, start = job
+            try:
+                self._transmit(data, char_time(baud, self.framer.bits), start)
+            except OSError as exc:
+                log.info("reply on %s not sent: %s", self.name, exc)
+            finally:
+                with contextlib.suppress(RuntimeError):  # the loop has closed: the server is shutting down
+                    self._loop.call_soon_threadsafe(self._sent)
+
+    def _sent(self) -> None:
+        self._pending -= 1
+
+    def _transmit(self, data: bytes, per_char: float, start: float) -> None:
+        t0 = max(start, time.perf_counter())
+        if not self.pace:
+            self._sleep_until(t0)
+            sent = 0
+            while sent < len(data) and not self._stop.is_set():
+                sent += self._write_or_wait(data[sent:], per_char)
+            return
+        for i in range(len(data)):
+            if not self._sleep_until(t0 + i * per_char):
+                return
+            if self._write_or_wait(data[i : i + 1], per_char) == 0:
+                log.info("reply on %s cut short: the port takes no more bytes (no one reads them)", self.name)
+                return
+
+    def _write_or_wait(self, data: bytes, per_char: float) -> int:
+        try:
+            return self._write(data)
+        except BlockingIOError:
+            self._stop.wait(per_char)
+            return 0
+
+    def _sleep_until(self, target: float) -> bool:
+        """Wait until ``target`` on the monotonic clock; False if the endpoint closed meanwhile."""
+        remaining = target - time.perf_counter()
+        if remaining > SPIN and self._stop.wait(remaining - SPIN):
+            return False
+        while time.perf_counter() < target:
+            pass
+        return not self._stop.is_set()
