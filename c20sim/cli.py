@@ -90,6 +90,11 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
+    where.add_argument(
+        "--control-token",
+        metavar="TOKEN",
+        help="the token the control API asks for (beyond loopback one is generated and written to the ready file)",
+    )
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
@@ -132,6 +137,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         log_frames=args.log_frames,
         ready_file=args.ready_file,
         control=args.control,
+        control_token=args.control_token,
         scenario=getattr(args, "scenario", None),
     )
     if not options.any_endpoint:
