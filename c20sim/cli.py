@@ -154,14 +154,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_dashboard(args: argparse.Namespace) -> int:
-    from .tui import Dashboard  # textual loads only for the dashboard
+    from .tui.session import run_dashboard  # textual loads only for the dashboard
 
-    options = serve_options(args)
-    app = Dashboard(build_simulator(args), options)
-    app.run()
-    if app.error is not None:
-        raise app.error
-    return app.return_code or 0
+    return run_dashboard(args, args.serve_defaults)
 
 
 def render_profile(profile: Profile) -> str:
@@ -227,7 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     dashboard = sub.add_parser("dashboard", help="the simulator with its terminal dashboard (the default command)")
     add_endpoint_options(dashboard)
-    dashboard.set_defaults(func=cmd_dashboard)
+    dashboard.add_argument(
+        "--attach",
+        metavar="READY_FILE|URL",
+        help="attach to a running serve (its ready file, or http://HOST:PORT of its --control) instead of starting one",
+    )
+    dashboard.set_defaults(func=cmd_dashboard, serve_defaults={a.dest: a.default for a in dashboard._actions})
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)

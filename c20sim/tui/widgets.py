@@ -9,9 +9,10 @@ shown as an error notification.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from rich.text import Text
 from textual import events, on
@@ -22,7 +23,7 @@ from textual.reactive import reactive
 from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
-from ..bus import Bus, Direction, FrameRecord, RecordKind
+from ..bus import Direction, FrameRecord, RecordKind
 from ..control.ops import ControlError
 from ..drive.terminals import Input as Terminal
 from ..drive.terminals import Output
@@ -44,6 +45,7 @@ __all__ = [
     "LinkFaultsPanel",
     "TrendPlot",
     "format_record",
+    "record_from_dict",
     "record_matches",
 ]
 
@@ -180,6 +182,29 @@ def record_matches(record: FrameRecord, drive: int | None, function: int | None,
     return not errors_only or record.kind.error or bool(record.note)
 
 
+def record_from_dict(data: Mapping[str, Any]) -> FrameRecord:
+    """A frame record as the control API's stream sends it (``as_dict``) -> a record to show."""
+    model_t = data.get("model_t")
+    slave = data.get("slave")
+    return FrameRecord(
+        float(data["t"]),
+        Direction(data["dir"]),
+        bytes.fromhex(str(data["hex"])),
+        RecordKind(data["kind"]),
+        slave if isinstance(slave, int) else None,
+        str(data["text"]),
+        str(data.get("note", "")),
+        float(model_t) if isinstance(model_t, int | float) else None,
+    )
+
+
+def skipped_record(t: float, missed: int) -> FrameRecord:
+    """The line that stands for frames the stream skipped: it says how many."""
+    return FrameRecord(
+        t, Direction.RX, b"", RecordKind.NOISE, None, f"{missed} frames skipped", "the log was behind the bus"
+    )
+
+
 def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
     """One frame log line: time, direction, drive, words (highlighted if wrong), hex."""
     arrow = "→" if record.direction is Direction.RX else "←"
@@ -218,14 +243,18 @@ class FrameLog(Vertical, can_focus=True):
     function_filter: reactive[int | None] = reactive(None)
     errors_only = reactive(False)
 
-    def __init__(self, bus: Bus, drives: Sequence[int], id: str | None = None) -> None:
+    #: the records kept (as many as the log shows); older ones are let go
+    KEEP = 2000
+
+    def __init__(self, drives: Sequence[int], id: str | None = None) -> None:
         super().__init__(id=id)
-        self.bus = bus
         self.drives = list(drives)
+        self.records: deque[FrameRecord] = deque(maxlen=self.KEEP)
         self._inbox: list[FrameRecord] = []
         self._posted = False
         self._held = 0
-        self._cleared_after: FrameRecord | None = None  #: the last record when the log was cleared
+        #: frames the server's stream skipped because this log was behind (it says how many)
+        self.missed = 0
 
     def compose(self) -> ComposeResult:
         yield Static(id="log-status")
@@ -236,9 +265,13 @@ class FrameLog(Vertical, can_focus=True):
         self._show_status()
         self._rebuild()
 
-    def add(self, record: FrameRecord) -> None:
-        """A bus listener: queue the record and ask for one merged refresh."""
+    def add(self, record: FrameRecord, missed: int = 0) -> None:
+        """A new record (after ``missed`` the stream skipped): queue it and ask for one merged refresh."""
+        if missed:
+            self.missed += missed
+            self._inbox.append(skipped_record(record.t, missed))
         self._inbox.append(record)
+        del self._inbox[: -self.KEEP]
         if not self._posted:
             self._posted = True
             self.post_message(FramesLogged())
@@ -247,6 +280,7 @@ class FrameLog(Vertical, can_focus=True):
         message.stop()
         self._posted = False
         records, self._inbox = self._inbox, []
+        self.records.extend(records)
         if self.paused:
             self._held += len(records)
             self._show_status()
@@ -258,13 +292,7 @@ class FrameLog(Vertical, can_focus=True):
 
     def visible_records(self) -> list[FrameRecord]:
         """The records the filter shows, oldest first (what is saved)."""
-        records = list(self.bus.records)
-        if self._cleared_after is not None:
-            for index in range(len(records) - 1, -1, -1):
-                if records[index] is self._cleared_after:
-                    records = records[index + 1 :]
-                    break
-        return [r for r in records if self._matches(r)]
+        return [r for r in self.records if self._matches(r)]
 
     def _matches(self, record: FrameRecord) -> bool:
         return record_matches(record, self.drive_filter, self.function_filter, self.errors_only)
@@ -283,6 +311,8 @@ class FrameLog(Vertical, can_focus=True):
         if self.errors_only:
             parts.append("errors only")
         text = Text("frames: " + ", ".join(parts), style="bold")
+        if self.missed:
+            text.append(f"  {self.missed} skipped (the log was behind the bus)", style="bold yellow")
         if self.paused:
             text.append(f"  PAUSED ({self._held} new)", style="bold black on yellow")
         text.append("   space pause · a drive · n function · e errors · w save", style="dim")
@@ -328,7 +358,7 @@ class FrameLog(Vertical, can_focus=True):
         self.errors_only = not self.errors_only
 
     def action_clear(self) -> None:
-        self._cleared_after = self.bus.records[-1] if self.bus.records else None
+        self.records.clear()
         self._held = 0
         self._rebuild()
         self._show_status()
@@ -569,7 +599,11 @@ class LinkFaultsPanel(_SwitchPanel):
             self.on_bus = not self.on_bus
             self.post_message(ConditionsChanged(f"link faults now act on {self._where()}"))
             return
-        note = self.bench.toggle_link_fault(self.scope(), key)
+        try:
+            note = self.bench.toggle_link_fault(self.scope(), key)
+        except ControlError as exc:
+            self.notify(f"{self._where()}: {exc}", severity="error", timeout=5)
+            return
         self.post_message(ConditionsChanged(note))
 
     def _where(self) -> str:

@@ -1,0 +1,166 @@
+"""``c20sim dashboard``: start ``c20sim serve`` in a process of its own and attach to it, or attach to one running.
+
+The process that owns the wire owns the simulator and does nothing else: the
+dashboard is a client of its control API, so a redraw never holds a reply.
+``c20sim dashboard [serve's options]`` starts ``python -m c20sim serve`` with
+those options, ``--control 127.0.0.1:0`` and a ready file in a temporary
+directory, waits for the ready file, attaches, and stops the server (SIGTERM,
+then waits for it) when the dashboard closes. ``--attach ready.json`` or
+``--attach http://HOST:PORT`` attaches to a server already running, which is
+left running when the dashboard closes. A server that cannot start is its own
+one line of error and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from ..control.client import ControlClient, RemoteOps, attach_target
+from ..errors import C20SimError
+
+__all__ = ["SERVE_OPTIONS", "run_dashboard", "serve_argv", "served"]
+
+#: Seconds a started server may take to write its ready file, and to stop.
+START_TIMEOUT = 30.0
+STOP_TIMEOUT = 10.0
+
+#: serve's options that the dashboard passes on: argparse dest -> the option.
+SERVE_OPTIONS = {
+    "pty": "--pty",
+    "link": "--link",
+    "serial": "--serial",
+    "baud": "--baud",
+    "parity": "--parity",
+    "stopbits": "--stopbits",
+    "tcp": "--tcp",
+    "modbus_tcp": "--modbus-tcp",
+    "line_timing": "--line-timing",
+    "control": "--control",
+    "control_token": "--control-token",
+    "profile": "--profile",
+    "drives": "--drives",
+    "clock": "--clock",
+    "speed": "--speed",
+    "state": "--state",
+    "seed": "--seed",
+    "log_frames": "--log-frames",
+    "ready_file": "--ready-file",
+}
+#: Options that say which server to attach to (the rest are the server's own business).
+ATTACH_OPTIONS = frozenset({"control_token"})
+
+
+def serve_argv(args: argparse.Namespace, ready_file: str) -> list[str]:
+    """The ``c20sim serve`` command line for the dashboard's options (a control API on loopback if none given)."""
+    argv = [sys.executable, "-m", "c20sim", "serve"]
+    for dest, option in SERVE_OPTIONS.items():
+        value = getattr(args, dest, None)
+        if dest == "control" and value is None:
+            value = "127.0.0.1:0"
+        if dest == "ready_file":
+            value = ready_file
+        if value is None or value is False:
+            continue
+        argv += [option] if value is True else [option, str(value)]
+    return argv
+
+
+def _server_error(stderr: Path, code: int | None) -> str:
+    lines = [line for line in stderr.read_text(errors="replace").splitlines() if line.strip()]
+    if not lines:
+        return f"the server (c20sim serve) ended with exit code {code} before it was ready"
+    return lines[-1].removeprefix("c20sim: ")
+
+
+@contextlib.contextmanager
+def served(args: argparse.Namespace) -> Iterator[tuple[str, str | None]]:
+    """Start ``c20sim serve`` for ``args``; yields (control URL, token) once ready; stops it on the way out."""
+    with tempfile.TemporaryDirectory(prefix="c20sim-") as tmp:
+        ready = Path(args.ready_file) if args.ready_file else Path(tmp) / "ready.json"
+        ready.unlink(missing_ok=True)
+        stderr_path = Path(tmp) / "serve.stderr"
+        with stderr_path.open("w") as stderr:
+            process = subprocess.Popen(
+                serve_argv(args, str(ready)),
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=stderr,
+                start_new_session=True,  # the terminal's Ctrl+C goes to the dashboard, which stops the server itself
+            )
+        try:
+            deadline = time.monotonic() + START_TIMEOUT
+            while not ready.exists():
+                if process.poll() is not None:
+                    raise C20SimError(_server_error(stderr_path, process.returncode))
+                if time.monotonic() > deadline:
+                    raise C20SimError(f"the server (c20sim serve) was not ready within {START_TIMEOUT:g} s")
+                time.sleep(0.02)
+            yield attach_target(str(ready), args.control_token)
+        finally:
+            stop(process)
+            if args.ready_file:
+                ready.unlink(missing_ok=True)
+            for line in stderr_path.read_text(errors="replace").splitlines():
+                print(line, file=sys.stderr)  # what the server said (warnings, a bug's traceback), after the screen
+
+
+def stop(process: subprocess.Popen[bytes]) -> None:
+    """Stop a started server cleanly (SIGTERM, as serve expects), killing it only if it does not end in time."""
+    if process.poll() is not None:
+        return
+    process.send_signal(signal.SIGTERM)
+    try:
+        process.wait(STOP_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+        print(f"c20sim: the server did not stop within {STOP_TIMEOUT:g} s of SIGTERM; killed it", file=sys.stderr)
+
+
+def check_attach_options(args: argparse.Namespace, parser_defaults: dict[str, object]) -> None:
+    """--attach takes the server as it is: a serve option beside it is a mistake, said as one."""
+    for dest, option in SERVE_OPTIONS.items():
+        if dest in ATTACH_OPTIONS:
+            continue
+        if getattr(args, dest, None) != parser_defaults.get(dest):
+            raise C20SimError(
+                f"--attach: {option} is the server's option; give it to the serve you attach to, "
+                "or leave out --attach to start one"
+            )
+
+
+def run_dashboard(args: argparse.Namespace, parser_defaults: dict[str, object]) -> int:
+    """``c20sim dashboard``: attach to ``--attach``, or to a serve started for the options."""
+    with contextlib.ExitStack() as stack:
+        if args.attach:
+            check_attach_options(args, parser_defaults)
+            url, token = attach_target(args.attach, args.control_token)
+        else:
+            url, token = stack.enter_context(served(args))
+        return attach(url, token)
+    raise AssertionError("unreachable")
+
+
+def attach(url: str, token: str | None) -> int:
+    """Run the dashboard on the control API at ``url`` until it is closed."""
+    from .app import Dashboard  # textual loads only for the dashboard
+
+    client = ControlClient(url, token)
+    try:
+        remote = RemoteOps(client)
+    except C20SimError as exc:
+        raise C20SimError(f"cannot attach to {url}: {exc}") from None
+    app = Dashboard(remote)
+    app.run()
+    if app.error is not None:
+        raise app.error
+    return app.return_code or 0
+
