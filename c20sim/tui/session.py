@@ -99,7 +99,9 @@ def served(args: argparse.Namespace) -> Iterator[tuple[str, str | None]]:
             deadline = time.monotonic() + START_TIMEOUT
             while not ready.exists():
                 if process.poll() is not None:
-                    raise C20SimError(_server_error(stderr_path, process.returncode))
+                    message = _server_error(stderr_path, process.returncode)
+                    stderr_path.write_text("")  # said once, as the error
+                    raise C20SimError(message)
                 if time.monotonic() > deadline:
                     raise C20SimError(f"the server (c20sim serve) was not ready within {START_TIMEOUT:g} s")
                 time.sleep(0.02)
