@@ -165,4 +165,3 @@ def attach(url: str, token: str | None) -> int:
     if app.error is not None:
         raise app.error
     return app.return_code or 0
-

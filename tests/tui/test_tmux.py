@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import socket
 import subprocess
 import sys
 import time
@@ -32,6 +33,8 @@ def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0, show: 
 class Terminal:
     def __init__(self, session: str) -> None:
         self.session = session
+        self.address = ("", 0)  #: the served RTU-over-TCP endpoint
+        self.ready = Path()
 
     def screen(self) -> str:
         result = subprocess.run(
@@ -84,6 +87,8 @@ def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
         client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
         assert client.connect()
+        terminal.address = (host, int(port))
+        terminal.ready = ready
         try:
             yield terminal, client
         finally:
@@ -120,3 +125,7 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     assert read(client, 0x2100) == 4
     terminal.keys("q")
     assert terminal.exit_status() == "status 0", terminal.screen()
+    # The serve the dashboard started is stopped with it: its port is closed, its ready file gone.
+    with socket.socket() as probe:
+        assert probe.connect_ex(terminal.address) != 0, "the server the dashboard started still listens"
+    assert not terminal.ready.exists()
