@@ -42,13 +42,9 @@ def test_bare_c20sim_starts_serve_with_a_loopback_control_api(started: list[tupl
 
 
 def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], str | None]]) -> None:
-    assert (
-        cli.main(
-            ["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual", "--line-timing"]
-            + ["--pty", "--seed", "7", "--control", "127.0.0.1:8020", "--control-token", "s3cret"]
-        )
-        == 0
-    )
+    argv = ["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual", "--line-timing"]
+    argv += ["--pty", "--seed", "7", "--control", "127.0.0.1:8020", "--control-token", "s3cret"]
+    assert cli.main(argv) == 0
     ((argv, _),) = started
     text = " ".join(argv)
     for part in (
