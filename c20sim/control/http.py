@@ -49,8 +49,12 @@ DEFAULT_HZ = 5.0
 #: A stream client's frame buffer (``?buffer=``): at most this many frames wait for it; older ones are skipped.
 STREAM_BUFFER = (1, 10_000)
 DEFAULT_BUFFER = 1000
-#: Frames go out in batches at most this often: a busy bus costs a reader at most ``buffer`` frames a batch.
-FRAME_PERIOD = 0.05
+#: The query parameters of ``GET /stream``.
+STREAM_QUERY = ("hz", "frame_hz", "buffer", "frames", "token")
+#: Frame batches a second a client may ask for (``?frame_hz=``), and the default: a busy bus costs a reader at
+#: most ``buffer`` frames a batch.
+FRAME_HZ = (0.1, 100.0)
+DEFAULT_FRAME_HZ = 20.0
 #: Frames put in words per turn of the loop: a big batch is cut so that a request waits for no more than one chunk.
 CHUNK = 32
 
@@ -293,9 +297,10 @@ def make_app(api: ControlApi) -> web.Application:
 
     async def stream(request: web.Request) -> web.StreamResponse:
         for key in request.query:
-            if key not in ("hz", "buffer", "frames", "token"):
-                raise unknown("query parameter", key, ["hz", "buffer", "frames", "token"])
+            if key not in STREAM_QUERY:
+                raise unknown("query parameter", key, STREAM_QUERY)
         hz = query_number(request, "hz", DEFAULT_HZ, STREAM_HZ)
+        frame_period = 1.0 / query_number(request, "frame_hz", DEFAULT_FRAME_HZ, FRAME_HZ)
         size = int(query_number(request, "buffer", DEFAULT_BUFFER, STREAM_BUFFER))
         with_frames = request.query.get("frames", "1") not in ("0", "false", "no")
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=4096)
@@ -308,7 +313,7 @@ def make_app(api: ControlApi) -> web.Application:
             _drain(ws)
         )  # reads (and ignores) what the client sends; ends on close
         try:
-            await _serve_stream(api, ws, client, 1.0 / hz, reader)
+            await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
         finally:
             api.streams.discard(client)
             reader.cancel()
@@ -486,7 +491,12 @@ async def _drain(ws: web.WebSocketResponse) -> None:
 
 
 async def _serve_stream(
-    api: ControlApi, ws: web.WebSocketResponse, client: StreamClient, period: float, reader: asyncio.Future[Any]
+    api: ControlApi,
+    ws: web.WebSocketResponse,
+    client: StreamClient,
+    period: float,
+    frame_period: float,
+    reader: asyncio.Future[Any],
 ) -> None:
     """Send telemetry every ``period`` and the frames as they come, until the client goes or the API closes.
 
@@ -503,7 +513,7 @@ async def _serve_stream(
             continue
         if client.frames and now >= frames_due:
             await _send_frames(ws, client)
-            frames_due = loop.time() + FRAME_PERIOD
+            frames_due = loop.time() + frame_period
             continue
         wake_at = min(due, frames_due) if client.frames else due
         client.wake.clear()
@@ -532,7 +542,7 @@ ROUTES: Mapping[str, str] = {
     "GET /": "-",
     "GET /telemetry": "- (every drive's telemetry, conditions, causes and link faults: one stream message)",
     "GET /profile": "- (the served profile's TOML)",
-    "GET /stream": "WebSocket (query: hz=0.1-50, buffer=1-10000, frames=0|1): telemetry and frame records",
+    "GET /stream": "WebSocket (query: hz=0.1-50, frame_hz=0.1-100, buffer=1-10000, frames=0|1): telemetry, frames",
     "GET /time": "-",
     "POST /time/advance": '{"seconds": 1.5} (virtual clock only; 409 otherwise)',
     "GET /drives": "-",

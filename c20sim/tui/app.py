@@ -53,8 +53,11 @@ __all__ = ["Dashboard"]
 
 T = TypeVar("T")
 
-#: Frames the server keeps waiting for the dashboard's log; beyond that it skips them and says how many.
-STREAM_BUFFER = 200
+#: Frames the server keeps waiting for the dashboard's log, and how often it sends them: beyond 100 frames a batch,
+#: 5 batches a second (more than anyone reads) it skips them and says how many. A busy bus costs the server and
+#: the dashboard at most that.
+STREAM_BUFFER = 100
+FRAME_HZ = 5
 
 TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5"}
 
@@ -232,7 +235,7 @@ class Dashboard(App[int]):
         import aiohttp  # the API's own WebSocket client
 
         client = self.remote.client
-        url = f"{client.url}/stream?hz={self.refresh_hz:g}&buffer={STREAM_BUFFER}"
+        url = f"{client.url}/stream?hz={self.refresh_hz:g}&frame_hz={FRAME_HZ}&buffer={STREAM_BUFFER}"
         lost = False
         async with aiohttp.ClientSession(headers=client.headers()) as session:
             while True:
