@@ -53,10 +53,10 @@ __all__ = ["Dashboard"]
 
 T = TypeVar("T")
 
-#: Frames the server keeps waiting for the dashboard's log, and how often it sends them: beyond 100 frames a batch,
-#: 5 batches a second (more than anyone reads) it skips them and says how many. A busy bus costs the server and
-#: the dashboard at most that.
-STREAM_BUFFER = 100
+#: Frames the server keeps waiting for the dashboard's log, and how often it sends them: beyond 40 frames a batch,
+#: 5 batches a second (more than anyone reads as they scroll) it skips them and says how many. A busy bus costs the
+#: server and the dashboard at most that.
+STREAM_BUFFER = 40
 FRAME_HZ = 5
 
 TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5"}

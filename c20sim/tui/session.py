@@ -5,7 +5,8 @@ dashboard is a client of its control API, so a redraw never holds a reply.
 ``c20sim dashboard [serve's options]`` starts ``python -m c20sim serve`` with
 those options, ``--control 127.0.0.1:0`` and a ready file in a temporary
 directory, waits for the ready file, attaches, and stops the server (SIGTERM,
-then waits for it) when the dashboard closes. ``--attach ready.json`` or
+then waits for it) when the dashboard closes. The dashboard then lowers its own
+scheduling priority (``nice``): on a busy machine the server gets the CPU first. ``--attach ready.json`` or
 ``--attach http://HOST:PORT`` attaches to a server already running, which is
 left running when the dashboard closes. A server that cannot start is its own
 one line of error and exit code 2.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -151,10 +153,18 @@ def run_dashboard(args: argparse.Namespace, parser_defaults: dict[str, object]) 
     raise AssertionError("unreachable")
 
 
+#: How much lower the dashboard's scheduling priority is than the server's (Unix ``nice``): on a small, busy machine
+#: the server gets the CPU first, and a redraw waits for a reply, never the other way round.
+NICENESS = 5
+
+
 def attach(url: str, token: str | None) -> int:
     """Run the dashboard on the control API at ``url`` until it is closed."""
     from .app import Dashboard  # textual loads only for the dashboard
 
+    if hasattr(os, "nice"):  # after the server started: it keeps its own priority
+        with contextlib.suppress(OSError):
+            os.nice(NICENESS)
     client = ControlClient(url, token)
     try:
         remote = RemoteOps(client)
