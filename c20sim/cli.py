@@ -159,6 +159,12 @@ def cmd_dashboard(args: argparse.Namespace) -> int:
     return run_dashboard(args, args.serve_defaults)
 
 
+def cmd_web(args: argparse.Namespace) -> int:
+    from .tui.web import run_web  # textual-serve loads only for the browser view
+
+    return run_web(args, args.serve_defaults)
+
+
 def render_profile(profile: Profile) -> str:
     """A profile as a SCADA developer wants to read it: quirks, physics, faults, function codes."""
     lines = [f"{profile.name}: {profile.description}", f"  file: {profile.path}", ""]
@@ -228,6 +234,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="attach to a running serve (its ready file, or http://HOST:PORT of its --control) instead of starting one",
     )
     dashboard.set_defaults(func=cmd_dashboard, serve_defaults={a.dest: a.default for a in dashboard._actions})
+
+    web = sub.add_parser("web", help="the dashboard in a browser (textual-serve), on a serve it starts or attaches to")
+    add_endpoint_options(web)
+    web.add_argument("--attach", metavar="READY_FILE|URL", help="attach to a running serve instead of starting one")
+    web.add_argument(
+        "--web", default="127.0.0.1:8000", metavar="HOST:PORT", help="the page's address (default 127.0.0.1:8000)"
+    )
+    web.add_argument("--web-token", metavar="TOKEN", help="the page's token (beyond loopback one is generated)")
+    web.set_defaults(func=cmd_web, serve_defaults={a.dest: a.default for a in web._actions})
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)

@@ -56,6 +56,8 @@ SERVE_OPTIONS = {
     "log_frames": "--log-frames",
     "ready_file": "--ready-file",
 }
+#: The environment variable that may carry the control API's token to ``--attach`` (``c20sim web`` sets it).
+TOKEN_ENV = "C20SIM_CONTROL_TOKEN"
 #: Options that say which server to attach to (the rest are the server's own business).
 ATTACH_OPTIONS = frozenset({"control_token"})
 
@@ -146,7 +148,7 @@ def run_dashboard(args: argparse.Namespace, parser_defaults: dict[str, object]) 
     with contextlib.ExitStack() as stack:
         if args.attach:
             check_attach_options(args, parser_defaults)
-            url, token = attach_target(args.attach, args.control_token)
+            url, token = attach_target(args.attach, args.control_token or os.environ.get(TOKEN_ENV) or None)
         else:
             url, token = stack.enter_context(served(args))
         return attach(url, token)
