@@ -11,8 +11,10 @@ import signal
 import socket
 import subprocess
 import sys
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import aiohttp
 import pytest
@@ -55,23 +57,16 @@ def web() -> Iterator[Web]:
     yield from start_web("--web", "127.0.0.1:0")
 
 
+def get_json(url: str) -> dict[str, Any]:
+    """A blocking GET (the test's loop is not needed for it)."""
+    with urllib.request.urlopen(url, timeout=5) as response:
+        data: dict[str, Any] = json.loads(response.read())
+    return data
+
+
 def tcp_port(control: str) -> int:
-    with aiohttp_free_get(f"{control}/") as index:
-        return int(index["endpoints"]["tcp"].rsplit(":", 1)[1])
-
-
-class aiohttp_free_get:
-    def __init__(self, url: str) -> None:
-        import urllib.request
-
-        with urllib.request.urlopen(url, timeout=5) as response:
-            self.data = json.loads(response.read())
-
-    def __enter__(self) -> dict[str, object]:
-        return self.data  # type: ignore[no-any-return]
-
-    def __exit__(self, *exc: object) -> None:
-        pass
+    """The RTU-over-TCP port of the serve the page is attached to, as its control API says."""
+    return int(get_json(f"{control}/")["endpoints"]["tcp"].rsplit(":", 1)[1])
 
 
 async def screen_until(ws: aiohttp.ClientWebSocketResponse, text: str, timeout: float = 20.0) -> str:
@@ -156,11 +151,8 @@ def test_chromium_screenshot_shows_the_running_drive(web: Web, tmp_path: Path) -
         assert not client.write_register(0x2000, 1, device_id=1).isError()
     finally:
         client.close()
-    control = web.control
-    import urllib.request
-
     request = urllib.request.Request(
-        f"{control}/time/advance", data=b'{"seconds": 2}', headers={"Content-Type": "application/json"}
+        f"{web.control}/time/advance", data=b'{"seconds": 2}', headers={"Content-Type": "application/json"}
     )
     with urllib.request.urlopen(request, timeout=5):
         pass
