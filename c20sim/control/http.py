@@ -20,6 +20,7 @@ without it the answer is 401.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import ipaddress
 import json
@@ -49,6 +50,8 @@ DEFAULT_HZ = 5.0
 #: A stream client's frame buffer (``?buffer=``): at most this many frames wait for it; older ones are skipped.
 STREAM_BUFFER = (1, 10_000)
 DEFAULT_BUFFER = 1000
+#: Stream readers at once: each costs a buffer and a sender; beyond this the answer is 503.
+MAX_STREAMS = 32
 #: The query parameters of ``GET /stream``.
 STREAM_QUERY = ("hz", "frame_hz", "buffer", "frames", "token")
 #: Frame batches a second a client may ask for (``?frame_hz=``), and the default: a busy bus costs a reader at
@@ -139,6 +142,9 @@ class ControlApi:
         self._seen = len(sim.bus.records)
         self._unsubscribe = sim.bus.subscribe(self._count)
         self.streams: set[StreamClient] = set()
+        self.closing = False
+        #: stream readers attached now (with frames or not)
+        self.readers = 0
         #: telemetry snapshots made so far: numbers them, so a client can tell the newest
         self.snapshots = 0
 
@@ -173,6 +179,7 @@ class ControlApi:
         self.url = f"http://{shown}:{bound_port}"
 
     async def close(self) -> None:
+        self.closing = True  # the streams end first: a server stopping waits for no viewer
         self._unsubscribe()
         for client in self.streams:
             client.wake.set()
@@ -270,6 +277,7 @@ def make_app(api: ControlApi) -> web.Application:
                 "clock": "virtual" if sim.virtual else "realtime",
                 "t": sim.now(),
                 "endpoints": api.endpoints(),
+                "stream_readers": api.readers,
                 "routes": ROUTES,
             }
         )
@@ -303,21 +311,29 @@ def make_app(api: ControlApi) -> web.Application:
         frame_period = 1.0 / query_number(request, "frame_hz", DEFAULT_FRAME_HZ, FRAME_HZ)
         size = int(query_number(request, "buffer", DEFAULT_BUFFER, STREAM_BUFFER))
         with_frames = request.query.get("frames", "1") not in ("0", "false", "no")
-        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=4096)
-        await ws.prepare(request)
+        if api.readers >= MAX_STREAMS:
+            raise ControlError(f"{MAX_STREAMS} stream readers are attached already; close one first", status=503)
+        # no compression: it would cost the serving loop CPU per message; a peer gone quiet delays a close by 1 s
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=4096, compress=False, timeout=1.0)
         client = StreamClient(size)
-        client.sent = api._seen - 1
-        if with_frames:
-            api.streams.add(client)
-        reader: asyncio.Future[Any] = asyncio.ensure_future(
-            _drain(ws)
-        )  # reads (and ignores) what the client sends; ends on close
+        api.readers += 1  # counted from here: the upgrade below awaits, and others may come meanwhile
         try:
-            await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
+            await ws.prepare(request)
+            client.sent = api._seen - 1
+            if with_frames:
+                api.streams.add(client)
+            # what the client sends is read (and ignored) beside the sender; it ends when the client goes
+            reader: asyncio.Future[Any] = asyncio.ensure_future(_drain(ws))
+            try:
+                await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
+            finally:
+                reader.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await reader  # the close below reads the peer's answer itself
+                await ws.close()
         finally:
+            api.readers -= 1
             api.streams.discard(client)
-            reader.cancel()
-            await ws.close()
         return ws
 
     async def get_time(request: web.Request) -> web.Response:
@@ -505,7 +521,7 @@ async def _serve_stream(
     """
     loop = asyncio.get_running_loop()
     due = frames_due = loop.time()
-    while not ws.closed and not reader.done() and api._runner is not None:
+    while not ws.closed and not reader.done() and not api.closing:
         now = loop.time()
         if now >= due:
             await ws.send_str(json.dumps(api.snapshot()))

@@ -169,3 +169,41 @@ def test_a_reader_that_never_reads_does_not_slow_the_wire(served: Served) -> Non
         f"p99 {latencies[int(len(latencies) * 0.99)] * 1e6:.0f} us, worst {latencies[-1] * 1e3:.1f} ms; "
         f"the reader's buffer {'full (skipping)' if skipped else 'not full'}"
     )
+
+
+async def test_stream_readers_are_bounded(served: Served, session: aiohttp.ClientSession) -> None:
+    from c20sim.control.http import MAX_STREAMS
+
+    readers = [await session.ws_connect(f"{served.url}/stream?frames=0") for _ in range(MAX_STREAMS)]
+    try:
+        async with session.get(f"{served.url}/stream") as response:
+            assert response.status == 503
+            assert (await response.json())[
+                "error"
+            ] == f"{MAX_STREAMS} stream readers are attached already; close one first"
+        async with session.get(f"{served.url}/") as response:
+            assert (await response.json())["stream_readers"] == MAX_STREAMS
+        await readers.pop().close()
+        await asyncio.sleep(0)
+        deadline = asyncio.get_running_loop().time() + 10
+        while True:  # the one closed is let go; another may take its place
+            try:
+                readers.append(await session.ws_connect(f"{served.url}/stream?frames=0"))
+                break
+            except aiohttp.WSServerHandshakeError as exc:
+                assert exc.status == 503 and asyncio.get_running_loop().time() < deadline, exc
+                await asyncio.sleep(0.05)
+    finally:
+        for ws in readers:
+            await ws.close()
+
+
+def test_closing_the_api_does_not_wait_for_a_reader_that_never_reads(served: Served) -> None:
+    with socket.create_connection(("127.0.0.1", int(served.url.rsplit(":", 1)[1]))) as raw:
+        raw.sendall(
+            b"GET /stream?hz=50 HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        )
+        assert raw.recv(12) == b"HTTP/1.1 101"
+        served.thread.run(api_of(served).close(), timeout=5.0)  # the close handshake is not awaited for long
+        assert api_of(served).readers == 0

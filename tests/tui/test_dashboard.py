@@ -11,6 +11,7 @@ from pymodbus.exceptions import ModbusIOException
 from textual.widgets import Checkbox, Input, RichLog
 
 from c20sim import control
+from c20sim.serve import ServeOptions, Server
 from c20sim.tui.app import Dashboard, HelpScreen, SaveLogScreen
 from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel, NumberInput
 from tests.tui.conftest import Bench, attached, running, serving, until
@@ -284,3 +285,24 @@ async def test_closing_an_attached_dashboard_leaves_the_server_serving() -> None
                 assert again.bench.conditions(1).supply_v == 18.0
         finally:
             client.close()
+
+
+async def test_a_server_gone_is_said_and_keys_answer_with_an_error_until_it_is_back() -> None:
+    with serving() as served:
+        async with attached(served) as (app, pilot):
+            port = int(served.url.rsplit(":", 1)[1])
+            served.thread.run(served.server.aclose())
+            await until(lambda: not app.streaming, "the dashboard to see the server gone")
+            assert "server lost" in str(app.get_screen_main().query_one("#title").render())
+            await pilot.press("f")  # a key while the server is gone: an error notification, no traceback
+            await pilot.pause()
+            errors = [str(n.message) for n in app._notifications if n.severity == "error"]
+            assert any("lost the server" in e for e in errors), errors
+            assert any("does not answer" in e for e in errors), errors
+            assert app.is_running
+            # the server back on the same address: the dashboard attaches again by itself
+            served.server = Server(served.sim, ServeOptions(control=f"127.0.0.1:{port}"))
+            served.thread.run(served.server.start())
+            before = app.received
+            await until(lambda: app.streaming and app.received > before, "the dashboard to attach again")
+            assert "server lost" not in str(app.get_screen_main().query_one("#title").render())
