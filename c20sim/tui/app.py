@@ -204,7 +204,6 @@ class Dashboard(App[int]):
         self._plotted: tuple[int, int] | None = None
         self._drive_labels: dict[int, str] = {}
         self.set_reactive(Dashboard.selected, next(iter(self.bench.addresses)))
-        self._unsubscribe: list[Callable[[], None]] = []
         #: whether the stream is connected now; telemetry messages taken from it so far
         self.streaming = False
         self.received = 0
