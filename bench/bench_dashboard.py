@@ -7,6 +7,9 @@ that, the motor running (1500 rpm, 0.8 N m, realtime clock) and a lean master
 polling as fast as it can:
 
 - headless: ``c20sim serve --tcp ... --control ...``, no viewer;
+- stream: the same serve with one reader of its ``/stream`` (aiohttp, in a
+  process of its own) asking what the dashboard asks, and drawing nothing:
+  the server's own cost of a viewer, without a UI's CPU beside it;
 - dashboard: ``c20sim dashboard --tcp ...`` in tmux (120x40), which starts the
   same serve as a child and attaches to it: telemetry at 5 Hz over the stream,
   the plot moving, every frame offered to its frame log.
@@ -99,6 +102,32 @@ def poll(info: dict[str, str], count: int) -> tuple[list[float], float]:
     return latencies, perf() - start
 
 
+#: A stream reader that takes what the dashboard takes and draws nothing.
+READER = """
+import asyncio, sys, aiohttp
+async def main(url):
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(url) as ws:
+            async for _ in ws:
+                pass
+asyncio.run(main(sys.argv[1]))
+"""
+
+
+@contextlib.contextmanager
+def with_stream(profile: Path, tmp: Path) -> Iterator[tuple[dict[str, str], list[int]]]:
+    from c20sim.tui.app import FRAME_HZ, STREAM_BUFFER
+
+    with headless(profile, tmp) as (info, pids):
+        url = f"{info['control']}/stream?hz=5&frame_hz={FRAME_HZ}&buffer={STREAM_BUFFER}"
+        reader = subprocess.Popen([sys.executable, "-c", READER, url], cwd=ROOT)
+        try:
+            yield info, [reader.pid, *pids]
+        finally:
+            reader.terminate()
+            reader.wait(10)
+
+
 @contextlib.contextmanager
 def headless(profile: Path, tmp: Path) -> Iterator[tuple[dict[str, str], list[int]]]:
     ready = tmp / f"ready-{uuid.uuid4().hex[:6]}.json"
@@ -171,14 +200,14 @@ def main() -> None:
     args = parser.parse_args()
     if TMUX is None:
         raise SystemExit("bench_dashboard: needs tmux (apt-get install tmux)")
-    results: dict[str, list[float]] = {"headless": [], "dashboard": []}
+    results: dict[str, list[float]] = {"headless": [], "stream": [], "dashboard": []}
     rows = []
     cpu_rows = []
     with tempfile.TemporaryDirectory(prefix="c20bench-") as name:
         tmp = Path(name)
         profile = profile_copy(tmp)
         for round_ in range(1, args.rounds + 1):
-            for kind, start in (("headless", headless), ("dashboard", with_dashboard)):
+            for kind, start in (("headless", headless), ("stream", with_stream), ("dashboard", with_dashboard)):
                 with start(profile, tmp) as (info, pids):
                     start_motor(info)
                     time.sleep(1.0)  # the plot has samples and keeps moving
@@ -191,23 +220,23 @@ def main() -> None:
                     (round_, kind, len(latencies) / wall, percentile(latencies, 50), percentile(latencies, 99),
                      latencies[-1])
                 )  # fmt: skip
-                if kind == "dashboard":
-                    cpu_rows.append((round_, wall, [cpu_used[pid] / wall for pid in pids]))
+                cpu_rows.append((round_, kind, [cpu_used[pid] / wall for pid in pids]))
     print(f"{machine()}; {args.requests} reads of 3006H per run, motor at 1500 rpm, 0.8 N m, realtime clock")
     print(f"{'round':>5} {'run':<10} {'req/s':>8} {'p50 us':>8} {'p99 us':>8} {'worst ms':>9}")
     for round_, kind, rate, p50, p99, worst in rows:
         print(f"{round_:>5} {kind:<10} {rate:>8.0f} {p50 * 1e6:>8.0f} {p99 * 1e6:>8.0f} {worst * 1e3:>9.2f}")
-    print("CPU s per wall s during the dashboard runs: the dashboard process, then the serve it started")
-    for round_, _, shares in cpu_rows:
-        print(f"{round_:>5} " + "  ".join(f"{share:.3f}" for share in shares))
-    head, dash = sorted(results["headless"]), sorted(results["dashboard"])
-    p99_head, p99_dash = percentile(head, 99), percentile(dash, 99)
+    print("CPU s per wall s: the viewer's process (stream reader or dashboard), then the serve")
+    for round_, kind, shares in cpu_rows:
+        print(f"{round_:>5} {kind:<10} " + "  ".join(f"{share:.3f}" for share in shares))
+    head, stream, dash = (sorted(results[k]) for k in ("headless", "stream", "dashboard"))
+    p99_head, p99_stream, p99_dash = percentile(head, 99), percentile(stream, 99), percentile(dash, 99)
     print(
-        f"all runs: headless p99 {p99_head * 1e6:.0f} us, with the dashboard p99 {p99_dash * 1e6:.0f} us "
-        f"(x{p99_dash / p99_head:.2f}), worst {head[-1] * 1e3:.2f} ms / {dash[-1] * 1e3:.2f} ms"
+        f"all runs: p99 headless {p99_head * 1e6:.0f} us, stream reader {p99_stream * 1e6:.0f} us "
+        f"(x{p99_stream / p99_head:.2f}), dashboard {p99_dash * 1e6:.0f} us (x{p99_dash / p99_head:.2f}); "
+        f"worst {head[-1] * 1e3:.2f} / {stream[-1] * 1e3:.2f} / {dash[-1] * 1e3:.2f} ms"
     )
     print(f"goal p99 with the dashboard <= 2 x headless: {'met' if p99_dash <= 2 * p99_head else 'NOT met'}")
-    print(f"goal worst reply < 20 ms (every run): {'met' if max(head[-1], dash[-1]) < 0.020 else 'NOT met'}")
+    print(f"goal worst reply < 20 ms with the dashboard: {'met' if dash[-1] < 0.020 else 'NOT met'}")
 
 
 if __name__ == "__main__":

@@ -6,8 +6,8 @@ dashboard is a client of its control API, so a redraw never holds a reply.
 those options, ``--control 127.0.0.1:0`` and a ready file in a temporary
 directory, waits for the ready file, attaches, and stops the server (SIGTERM,
 then waits for it) when the dashboard closes. The dashboard then lowers its own
-scheduling priority (``nice`` 10): on a busy machine the server gets the CPU first. ``--attach ready.json`` or
-``--attach http://HOST:PORT`` attaches to a server already running, which is
+scheduling priority (``nice`` 10): on a busy machine the server gets the CPU
+first. ``--attach ready.json`` or ``--attach http://HOST:PORT`` attaches to a server already running, which is
 left running when the dashboard closes. A server that cannot start is its own
 one line of error and exit code 2.
 """
