@@ -226,7 +226,7 @@ class Dashboard(App[int]):
         if self._stream_task is not None:
             self._stream_task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._stream_task
+                await asyncio.wait_for(self._stream_task, 2.0)  # a server that does not answer the close: not long
         self.remote.client.close()
 
     async def _read_stream(self, framelog: FrameLog) -> None:
@@ -239,7 +239,8 @@ class Dashboard(App[int]):
         async with aiohttp.ClientSession(headers=client.headers()) as session:
             while True:
                 try:
-                    async with session.ws_connect(url, heartbeat=10.0, max_msg_size=0) as ws:
+                    close = aiohttp.ClientWSTimeout(ws_close=1.0)
+                    async with session.ws_connect(url, heartbeat=10.0, max_msg_size=0, timeout=close) as ws:
                         self._stream_state(True, lost)
                         async for message in ws:
                             if message.type is aiohttp.WSMsgType.TEXT:

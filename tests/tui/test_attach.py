@@ -54,8 +54,9 @@ def terminal(serve: tuple[Path, dict[str, str]]) -> Iterator[Terminal]:
     subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
         subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
-        yield Terminal(session)
+        terminal = Terminal(session)
+        terminal.run(command, cwd, ready.with_name("status"))
+        yield terminal
     finally:
         subprocess.run([tmux, "kill-session", "-t", session], check=False)
 

@@ -35,6 +35,7 @@ class Terminal:
         self.session = session
         self.address = ("", 0)  #: the served RTU-over-TCP endpoint
         self.ready = Path()
+        self.status_file = Path()
 
     def screen(self) -> str:
         result = subprocess.run(
@@ -59,15 +60,21 @@ class Terminal:
         )
         return result.stdout.strip()
 
-    def exit_status(self) -> str:
-        """Wait for the program in the pane to end (the pane stays: remain-on-exit); how it ended.
+    def run(self, command: str, cwd: Path, status_file: Path) -> None:
+        """Run ``command`` in the pane; its exit status goes to ``status_file`` (tmux's own pane_dead_status is
+        sometimes never filled in once the pane is dead, so the shell writes it)."""
+        self.status_file = status_file
+        wrapped = f"{command}; echo $? > {status_file}"
+        subprocess.run([TMUX or "tmux", "respawn-pane", "-k", "-t", self.session, "-c", str(cwd), wrapped], check=True)
 
-        ``status N`` or ``signal N``: tmux marks the pane dead a moment before it has the status.
-        """
-        ended = "status #{pane_dead_status} signal #{pane_dead_signal}"  # a tmux condition takes status 0 for false
-        wait_for("the program's exit status", lambda: self.pane(ended) != "status  signal", show=self.screen)
-        status, signal = self.pane("#{pane_dead_status}"), self.pane("#{pane_dead_signal}")
-        return f"status {status}" if status else f"signal {signal}"
+    def exit_status(self) -> str:
+        """Wait for the program in the pane to end; how it ended: ``status N`` or ``signal N``."""
+        path = self.status_file
+        wait_for(
+            "the program's exit status", lambda: path.exists() and path.read_text().endswith("\n"), show=self.screen
+        )
+        code = int(path.read_text())
+        return f"signal {code - 128}" if code > 128 else f"status {code}"
 
 
 @pytest.fixture
@@ -81,8 +88,8 @@ def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
     subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
         subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
         terminal = Terminal(session)
+        terminal.run(command, cwd, tmp_path / "status")
         wait_for("the ready file", ready.exists)
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
         client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
