@@ -192,7 +192,10 @@ class Server:
         target = Path(path)
         tmp = target.with_name(f".{target.name}.tmp")
         try:
-            tmp.write_text(json.dumps(data, indent=2) + "\n")
+            tmp.unlink(missing_ok=True)
+            mode = 0o600 if "token" in data else 0o644  # a token is for the one who started the server
+            with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode), "w") as out:
+                out.write(json.dumps(data, indent=2) + "\n")
             os.replace(tmp, target)
         except OSError as exc:
             raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None

@@ -25,6 +25,7 @@ import hmac
 import ipaddress
 import json
 import logging
+import math
 import secrets
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -525,17 +526,23 @@ async def _serve_stream(
         now = loop.time()
         if now >= due:
             await ws.send_str(json.dumps(api.snapshot()))
-            due = max(due + period, loop.time())
+            due = _next_beat(due, period, loop.time())
             continue
         if client.frames and now >= frames_due:
             await _send_frames(ws, client)
-            frames_due = loop.time() + frame_period
+            frames_due = _next_beat(frames_due, frame_period, loop.time())
             continue
         wake_at = min(due, frames_due) if client.frames else due
         client.wake.clear()
         wait: asyncio.Future[Any] = asyncio.ensure_future(client.wake.wait())
         await asyncio.wait([wait, reader], timeout=max(0.0, wake_at - now), return_when=asyncio.FIRST_COMPLETED)
         wait.cancel()
+
+
+def _next_beat(last: float, period: float, now: float) -> float:
+    """The first beat after ``now`` of a clock that ticked at ``last`` every ``period``: telemetry and frames asked
+    for at the same rate go out together (one redraw for a viewer), and a late tick is not made up for."""
+    return last + period * (math.floor((now - last) / period) + 1)
 
 
 async def _send_frames(ws: web.WebSocketResponse, client: StreamClient) -> None:

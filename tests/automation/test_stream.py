@@ -207,3 +207,13 @@ def test_closing_the_api_does_not_wait_for_a_reader_that_never_reads(served: Ser
         assert raw.recv(12) == b"HTTP/1.1 101"
         served.thread.run(api_of(served).close(), timeout=5.0)  # the close handshake is not awaited for long
         assert api_of(served).readers == 0
+
+
+@pytest.mark.parametrize(
+    ("last", "now", "expected"),
+    [(0.0, 0.05, 0.2), (0.0, 0.2, 0.4), (0.0, 0.61, 0.8), (1.0, 0.5, 1.2)],
+)
+def test_the_stream_keeps_its_beat(last: float, now: float, expected: float) -> None:
+    from c20sim.control.http import _next_beat
+
+    assert _next_beat(last, 0.2, now) == pytest.approx(expected)

@@ -94,6 +94,7 @@ async def test_the_stream_needs_the_token_too(beyond_loopback: tuple[dict[str, s
 def test_a_given_token_is_asked_for_on_loopback_too(tmp_path: Path) -> None:
     for info, url in serve(tmp_path, "--control", "127.0.0.1:0", "--control-token", "s3cret-token"):
         assert info["token"] == "s3cret-token"
+        assert (tmp_path / "ready.json").stat().st_mode & 0o777 == 0o600  # only its owner reads the token
         assert get(f"{url}/")[0] == 401
         assert get(f"{url}/", "s3cret-token")[0] == 200
 
