@@ -211,7 +211,7 @@ def test_closing_the_api_does_not_wait_for_a_reader_that_never_reads(served: Ser
 
 @pytest.mark.parametrize(
     ("last", "now", "expected"),
-    [(0.0, 0.05, 0.2), (0.0, 0.2, 0.4), (0.0, 0.61, 0.8), (1.0, 0.5, 1.2)],
+    [(0.0, 0.05, 0.2), (0.0, 0.2, 0.4), (0.0, 0.61, 0.8), (1.0, 1.0, 1.2)],
 )
 def test_the_stream_keeps_its_beat(last: float, now: float, expected: float) -> None:
     from c20sim.control.http import _next_beat
