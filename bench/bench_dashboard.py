@@ -14,8 +14,8 @@ polling as fast as it can:
   same serve as a child and attaches to it: telemetry at 5 Hz over the stream,
   the plot moving, every frame offered to its frame log.
 
-The two take turns for ``--rounds`` rounds so the machine's noise falls on
-both; the profile is c20-400hr with turnaround 0 (a copy of its TOML), so the
+The three take turns for ``--rounds`` rounds, each first in some round, so
+the machine's noise falls on all; the profile is c20-400hr with turnaround 0 (a copy of its TOML), so the
 latency is the server's, not a deliberate delay. Prints req/s, p50, p99 and the
 worst reply of each run, CPU of the processes during the dashboard runs, and
 the goals: p99 with the dashboard <= 2 x headless p99, worst < 20 ms.
@@ -207,7 +207,8 @@ def main() -> None:
         tmp = Path(name)
         profile = profile_copy(tmp)
         for round_ in range(1, args.rounds + 1):
-            for kind, start in (("headless", headless), ("stream", with_stream), ("dashboard", with_dashboard)):
+            runs = [("headless", headless), ("stream", with_stream), ("dashboard", with_dashboard)]
+            for kind, start in runs[round_ % 3 :] + runs[: round_ % 3]:  # each goes first in some round
                 with start(profile, tmp) as (info, pids):
                     start_motor(info)
                     time.sleep(1.0)  # the plot has samples and keeps moving

@@ -327,6 +327,8 @@ def make_app(api: ControlApi) -> web.Application:
             reader: asyncio.Future[Any] = asyncio.ensure_future(_drain(ws))
             try:
                 await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
+            except ConnectionResetError:
+                pass  # the reader went away mid-message: it has left, nothing else to do
             finally:
                 reader.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
