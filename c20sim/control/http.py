@@ -534,11 +534,16 @@ async def _serve_stream(
             await _send_frames(ws, client)
             frames_due = _next_beat(frames_due, frame_period, loop.time())
             continue
-        wake_at = min(due, frames_due) if client.frames else due
-        client.wake.clear()
-        wait: asyncio.Future[Any] = asyncio.ensure_future(client.wake.wait())
-        await asyncio.wait([wait, reader], timeout=max(0.0, wake_at - now), return_when=asyncio.FIRST_COMPLETED)
-        wait.cancel()
+        waits: list[asyncio.Future[Any]] = [reader]
+        if client.frames:  # frames wait for their beat: more of them coming need not wake this task
+            wake_at = min(due, frames_due)
+        else:
+            wake_at = due
+            client.wake.clear()
+            waits.append(asyncio.ensure_future(client.wake.wait()))
+        await asyncio.wait(waits, timeout=max(0.0, wake_at - now), return_when=asyncio.FIRST_COMPLETED)
+        for wait in waits[1:]:
+            wait.cancel()
 
 
 def _next_beat(last: float, period: float, now: float) -> float:
