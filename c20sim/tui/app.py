@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import signal
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
@@ -208,6 +209,7 @@ class Dashboard(App[int]):
         self.streaming = False
         self.received = 0
         self._stream_task: asyncio.Task[None] | None = None
+        self._signals: list[int] = []
 
     # --- life cycle
 
@@ -220,9 +222,20 @@ class Dashboard(App[int]):
         screen.query_one("#title", Static).update(self._title())
         screen.query_one(FrameLog).focus()
         self._stream_task = asyncio.create_task(self._read_stream(screen.query_one(FrameLog)))
+        loop = asyncio.get_running_loop()
+        for name in ("SIGHUP", "SIGTERM"):  # the terminal gone, or a kill: close as q does, so the started
+            sig = getattr(signal, name, None)  # server is stopped too, not left running on its own
+            if sig is not None:
+                with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                    loop.add_signal_handler(sig, self.exit)
+                    self._signals.append(sig)
         self.refresh_views()
 
     async def on_unmount(self) -> None:
+        loop = asyncio.get_running_loop()
+        for sig in self._signals:
+            loop.remove_signal_handler(sig)
+        self._signals.clear()
         if self._stream_task is not None:
             self._stream_task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -136,3 +138,36 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     with socket.socket() as probe:
         assert probe.connect_ex(terminal.address) != 0, "the server the dashboard started still listens"
     assert not terminal.ready.exists()
+
+
+@pytest.mark.parametrize("how", ["kill-session", "SIGTERM"])
+def test_a_dashboard_ended_from_outside_stops_its_server(dashboard: tuple[Terminal, ModbusTcpClient], how: str) -> None:
+    """The terminal closed (tmux kills the session: SIGHUP) or a kill (SIGTERM): the dashboard closes as q does
+    and stops the serve it started; none is left running on its own."""
+    terminal, _ = dashboard
+    terminal.wait_for_text("STOPPED")
+    if how == "SIGTERM":
+        os.kill(int(terminal.pane("#{pane_pid}")), signal.SIGTERM)  # the shell: it passes nothing on
+        os.kill(_dashboard_pid(terminal.ready), signal.SIGTERM)
+    else:
+        subprocess.run([TMUX or "tmux", "kill-session", "-t", terminal.session], check=True)
+
+    def port_closed() -> bool:
+        with socket.socket() as probe:
+            return probe.connect_ex(terminal.address) != 0
+
+    wait_for("the started server to stop", port_closed)
+    wait_for("its ready file to go", lambda: not terminal.ready.exists())
+
+
+def _dashboard_pid(ready: Path) -> int:
+    """The dashboard's process: the one whose command line names the ready file and is not the serve."""
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                args = (entry / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if str(ready).encode() in args and b"dashboard" in args:
+                return int(entry.name)
+    raise AssertionError("no dashboard process")
