@@ -223,12 +223,10 @@ class Dashboard(App[int]):
         screen.query_one(FrameLog).focus()
         self._stream_task = asyncio.create_task(self._read_stream(screen.query_one(FrameLog)))
         loop = asyncio.get_running_loop()
-        for name in ("SIGHUP", "SIGTERM"):  # the terminal gone, or a kill: close as q does, so the started
-            sig = getattr(signal, name, None)  # server is stopped too, not left running on its own
-            if sig is not None:
-                with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                    loop.add_signal_handler(sig, self.exit)
-                    self._signals.append(sig)
+        # a kill: close as q does, so the server it started is stopped too (the terminal gone: session.served)
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError, AttributeError):
+            loop.add_signal_handler(signal.SIGTERM, self.exit)
+            self._signals.append(signal.SIGTERM)
         self.refresh_views()
 
     async def on_unmount(self) -> None:

@@ -17,12 +17,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from ..control.client import ControlClient, RemoteOps, attach_target
@@ -99,6 +100,17 @@ def served(args: argparse.Namespace) -> Iterator[tuple[str, str | None]]:
                 stderr=stderr,
                 start_new_session=True,  # the terminal's Ctrl+C goes to the dashboard, which stops the server itself
             )
+
+        def cleanup() -> None:
+            stop(process)
+            if args.ready_file:
+                ready.unlink(missing_ok=True)
+
+        def hung_up() -> None:
+            cleanup()
+            shutil.rmtree(tmp, ignore_errors=True)  # the process ends at once: nothing else will
+
+        hangup = _stop_on_hangup(hung_up)
         try:
             deadline = time.monotonic() + START_TIMEOUT
             while not ready.exists():
@@ -111,11 +123,32 @@ def served(args: argparse.Namespace) -> Iterator[tuple[str, str | None]]:
                 time.sleep(0.02)
             yield attach_target(str(ready), args.control_token)
         finally:
-            stop(process)
-            if args.ready_file:
-                ready.unlink(missing_ok=True)
+            hangup()
+            cleanup()
             for line in stderr_path.read_text(errors="replace").splitlines():
                 print(line, file=sys.stderr)  # what the server said (warnings, a bug's traceback), after the screen
+
+
+def _stop_on_hangup(cleanup: Callable[[], None]) -> Callable[[], None]:
+    """Until the returned function is called: on SIGHUP (the terminal gone) ``cleanup`` (stop the server), then
+    end at once.
+
+    A screen with no terminal cannot be closed cleanly (its writes fail, its shutdown can wait forever), and
+    the server is in a session of its own, so the hangup would not reach it: it is stopped here.
+    """
+    if not hasattr(signal, "SIGHUP"):
+        return lambda: None
+
+    def hung_up(signum: int, _frame: object) -> None:
+        cleanup()
+        os._exit(128 + signum)
+
+    previous = signal.signal(signal.SIGHUP, hung_up)
+
+    def restore() -> None:
+        signal.signal(signal.SIGHUP, previous)
+
+    return restore
 
 
 def stop(process: subprocess.Popen[bytes]) -> None:
