@@ -97,6 +97,8 @@ class FrameRecord:
     model_t: float | None = None  #: the drives' time when the frame was served
     registers: RegisterMap | None = field(default=None, compare=False, repr=False)
     request: Request | None = field(default=None, compare=False, repr=False)
+    #: the wall-clock time (Unix seconds) of ``t``, where an I/O layer knows it (a record read back from JSON)
+    wall: float | None = field(default=None, compare=False)
 
     @property
     def text(self) -> str:
@@ -105,9 +107,13 @@ class FrameRecord:
             return self.words
         return describe(self.words, self.registers, self.request)
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self, wall_offset: float | None = None) -> dict[str, object]:
+        """JSON-ready; ``wall_offset`` (Unix time minus the line's clock, from the I/O layer that stamped ``t``)
+        adds ``wall``: when the frame was on the line, by the wall clock."""
+        wall = self.wall if self.wall is not None else None if wall_offset is None else self.t + wall_offset
         return {
             "t": round(self.t, 6),
+            **({} if wall is None else {"wall": round(wall, 3)}),
             "model_t": None if self.model_t is None else round(self.model_t, 6),
             "dir": str(self.direction),
             "hex": self.data.hex(" ").upper(),

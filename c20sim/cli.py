@@ -69,6 +69,11 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
+    where.add_argument(
+        "--control-token",
+        metavar="TOKEN",
+        help="the token the control API asks for (beyond loopback one is generated and written to the ready file)",
+    )
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
@@ -121,6 +126,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,
         control=args.control,
+        control_token=args.control_token,
         scenario=getattr(args, "scenario", None),
     )
     if not options.any_endpoint:
@@ -137,14 +143,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_dashboard(args: argparse.Namespace) -> int:
-    from .tui import Dashboard  # textual loads only for the dashboard
+    from .tui.session import run_dashboard  # textual loads only for the dashboard
 
-    options = serve_options(args)
-    app = Dashboard(build_simulator(args), options)
-    app.run()
-    if app.error is not None:
-        raise app.error
-    return app.return_code or 0
+    return run_dashboard(args, args.serve_defaults)
+
+
+def cmd_web(args: argparse.Namespace) -> int:
+    from .tui.web import run_web  # textual-serve loads only for the browser view
+
+    return run_web(args, args.serve_defaults)
 
 
 def render_profile(profile: Profile) -> str:
@@ -211,7 +218,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     dashboard = sub.add_parser("dashboard", help="the simulator with its terminal dashboard (the default command)")
     add_endpoint_options(dashboard)
-    dashboard.set_defaults(func=cmd_dashboard)
+    dashboard.add_argument(
+        "--attach",
+        metavar="READY_FILE|URL",
+        help="attach to a running serve (its ready file, or http://HOST:PORT of its --control) instead of starting one",
+    )
+    dashboard.set_defaults(func=cmd_dashboard, serve_defaults={a.dest: a.default for a in dashboard._actions})
+
+    web = sub.add_parser("web", help="the dashboard in a browser (textual-serve), on a serve it starts or attaches to")
+    add_endpoint_options(web)
+    web.add_argument("--attach", metavar="READY_FILE|URL", help="attach to a running serve instead of starting one")
+    web.add_argument(
+        "--web", default="127.0.0.1:8000", metavar="HOST:PORT", help="the page's address (default 127.0.0.1:8000)"
+    )
+    web.add_argument("--web-token", metavar="TOKEN", help="the page's token (beyond loopback one is generated)")
+    web.set_defaults(func=cmd_web, serve_defaults={a.dest: a.default for a in web._actions})
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)

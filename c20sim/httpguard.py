@@ -181,9 +181,9 @@ def check_bind(host: str) -> str | None:
         return None
     shown = f"[{host}]" if ":" in host else host
     return (
-        f"warning: --control {shown}: the control API is reachable from other machines and has no "
-        "authentication; anyone who can reach it can trip, stop or power-cycle the drives. "
-        "Bind 127.0.0.1 unless you mean it."
+        f"warning: --control {shown}: the control API is reachable from other machines; every request must "
+        "carry its token (--control-token, or the one written to the ready file), and whoever has it can trip, "
+        "stop or power-cycle the drives. Bind 127.0.0.1 unless you mean it."
     )
 
 

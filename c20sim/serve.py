@@ -81,6 +81,8 @@ class ServeOptions:
     ready_file: str | None = None
     #: HOST:PORT of the HTTP control API (c20sim.control), or None
     control: str | None = None
+    #: the token the control API asks for; None: none on loopback, a generated one beyond it
+    control_token: str | None = None
     #: a scenario file (c20sim.scenario) to play against the served simulator once ready
     scenario: str | None = None
     extra_ready: dict[str, str] = field(default_factory=dict)
@@ -176,10 +178,15 @@ class Server:
                 self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
             if opts.control:
-                from .control.http import ControlApi  # imports aiohttp: only when asked for
+                from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
 
                 host, port = parse_host_port(opts.control, "--control")
-                self.control = ControlApi(sim)
+                token = opts.control_token
+                if token is not None and not token.strip():
+                    raise C20SimError("--control-token: empty; give a token, or leave the option out")
+                if token is None and not is_loopback(host):
+                    token = new_token()  # beyond loopback, never without one
+                self.control = ControlApi(sim, token=token, endpoints=self.endpoints.addresses)
                 self.control.frame_log = self.frame_log
                 await self.control.start(host, port)
             if opts.ready_file:
@@ -199,6 +206,8 @@ class Server:
     def addresses(self) -> dict[str, str]:
         """The ready file's keys: the endpoints, ``control`` as http://HOST:PORT, and ``extra_ready``."""
         control = {"control": self.control.url} if self.control is not None and self.control.url else {}
+        if self.control is not None and self.control.token is not None:
+            control["token"] = self.control.token
         return {**self.endpoints.addresses(), **control, **self.options.extra_ready}
 
     async def _close_control(self) -> None:
@@ -207,7 +216,10 @@ class Server:
             self.control = None
 
     def ready_line(self) -> str:
-        parts = [f"{key} {value}" for key, value in self.addresses().items()]
+        parts = [f"{key} {value}" for key, value in self.addresses().items() if key != "token"]
+        if self.control is not None and self.control.token is not None:
+            # the token is a secret: shown only where there is no ready file to read it from
+            parts.append("token in the ready file" if self.options.ready_file else f"token {self.control.token}")
         drives = ",".join(map(str, self.sim.drives))
         clock = "virtual" if self.sim.virtual else "realtime"
         return f"c20sim ready: {self.sim.profile.name}, drives {drives}, {clock} clock; " + "; ".join(parts)
@@ -218,7 +230,10 @@ class Server:
         tmp = target.with_name(f".{target.name}.tmp")
         text = json.dumps(data, indent=2) + "\n"
         try:
-            tmp.write_text(text)
+            tmp.unlink(missing_ok=True)
+            mode = 0o600 if "token" in data else 0o644  # a token is for the one who started the server
+            with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode), "w") as out:
+                out.write(text)
             os.replace(tmp, target)
         except OSError as exc:
             raise C20SimError(f"--ready-file {path}: cannot write: {exc.strerror}") from None

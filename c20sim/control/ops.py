@@ -686,12 +686,19 @@ def clear_link_faults(sim: Simulator, address: int | None) -> LinkFaults:
 
 
 def frames(
-    sim: Simulator, *, last: int | None = None, slave: int | None = None, since: int = 0, first_seq: int = 0
+    sim: Simulator,
+    *,
+    last: int | None = None,
+    slave: int | None = None,
+    since: int = 0,
+    first_seq: int = 0,
+    wall_offset: float | None = None,
 ) -> list[dict[str, Any]]:
     """The frame log, oldest first, each record with its sequence number ``seq`` (from ``first_seq``).
 
     ``last`` keeps the newest N (N >= 1) of the records left after ``since`` and ``slave``;
-    only the records kept are put in words, which is what costs.
+    only the records kept are put in words, which is what costs. ``wall_offset`` (from the I/O layer)
+    adds each frame's wall-clock time.
     """
     if last is not None and (isinstance(last, bool) or last < 1):
         raise ControlError(f"last={last} must be at least 1")
@@ -704,7 +711,7 @@ def frames(
     ]
     if last is not None:
         kept = kept[-last:]
-    return [{"seq": seq, **record.as_dict()} for seq, record in kept]
+    return [{"seq": seq, **record.as_dict(wall_offset)} for seq, record in kept]
 
 
 # --- Runtime control: the clock, and set-ups.

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from ..bus import FrameRecord
 from ..errors import C20SimError
+from .wallclock import WALL_OFFSET
 
 __all__ = ["KEEP", "FrameLog"]
 
@@ -166,7 +167,7 @@ class FrameLog:
             size = 0
             cap = 65536 if self.max_bytes is None else max(1, min(65536, self.max_bytes // 4))
             while self._buffer and size < cap:
-                line = (json.dumps(self._buffer.popleft().as_dict()) + "\n").encode()
+                line = (json.dumps(self._buffer.popleft().as_dict(WALL_OFFSET)) + "\n").encode()
                 batch.append(line)
                 size += len(line)
             if not self._write_lines(batch):

@@ -1,22 +1,26 @@
 """``c20sim dashboard``: the drive on the bench, in a terminal: see it, work it, break it.
 
-The app owns a :class:`~c20sim.simulator.Simulator` and a
-:class:`~c20sim.serve.Server` started in the app's own asyncio loop, so the
-endpoints, the bus and the model run beside the UI and never wait for it. A
-timer brings the drives to the clock's time a few times a second and posts
-one merged :class:`TelemetryUpdated`; frames reach the log through a bus
-listener and one merged :class:`FramesLogged`. Everything done to a drive goes
-through the :class:`~c20sim.tui.workbench.Workbench`.
+The dashboard is a client of a served simulator's control API (``c20sim serve
+--control``, in a process of its own): it never holds a simulator, so nothing
+it draws can hold a reply on the wire. What it shows comes from the API's
+``/stream`` WebSocket (telemetry at ``refresh_hz``, frame records as they
+happen, in one merged :class:`TelemetryUpdated` and :class:`FramesLogged`);
+everything done to a drive is one API call through the
+:class:`~c20sim.tui.workbench.Workbench` over
+:class:`~c20sim.control.client.RemoteOps`. A refused call (or a server gone)
+is shown as a notification, never a traceback. Closing the dashboard leaves
+the server alone: ``c20sim dashboard`` stops the one it started itself.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import signal
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import ClassVar, cast
+from typing import Any, ClassVar, TypeVar
 
 from rich.text import Text
 from textual import on
@@ -29,10 +33,10 @@ from textual.screen import ModalScreen, Screen
 from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
+from ..control.client import RemoteOps
+from ..control.ops import ControlError
 from ..errors import C20SimError
 from ..registers import RUN_CHANNELS
-from ..serve import ServeOptions, Server
-from ..simulator import Simulator
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
 from .widgets import (
@@ -43,10 +47,19 @@ from .widgets import (
     FrameLog,
     LinkFaultsPanel,
     TrendPlot,
+    record_from_dict,
 )
 from .workbench import LINK_SWITCHES, DriveView, Workbench
 
 __all__ = ["Dashboard"]
+
+T = TypeVar("T")
+
+#: Frames the server keeps waiting for the dashboard's log, and how often it sends them: beyond 40 frames a batch,
+#: 5 batches a second (more than anyone reads as they scroll) it skips them and says how many. A busy bus costs the
+#: server and the dashboard at most that.
+STREAM_BUFFER = 40
+FRAME_HZ = 5
 
 TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5", "registers": "f6"}
 
@@ -146,7 +159,7 @@ class MainScreen(Screen[None]):
                 yield TrendPlot("bus", "V", s.overvoltage_v, digits=1, id="plot-bus")
         with TabbedContent(id="tabs", initial="frames"):
             with TabPane("Frames F2", id="frames"):
-                yield FrameLog(bench.sim.bus, list(bench.addresses), id="framelog")
+                yield FrameLog(list(bench.addresses), id="framelog")
             with TabPane("Conditions F3", id="conditions"):
                 yield ConditionsPanel(bench, id="conditions-panel")
             with TabPane("Device faults F4", id="faults"):
@@ -157,12 +170,14 @@ class MainScreen(Screen[None]):
                 yield RegistersPanel(bench, id="registers-panel")
         yield Footer()
 
-    async def on_mount(self) -> None:
-        await cast("Dashboard", self.app).start_serving(self)
+    def on_mount(self) -> None:
+        app = self.app
+        assert isinstance(app, Dashboard)
+        app.attached(self)
 
 
 class Dashboard(App[int]):
-    """The c20sim dashboard around ``sim``, serving it on the endpoints of ``options``."""
+    """The c20sim dashboard of the simulator served at ``remote``'s control API."""
 
     CSS_PATH = "dashboard.tcss"
     TITLE = "c20sim"
@@ -192,18 +207,10 @@ class Dashboard(App[int]):
 
     selected = reactive(0)
 
-    def __init__(
-        self,
-        sim: Simulator,
-        options: ServeOptions | None = None,
-        *,
-        refresh_hz: float = 5.0,
-    ) -> None:
+    def __init__(self, remote: RemoteOps, *, refresh_hz: float = 5.0) -> None:
         super().__init__()
-        self.sim = sim
-        self.bench = Workbench(sim)
-        self.options = options if options is not None else ServeOptions()
-        self.server = Server(sim, self.options)
+        self.remote = remote
+        self.bench = Workbench(remote)
         self.refresh_hz = refresh_hz
         self.error: C20SimError | None = None
         self.views: dict[int, DriveView] = {}
@@ -211,82 +218,119 @@ class Dashboard(App[int]):
         self._drive_labels: dict[int, str] = {}
         self._title_shown = ""
         self.set_reactive(Dashboard.selected, next(iter(self.bench.addresses)))
-        self._unsubscribe: list[Callable[[], None]] = []
-        self._started = False
+        #: whether the stream is connected now; telemetry messages taken from it so far
+        self.streaming = False
+        self.received = 0
+        self._stream_task: asyncio.Task[None] | None = None
+        self._signals: list[int] = []
 
     # --- life cycle
 
     def get_default_screen(self) -> Screen[None]:
         return MainScreen(self.bench)
 
-    async def start_serving(self, screen: MainScreen) -> None:
-        """Start the endpoints (from the main screen's mount, once its widgets exist)."""
-        try:
-            await self.server.start()
-        except C20SimError as exc:
-            self.error = exc
-            self.exit(return_code=2)
-            return
-        self._started = True
+    def attached(self, screen: MainScreen) -> None:
+        """Start reading the stream (from the main screen's mount, once its widgets exist)."""
         self.watch_selected(self.selected)
-        framelog = screen.query_one(FrameLog)
-        self._unsubscribe.append(self.sim.bus.subscribe(framelog.add))
         screen.query_one("#title", Static).update(self._title())
-        self.set_interval(1.0 / self.refresh_hz, self.refresh_views)
-        framelog.focus()
+        screen.query_one(FrameLog).focus()
+        self._stream_task = asyncio.create_task(self._read_stream(screen.query_one(FrameLog)))
+        loop = asyncio.get_running_loop()
+        # a kill: close as q does, so the server it started is stopped too (the terminal gone: session.served)
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError, AttributeError):
+            loop.add_signal_handler(signal.SIGTERM, self.exit)
+            self._signals.append(signal.SIGTERM)
         self.refresh_views()
 
-    def on_mount(self) -> None:
-        # A closed terminal window (SIGHUP) or a kill (SIGTERM) ends the app as q does: the terminal is
-        # given back (no alternate screen, no mouse tracking) and the link and ready file are removed.
-        with contextlib.suppress(NotImplementedError, RuntimeError, AttributeError):  # none on Windows: q works
-            loop = asyncio.get_running_loop()
-            for name in ("SIGTERM", "SIGHUP"):
-                loop.add_signal_handler(getattr(signal, name), self.exit)
-
     async def on_unmount(self) -> None:
-        await self.close_server()
+        loop = asyncio.get_running_loop()
+        for sig in self._signals:
+            loop.remove_signal_handler(sig)
+        self._signals.clear()
+        if self._stream_task is not None:
+            self._stream_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.wait_for(self._stream_task, 2.0)  # a server that does not answer the close: not long
+        self.remote.client.close()
 
-    async def close_server(self) -> None:
-        for unsubscribe in self._unsubscribe:
-            unsubscribe()
-        self._unsubscribe.clear()
-        if self._started:
-            self._started = False
-            await self.server.aclose()
+    async def _read_stream(self, framelog: FrameLog) -> None:
+        """Telemetry and frames from the server's stream, until the dashboard closes; reconnects if it drops."""
+        import aiohttp  # the API's own WebSocket client
+
+        client = self.remote.client
+        url = f"{client.url}/stream?hz={self.refresh_hz:g}&frame_hz={FRAME_HZ}&buffer={STREAM_BUFFER}"
+        lost = False
+        async with aiohttp.ClientSession(headers=client.headers()) as session:
+            while True:
+                try:
+                    close = aiohttp.ClientWSTimeout(ws_close=1.0)
+                    async with session.ws_connect(url, heartbeat=10.0, max_msg_size=0, timeout=close) as ws:
+                        self._stream_state(True, lost)
+                        async for message in ws:
+                            if message.type is aiohttp.WSMsgType.TEXT:
+                                self._take(json.loads(message.data), framelog)
+                            elif message.type is aiohttp.WSMsgType.ERROR:
+                                break
+                except (aiohttp.ClientError, OSError, ValueError):
+                    pass
+                if self.streaming or not lost:
+                    self._stream_state(False, lost)
+                lost = True
+                await asyncio.sleep(1.0)
+
+    def _stream_state(self, up: bool, was_lost: bool) -> None:
+        self.streaming = up
+        if up and was_lost:
+            self.notify(f"attached again to {self.remote.client.url}", timeout=3)
+        elif not up:
+            self.notify(
+                f"lost the server at {self.remote.client.url}; trying again every second", severity="error", timeout=5
+            )
+        with contextlib.suppress(NoMatches, LookupError):
+            self.get_screen_main().query_one("#title", Static).update(self._title())
+
+    def _take(self, data: dict[str, Any], framelog: FrameLog) -> None:
+        kind = data.get("type")
+        if kind == "telemetry":
+            self.received += 1
+            if self.remote.update(data):
+                self.refresh_views()
+        elif kind == "frames":
+            missed = int(data.get("missed", 0))
+            for record in data["frames"]:
+                framelog.add(record_from_dict(record), missed)
+                missed = 0
 
     def _title(self) -> Text:
-        sim = self.sim
+        bench = self.bench
         # Where to connect comes first: at 80 columns the rest may be cut, never the addresses.
         text = Text(" c20sim ", style="bold reverse")
         text.append(" ")
         text.append_text(self.connect_text())
         text.append(" │ ")
         text.append(self.clock_text(), style="bold")
-        text.append(f" │ {sim.profile.name}")
+        text.append(f" │ {bench.profile.name}")
+        if self._stream_task is not None and not self.streaming:
+            text.append(" │ server lost", style="bold white on red")
         text.no_wrap = True
         text.overflow = "ellipsis"
         return text
 
     def clock_text(self) -> str:
         """The model's time and how the clock runs: ``t 12.3 s virtual`` or ``t 12.3 s ×1 realtime``."""
-        sim = self.sim
-        speed = getattr(sim.clock, "speed", 1.0)
-        how = "virtual" if sim.virtual else f"×{speed:g} realtime"
-        return f"t {sim.now():.1f} s {how}"
+        snapshot = self.remote.latest
+        t = float(snapshot.get("t", 0.0))
+        if self.bench.virtual:
+            return f"t {t:.1f} s virtual"
+        speed = snapshot.get("speed")
+        paused = " paused" if snapshot.get("paused") else ""
+        return f"t {t:.1f} s ×{float(speed) if speed is not None else 1.0:g} realtime{paused}"
 
     def connect_text(self) -> Text:
         """Where a master connects: every endpoint, as the ready line gives it."""
-        where = self.server.endpoints
-        parts = []
-        if where.pty is not None:
-            parts.append(f"pty {where.pty.name}")
-        if where.serial is not None:
-            parts.append(f"serial {where.serial.name}")
-        if where.tcp is not None:
-            parts.append(f"RTU/TCP {where.tcp.name}")
-        if where.modbus_tcp is not None:
-            parts.append(f"Modbus TCP {where.modbus_tcp.name}")
+        where = self.remote.endpoints
+        names = {"pty": "pty", "serial": "serial", "tcp": "RTU/TCP", "modbus_tcp": "Modbus TCP"}
+        parts = [f"{label} {where[key]}" for key, label in names.items() if key in where]
         text = Text("connect: ", style="bold")
         text.append(" · ".join(parts) if parts else "no endpoint (not serving)")
         return text
@@ -294,8 +338,16 @@ class Dashboard(App[int]):
     # --- refreshing
 
     def refresh_views(self) -> None:
-        """Bring the drives to the clock's time and post their views (merged if the UI is behind)."""
+        """Post the drives' views from the latest telemetry (merged if the UI is behind)."""
         self.post_message(TelemetryUpdated(self.bench.sample()))
+
+    def _call(self, action: Callable[[], T]) -> T | None:
+        """Run one bench action; a refusal or a server gone is a notification. None if it failed."""
+        try:
+            return action()
+        except ControlError as exc:
+            self.notify(f"drive {self.selected}: {exc}", severity="error", timeout=5)
+            return None
 
     def on_telemetry_updated(self, message: TelemetryUpdated) -> None:
         self.views = message.views
@@ -361,14 +413,15 @@ class Dashboard(App[int]):
     # --- actions
 
     def action_keypad(self, key: str) -> None:
-        refused = self.bench.keypad(self.selected, key)
+        refused = self._call(lambda: self.bench.keypad(self.selected, key) or "")
         if refused:
             self.notify(refused, severity="warning", timeout=4)
         self.refresh_views()
 
     def action_channel(self) -> None:
-        channel = self.bench.cycle_channel(self.selected)
-        self.notify(f"drive {self.selected}: run channel {RUN_CHANNELS[channel]} (F00.01 = {channel})", timeout=3)
+        channel = self._call(lambda: self.bench.cycle_channel(self.selected))
+        if channel is not None:
+            self.notify(f"drive {self.selected}: run channel {RUN_CHANNELS[channel]} (F00.01 = {channel})", timeout=3)
         self.refresh_views()
 
     def action_speed_source(self) -> None:
@@ -386,28 +439,38 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     def action_power_cycle(self) -> None:
-        self.bench.power_cycle(self.selected)
-        self.notify(f"drive {self.selected}: power cycled", timeout=3)
+        def cycle() -> bool:
+            self.bench.power_cycle(self.selected)
+            return True
+
+        if self._call(cycle):
+            self.notify(f"drive {self.selected}: power cycled", timeout=3)
         self.refresh_views()
 
     def action_restore_defaults(self) -> None:
-        refused = self.bench.restore_defaults(self.selected)
-        if refused:
+        refused = self._call(lambda: self.bench.restore_defaults(self.selected) or "")
+        if refused is None:
+            pass  # already said
+        elif refused:
             self.notify(refused, severity="warning", timeout=4)
         else:
             self.notify(f"drive {self.selected}: default parameters restored", timeout=3)
         self.refresh_views()
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
-        if action == "advance" and not self.sim.virtual:
+        if action == "advance" and not self.bench.virtual:
             return None
         if action == "drive" and len(self.bench.addresses) < 2:
             return None
         return True
 
     def action_advance(self, seconds: float) -> None:
-        self.bench.advance(float(seconds))
-        self.notify(f"virtual time +{float(seconds):g} s: t = {self.sim.now():.1f} s", timeout=2)
+        def advance() -> bool:
+            self.bench.advance(float(seconds))
+            return True
+
+        if self._call(advance):
+            self.notify(f"virtual time +{float(seconds):g} s: t = {self.remote.now():.1f} s", timeout=2)
         self.refresh_views()
 
     def action_drive(self, step: int) -> None:
@@ -496,7 +559,7 @@ class Dashboard(App[int]):
             )
         for switch in LINK_SWITCHES:
             yield SystemCommand(f"Link fault: {switch.label}", switch.how, lambda k=switch.key: self._link_fault(k))
-        if self.sim.virtual:
+        if self.bench.virtual:
             yield SystemCommand("Time +10 s", "advance the virtual clock", lambda: self.action_advance(10))
 
     def _device_fault(self, key: str) -> None:

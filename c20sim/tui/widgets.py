@@ -10,9 +10,10 @@ shown as an error notification.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from rich.text import Text
 from textual import events, on
@@ -23,7 +24,7 @@ from textual.reactive import reactive
 from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
-from ..bus import Bus, Direction, FrameRecord, RecordKind
+from ..bus import Direction, FrameRecord, RecordKind
 from ..control.ops import ControlError
 from ..drive.terminals import Input as Terminal
 from ..drive.terminals import Output
@@ -45,6 +46,7 @@ __all__ = [
     "LinkFaultsPanel",
     "TrendPlot",
     "format_record",
+    "record_from_dict",
     "record_matches",
 ]
 
@@ -192,10 +194,33 @@ def record_matches(record: FrameRecord, drive: int | None, function: int | None,
 WALL_OFFSET = time.time() - time.monotonic()
 
 
-def time_of_day(line_t: float) -> str:
-    """A frame's line time (monotonic seconds) as the time of day, to the millisecond."""
-    wall = line_t + WALL_OFFSET
+def time_of_day(wall: float) -> str:
+    """A wall-clock time (Unix seconds) as the local time of day, to the millisecond."""
     return time.strftime("%H:%M:%S", time.localtime(wall)) + f".{int(wall % 1 * 1000):03d}"
+
+
+def record_from_dict(data: Mapping[str, Any]) -> FrameRecord:
+    """A frame record as the control API's stream sends it (``as_dict``) -> a record to show."""
+    model_t = data.get("model_t")
+    slave = data.get("slave")
+    return FrameRecord(
+        float(data["t"]),
+        Direction(data["dir"]),
+        bytes.fromhex(str(data["hex"])),
+        RecordKind(data["kind"]),
+        slave if isinstance(slave, int) else None,
+        str(data["text"]),
+        str(data.get("note", "")),
+        float(model_t) if isinstance(model_t, int | float) else None,
+        wall=float(data["wall"]) if isinstance(data.get("wall"), int | float) else None,
+    )
+
+
+def skipped_record(t: float, missed: int) -> FrameRecord:
+    """The line that stands for frames the stream skipped: it says how many."""
+    return FrameRecord(
+        t, Direction.RX, b"", RecordKind.NOISE, None, f"{missed} frames skipped", "the log was behind the bus"
+    )
 
 
 def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
@@ -203,7 +228,8 @@ def format_record(record: FrameRecord, *, hex_bytes: bool = True) -> Text:
     arrow = "→" if record.direction is Direction.RX else "←"
     slave = "-" if record.slave is None else str(record.slave)
     model = "" if record.model_t is None else f" t={record.model_t:.3f}"
-    line = Text(f"{time_of_day(record.t)}{model} {arrow} {slave:>3} ", style="dim")
+    wall = record.wall if record.wall is not None else record.t + WALL_OFFSET  # the server's word, else this clock's
+    line = Text(f"{time_of_day(wall)}{model} {arrow} {slave:>3} ", style="dim")
     style = ""
     if record.kind is RecordKind.EXCEPTION:
         style = "bold yellow"
@@ -237,14 +263,19 @@ class FrameLog(Vertical, can_focus=True):
     function_filter: reactive[int | None] = reactive(None)
     errors_only = reactive(False)
 
-    def __init__(self, bus: Bus, drives: Sequence[int], id: str | None = None) -> None:
+    #: the records kept (as many as the log shows); older ones are let go
+    KEEP = 2000
+
+    def __init__(self, drives: Sequence[int], id: str | None = None) -> None:
         super().__init__(id=id)
-        self.bus = bus
         self.drives = list(drives)
+        self.records: deque[FrameRecord] = deque(maxlen=self.KEEP)
         self._inbox: list[FrameRecord] = []
         self._posted = False
         self._held = 0
-        self._cleared_after: FrameRecord | None = None  #: the last record when the log was cleared
+        #: frames the server's stream skipped because this log was behind (it says how many)
+        self.missed = 0
+        self._missed_shown = 0
 
     def compose(self) -> ComposeResult:
         yield Static(id="log-status")
@@ -255,9 +286,13 @@ class FrameLog(Vertical, can_focus=True):
         self._show_status()
         self._rebuild()
 
-    def add(self, record: FrameRecord) -> None:
-        """A bus listener: queue the record and ask for one merged refresh."""
+    def add(self, record: FrameRecord, missed: int = 0) -> None:
+        """A new record (after ``missed`` the stream skipped): queue it and ask for one merged refresh."""
+        if missed:
+            self.missed += missed
+            self._inbox.append(skipped_record(record.t, missed))
         self._inbox.append(record)
+        del self._inbox[: -self.KEEP]
         if not self._posted:
             self._posted = True
             self.post_message(FramesLogged())
@@ -266,33 +301,30 @@ class FrameLog(Vertical, can_focus=True):
         message.stop()
         self._posted = False
         records, self._inbox = self._inbox, []
+        self.records.extend(records)
         if self.paused:
             self._held += len(records)
             self._show_status()
             return
-        log = self.query_one(RichLog)
-        for record in records:
-            if self._matches(record):
-                log.write(format_record(record))
+        self._write([r for r in records if self._matches(r)])
+        if self.missed != self._missed_shown:
+            self._show_status()
+
+    def _write(self, records: Sequence[FrameRecord]) -> None:
+        """Append records to the log as one write: a line each, laid out once (a write a line costs ~1 ms)."""
+        if records:
+            self.query_one(RichLog).write(Text("\n").join(format_record(r) for r in records))
 
     def visible_records(self) -> list[FrameRecord]:
         """The records the filter shows, oldest first (what is saved)."""
-        records = list(self.bus.records)
-        if self._cleared_after is not None:
-            for index in range(len(records) - 1, -1, -1):
-                if records[index] is self._cleared_after:
-                    records = records[index + 1 :]
-                    break
-        return [r for r in records if self._matches(r)]
+        return [r for r in self.records if self._matches(r)]
 
     def _matches(self, record: FrameRecord) -> bool:
         return record_matches(record, self.drive_filter, self.function_filter, self.errors_only)
 
     def _rebuild(self) -> None:
-        log = self.query_one(RichLog)
-        log.clear()
-        for record in self.visible_records():
-            log.write(format_record(record))
+        self.query_one(RichLog).clear()
+        self._write(self.visible_records())
 
     def _show_status(self) -> None:
         parts = [
@@ -302,6 +334,9 @@ class FrameLog(Vertical, can_focus=True):
         if self.errors_only:
             parts.append("errors only")
         text = Text("frames: " + ", ".join(parts), style="bold")
+        self._missed_shown = self.missed
+        if self.missed:
+            text.append(f"  {self.missed} skipped (the log was behind the bus)", style="bold yellow")
         if self.paused:
             text.append(f"  PAUSED ({self._held} new)", style="bold black on yellow")
         text.append("   space pause · a drive · n function · e errors · w save", style="dim")
@@ -347,7 +382,7 @@ class FrameLog(Vertical, can_focus=True):
         self.errors_only = not self.errors_only
 
     def action_clear(self) -> None:
-        self._cleared_after = self.bus.records[-1] if self.bus.records else None
+        self.records.clear()
         self._held = 0
         self._rebuild()
         self._show_status()
@@ -598,7 +633,11 @@ class LinkFaultsPanel(_SwitchPanel):
             self.on_bus = not self.on_bus
             self.post_message(ConditionsChanged(f"link faults now act on {self._where()}"))
             return
-        note = self.bench.toggle_link_fault(self.scope(), key)
+        try:
+            note = self.bench.toggle_link_fault(self.scope(), key)
+        except ControlError as exc:
+            self.notify(f"{self._where()}: {exc}", severity="error", timeout=5)
+            return
         self.post_message(ConditionsChanged(note))
 
     def _where(self) -> str:

@@ -3,7 +3,10 @@
 Everything the dashboard does to a drive goes through here, and everything
 here is an operation of :mod:`c20sim.control` (the same checks as the control
 API, the scenarios and pytest), so it is tested without a screen and a
-dashboard session means what a script would mean. Device faults are switched
+dashboard session means what a script would mean. The operations come from a
+:class:`BenchOps`: :class:`~c20sim.control.client.RemoteOps` (the control API
+of a served simulator: the dashboard) or :class:`LocalOps` (a simulator in
+this process: tests and scripts). Device faults are switched
 as their causes (:mod:`c20sim.control.causes`); conditions and link faults are
 read back through the operations, never copied, so what another front end
 changes shows here. The switches come from the operations' own tables: a new
@@ -18,6 +21,7 @@ import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
 
 from ..control import causes, ops
 from ..drive.model import HallFault, Telemetry
@@ -32,9 +36,11 @@ __all__ = [
     "DEVICE_SWITCHES",
     "KEYPAD",
     "LINK_SWITCHES",
+    "BenchOps",
     "Conditions",
     "DriveView",
     "History",
+    "LocalOps",
     "Switch",
     "Workbench",
     "condition_range",
@@ -155,13 +161,131 @@ class History:
         return True
 
 
-class Workbench:
-    """A simulator's drives on the bench: what the dashboard (and its tests) do to them, through the operations."""
+class BenchOps(Protocol):
+    """The operations the bench uses, on the drives of one simulator, wherever it runs."""
+
+    profile: Profile
+    addresses: tuple[int, ...]
+    virtual: bool
+
+    def now(self) -> float: ...
+    def telemetry(self, address: int) -> Telemetry: ...
+    def conditions(self, address: int) -> dict[str, object]: ...
+    def held_fault(self, address: int) -> int | None: ...
+    def register(self, address: int, register: int) -> int: ...
+    def registers(self, address: int) -> list[dict[str, Any]]: ...
+    def counters(self, address: int) -> dict[str, object]: ...
+    def clock(self) -> dict[str, Any]: ...
+    def causes(self, address: int) -> dict[str, bool]: ...
+    def link(self, scope: int | None) -> dict[str, Any]: ...
+    def advance(self, seconds: float) -> float: ...
+    def press_key(self, address: int, command: Command) -> bool: ...
+    def set_run_channel(self, address: int, channel: int) -> int: ...
+    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]: ...
+    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]: ...
+    def power_cycle(self, address: int) -> None: ...
+    def restore_defaults(self, address: int) -> None: ...
+    def set_conditions(self, address: int, values: Mapping[str, object]) -> None: ...
+    def trip(self, address: int, cause: str) -> str: ...
+    def release(self, address: int, cause: str) -> str: ...
+    def clear_causes(self, address: int) -> None: ...
+    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None: ...
+    def clear_link_faults(self, scope: int | None) -> None: ...
+
+
+class LocalOps:
+    """:class:`BenchOps` on a simulator in this process, straight through :mod:`c20sim.control`."""
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
-        self.profile: Profile = sim.profile
-        self.addresses: tuple[int, ...] = tuple(sim.drives)
+        self.profile = sim.profile
+        self.addresses = tuple(sim.drives)
+        self.virtual = sim.virtual
+
+    def now(self) -> float:
+        return self.sim.now()
+
+    def telemetry(self, address: int) -> Telemetry:
+        return ops.telemetry(self.sim, address)
+
+    def conditions(self, address: int) -> dict[str, object]:
+        return ops.conditions(self.sim, address)
+
+    def held_fault(self, address: int) -> int | None:
+        return ops.held_fault(self.sim, address)
+
+    def register(self, address: int, register: int) -> int:
+        raw: int = ops.read_register(self.sim, address, register)["raw"]
+        return raw
+
+    def registers(self, address: int) -> list[dict[str, Any]]:
+        return ops.registers(self.sim, address)
+
+    def counters(self, address: int) -> dict[str, object]:
+        return ops.counters(self.sim, address)
+
+    def clock(self) -> dict[str, Any]:
+        return ops.clock_state(self.sim)
+
+    def causes(self, address: int) -> dict[str, bool]:
+        return causes.active(self.sim, address)
+
+    def link(self, scope: int | None) -> dict[str, Any]:
+        return ops.link_state(ops.links(self.sim, scope))
+
+    def advance(self, seconds: float) -> float:
+        return ops.advance(self.sim, seconds)
+
+    def press_key(self, address: int, command: Command) -> bool:
+        return ops.press_key(self.sim, address, command)
+
+    def set_run_channel(self, address: int, channel: int) -> int:
+        return int(ops.set_run_channel(self.sim, address, channel))
+
+    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]:
+        return ops.keypad_edit(self.sim, address, register, value)
+
+    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]:
+        return ops.write_register(self.sim, address, register, value)
+
+    def power_cycle(self, address: int) -> None:
+        ops.power_cycle(self.sim, address)
+
+    def restore_defaults(self, address: int) -> None:
+        ops.restore_defaults(self.sim, address)
+
+    def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
+        ops.set_conditions(self.sim, address, values)
+
+    def trip(self, address: int, cause: str) -> str:
+        return causes.trip(self.sim, address, cause)
+
+    def release(self, address: int, cause: str) -> str:
+        return causes.release(self.sim, address, cause)
+
+    def clear_causes(self, address: int) -> None:
+        causes.clear_all(self.sim, address)
+
+    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None:
+        ops.set_link_faults(self.sim, scope, values)
+
+    def clear_link_faults(self, scope: int | None) -> None:
+        ops.clear_link_faults(self.sim, scope)
+
+
+class Workbench:
+    """Drives on the bench: what the dashboard (and its tests) do to them, through the operations.
+
+    ``source`` is a :class:`BenchOps` (the dashboard's: the control API) or a Simulator in this process.
+    """
+
+    def __init__(self, source: Simulator | BenchOps) -> None:
+        self.ops: BenchOps = LocalOps(source) if isinstance(source, Simulator) else source
+        #: the simulator, for a bench in the same process (tests); None over the control API
+        self.sim: Simulator | None = source if isinstance(source, Simulator) else None
+        self.profile: Profile = self.ops.profile
+        self.addresses: tuple[int, ...] = tuple(self.ops.addresses)
+        self.virtual: bool = self.ops.virtual
         self.history = {a: History() for a in self.addresses}
         #: latched faults: key -> (code, name), the profile's faults with no physical cause, keys 1-9
         self.forced: dict[str, tuple[int, str]] = {}
@@ -180,26 +304,25 @@ class Workbench:
     # --- reading
 
     def _check(self, address: int) -> int:
-        if address not in self.sim.drives:
+        if address not in self.addresses:
             raise C20SimError(f"no drive at address {address}")
         return address
 
     def telemetry(self, address: int) -> Telemetry:
-        return ops.telemetry(self.sim, self._check(address))
+        return self.ops.telemetry(self._check(address))
 
     def conditions(self, address: int) -> Conditions:
         """The conditions drive ``address`` is in now, whoever set them."""
-        return Conditions.of(ops.conditions(self.sim, address), ops.held_fault(self.sim, address))
+        return Conditions.of(self.ops.conditions(address), self.ops.held_fault(address))
 
     def register(self, address: int, register: int) -> int:
-        raw: int = ops.read_register(self.sim, address, register)["raw"]
-        return raw
+        return self.ops.register(address, register)
 
     def sample(self) -> dict[int, DriveView]:
         """Bring the drives to the clock's time; what each shows, its telemetry added to the plot history."""
         out = {}
         for address in self.addresses:
-            tel = ops.telemetry(self.sim, address)
+            tel = self.ops.telemetry(address)
             self.history[address].add(tel)
             out[address] = DriveView(
                 address,
@@ -213,11 +336,12 @@ class Workbench:
     def advance(self, seconds: float) -> None:
         """Virtual clock only: move time on, sampling the plot history on the way."""
         every = min(h.every for h in self.history.values())
-        end = self.sim.now() + seconds
-        while self.sim.now() < end - 1e-12:
-            ops.advance(self.sim, min(every, end - self.sim.now()))
+        now = self.ops.now()
+        end = now + seconds
+        while now < end - 1e-12:
+            now = self.ops.advance(min(every, end - now))
             for address in self.addresses:
-                self.history[address].add(ops.telemetry(self.sim, address))
+                self.history[address].add(self.ops.telemetry(address))
 
     # --- the keypad
 
@@ -228,7 +352,7 @@ class Workbench:
         state = tel.state
         if key in ("jog", "jogrev") and state.startswith("jog"):
             command = Command.JOG_STOP  # a jog key pressed while jogging is released
-        if ops.press_key(self.sim, address, command):
+        if self.ops.press_key(address, command):
             return None
         if key == "reset":
             if state != "fault":
@@ -242,8 +366,8 @@ class Workbench:
 
     def cycle_channel(self, address: int) -> int:
         """The keypad's own parameter edit: F00.01 keypad -> terminals -> communication -> keypad."""
-        now = self.register(address, Reg.RUN_CHANNEL)
-        return int(ops.set_run_channel(self.sim, address, (now + 1) % (RunChannel.COMMUNICATION + 1)))
+        now = self.telemetry(address).run_channel
+        return self.ops.set_run_channel(address, (now + 1) % (RunChannel.COMMUNICATION + 1))
 
     def cycle_speed_source(self, address: int) -> str:
         """The keypad's edit of F00.02: the next speed source this model takes; returns it in words."""
@@ -253,7 +377,7 @@ class Workbench:
         for step in range(1, span):
             value = spec.minimum + (now - spec.minimum + step) % span
             try:
-                return str(ops.keypad_edit(self.sim, address, Reg.SPEED_SOURCE, value)["text"])
+                return str(self.ops.keypad_edit(address, Reg.SPEED_SOURCE, value)["text"])
             except ops.ControlError:
                 continue  # a source this model lacks (simple PLC): the panel skips it
         raise ops.ControlError("no other speed source is allowed here", status=409)
@@ -263,31 +387,31 @@ class Workbench:
         cell = fcode_address(0, 10)
         spec = self.profile.registers[cell]
         value = min(max(self.register(address, cell) + steps * 100, spec.minimum), spec.maximum)
-        return str(ops.keypad_edit(self.sim, address, cell, value)["text"])
+        return str(self.ops.keypad_edit(address, cell, value)["text"])
 
     def registers(self, address: int) -> list[dict[str, object]]:
         """Every register and function code, grouped as the sheet groups them, with its value now."""
-        return ops.registers(self.sim, address)
+        return self.ops.registers(address)
 
     def write_register(self, address: int, register: str, value: int) -> str | None:
         """Write as a master would (the same checks); None if taken, else the refusal with its exception code."""
         try:
-            ops.write_register(self.sim, address, register, value)
+            self.ops.write_register(address, register, value)
         except ops.ControlError as exc:
             return str(exc)
         return None
 
     def counters(self, address: int) -> dict[str, object]:
         """The drive's traffic: requests, replies, exceptions by code, CRC errors, silences, injected."""
-        return ops.counters(self.sim, address)
+        return self.ops.counters(address)
 
     def power_cycle(self, address: int) -> None:
-        ops.power_cycle(self.sim, address)
+        self.ops.power_cycle(address)
 
     def restore_defaults(self, address: int) -> str | None:
         """200FH = 1, as the keypad does it: only while stopped. Keeps the bus address given on the command line."""
         try:
-            ops.restore_defaults(self.sim, address)
+            self.ops.restore_defaults(address)
         except ops.ControlError as exc:
             return str(exc)
         return None
@@ -296,7 +420,7 @@ class Workbench:
 
     def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
         """Set conditions by their :data:`c20sim.control.ops.CONDITIONS` names; none is set if one is refused."""
-        ops.set_conditions(self.sim, address, values)
+        self.ops.set_conditions(address, values)
 
     def set_supply(self, address: int, volts: float) -> None:
         self.set_conditions(address, {"supply_v": volts})
@@ -335,14 +459,14 @@ class Workbench:
     def device_fault_active(self, address: int, key: str) -> bool:
         """Whether the cause behind switch ``key`` is there now, whoever brought it about."""
         try:
-            return causes.active(self.sim, address)[self._cause(key)]
+            return self.ops.causes(address)[self._cause(key)]
         except KeyError:
             return False
 
     def toggle_device_fault(self, address: int, key: str) -> str:
         """Switch a device fault's cause on or off; returns what was done, in words."""
         if key == "z":
-            causes.clear_all(self.sim, address)
+            self.ops.clear_causes(address)
             return f"drive {address}: every fault cause cleared"
         if key == "h":  # the Hall sensor cycles through its faults
             now = self.conditions(address).hall
@@ -351,8 +475,8 @@ class Workbench:
             return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
         cause = self._cause(key)
         if self.device_fault_active(address, key):
-            return causes.release(self.sim, address, cause)
-        note = causes.trip(self.sim, address, cause)
+            return self.ops.release(address, cause)
+        note = self.ops.trip(address, cause)
         if cause == "overheat":
             seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
             note += " (never trips)" if math.isinf(seconds) else f" (trips in about {seconds:.0f} s)"
@@ -362,11 +486,11 @@ class Workbench:
 
     def link(self, scope: int | None) -> dict[str, object]:
         """The link faults of one drive, or of the whole bus (None), as the operations show them."""
-        return ops.link_state(ops.links(self.sim, scope))
+        return self.ops.link(scope)
 
     def link_active(self, scope: int | None) -> list[str]:
         """The names of the link faults switched on."""
-        return ops.links(self.sim, scope).active
+        return list(self.ops.link(scope)["active"])
 
     def link_fault_active(self, scope: int | None, key: str) -> bool:
         name = LINK_OF_KEY.get(key)
@@ -376,7 +500,7 @@ class Workbench:
         """Press a link fault's switch: on, off, or (a count, an exception) the next step; returns it in words."""
         where = "bus" if scope is None else f"drive {scope} link"
         if key == "z":
-            ops.clear_link_faults(self.sim, scope)
+            self.ops.clear_link_faults(scope)
             return f"{where}: every link fault cleared"
         name = LINK_OF_KEY[key]
         knob = KNOBS[name]
@@ -397,7 +521,7 @@ class Workbench:
             value = knob.on.hex(" ")
         else:
             value = knob.on
-        ops.set_link_faults(self.sim, scope, {name: value})
+        self.ops.set_link_faults(scope, {name: value})
         return f"{where}: {knob.label} {self._words(name, self.link(scope)[name])}"
 
     @staticmethod

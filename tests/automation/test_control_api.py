@@ -233,9 +233,9 @@ async def test_last_frames_are_the_newest_and_only_they_are_put_in_words(
     rendered: list[FrameRecord] = []
     as_dict = FrameRecord.as_dict
 
-    def counting(record: FrameRecord) -> dict[str, object]:
+    def counting(record: FrameRecord, wall_offset: float | None = None) -> dict[str, object]:
         rendered.append(record)
-        return as_dict(record)
+        return as_dict(record, wall_offset)
 
     monkeypatch.setattr(FrameRecord, "as_dict", counting)
     status, log = await api("GET", "/frames?last=1")

@@ -1,57 +1,112 @@
-"""``c20sim dashboard`` and bare ``c20sim``: the same endpoint options as serve, and errors as one line."""
+"""``c20sim dashboard`` and bare ``c20sim``: serve's options go to the serve it starts; errors are one line."""
 
 from __future__ import annotations
 
+import argparse
+import json
 import socket
-from typing import Any
+import sys
+from pathlib import Path
 
 import pytest
 
 from c20sim import cli
-from c20sim.clock import VirtualClock
 from c20sim.errors import C20SimError
-from c20sim.profile import load_profile
-from c20sim.serve import ServeOptions
-from c20sim.simulator import Simulator
-from c20sim.tui import Dashboard
+from c20sim.tui import session
 
 
 @pytest.fixture
-def runs(monkeypatch: pytest.MonkeyPatch) -> list[Dashboard]:
-    """Dashboards that cli would run, not run."""
-    started: list[Dashboard] = []
+def started(monkeypatch: pytest.MonkeyPatch) -> list[tuple[list[str], str | None]]:
+    """What cli would start and attach to: the serve command line, and the --attach target (not run)."""
+    calls: list[tuple[list[str], str | None]] = []
 
-    def run(self: Dashboard, *args: Any, **kwargs: Any) -> None:
-        started.append(self)
+    def run_dashboard(args: argparse.Namespace, defaults: dict[str, object]) -> int:
+        if args.attach:
+            session.check_attach_options(args, defaults)
+        calls.append((session.serve_argv(args, "READY"), args.attach))
+        return 0
 
-    monkeypatch.setattr(Dashboard, "run", run)
-    return started
+    monkeypatch.setattr(session, "run_dashboard", run_dashboard)
+    return calls
 
 
-def test_bare_c20sim_runs_the_dashboard_on_the_default_endpoints(runs: list[Dashboard]) -> None:
+def test_bare_c20sim_starts_serve_with_a_loopback_control_api(started: list[tuple[list[str], str | None]]) -> None:
     assert cli.main([]) == 0
-    (app,) = runs
-    assert (app.options.pty, app.options.tcp) == (True, "127.0.0.1:5020")
-    assert not app.sim.virtual
+    ((argv, attach),) = started
+    assert argv[:4] == [sys.executable, "-m", "c20sim", "serve"]
+    assert argv[4:] == [
+        "--parity",
+        "N",
+        "--stopbits",
+        "1",
+        "--control",
+        "127.0.0.1:0",
+        "--profile",
+        "c20-400hr",
+        "--clock",
+        "realtime",
+        "--speed",
+        "1.0",
+        "--ready-file",
+        "READY",
+    ]  # fmt: skip (no --drives: serve takes $C20SIM_DRIVES, else drive 1)
+    assert attach is None
 
 
-def test_dashboard_takes_the_endpoint_options(runs: list[Dashboard]) -> None:
-    assert cli.main(["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual"]) == 0
-    (app,) = runs
-    assert (app.options.pty, app.options.tcp, app.options.modbus_tcp) == (False, None, "127.0.0.1:0")
-    assert list(app.sim.drives) == [1, 2]
-    assert app.sim.virtual
+def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], str | None]]) -> None:
+    argv = ["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual", "--line-timing"]
+    argv += ["--pty", "--seed", "7", "--control", "127.0.0.1:8020", "--control-token", "s3cret"]
+    assert cli.main(argv) == 0
+    ((argv, _),) = started
+    text = " ".join(argv)
+    for part in (
+        "--pty",
+        "--modbus-tcp 127.0.0.1:0",
+        "--line-timing",
+        "--control 127.0.0.1:8020",
+        "--control-token s3cret",
+        "--drives 1,2",
+        "--clock virtual",
+        "--seed 7",
+    ):
+        assert part in text, text
+    assert "--tcp" not in text  # serve picks its defaults itself when no endpoint is given
 
 
-async def test_a_busy_port_ends_the_dashboard_with_its_error() -> None:
+def test_attach_refuses_a_serve_option(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["dashboard", "--attach", "http://127.0.0.1:1", "--tcp", "127.0.0.1:0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("c20sim: --attach: --tcp is the server's option;"), err
+    assert err.count("\n") == 1
+
+
+def test_attach_to_nothing_is_one_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    assert cli.main(["dashboard", "--attach", f"http://127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"c20sim: cannot attach to http://127.0.0.1:{port}: the control API"), err
+    ready = tmp_path / "ready.json"
+    ready.write_text(json.dumps({"tcp": "127.0.0.1:5020"}))
+    assert cli.main(["dashboard", "--attach", str(ready)]) == 2
+    assert "the ready file has no control address" in capsys.readouterr().err
+    assert cli.main(["dashboard", "--attach", str(tmp_path / "missing.json")]) == 2
+    assert "cannot read the ready file" in capsys.readouterr().err
+
+
+def test_a_busy_port_ends_the_dashboard_with_the_servers_error(capsys: pytest.CaptureFixture[str]) -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        sim = Simulator(load_profile(), (1,), clock=VirtualClock())
-        app = Dashboard(sim, ServeOptions(tcp=f"127.0.0.1:{port}"))
-        async with app.run_test() as pilot:
-            await pilot.pause()
-        assert isinstance(app.error, C20SimError)
-        assert str(port) in str(app.error)
-        assert app.return_code == 2
+        assert cli.main(["dashboard", "--tcp", f"127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"c20sim: --tcp 127.0.0.1:{port}: "), err
+
+
+def test_served_options_error_is_the_servers_own_line() -> None:
+    args = cli.build_parser().parse_args(["dashboard", "--profile", "no-such-profile"])
+    with pytest.raises(C20SimError, match="no-such-profile"), session.served(args):
+        pass

@@ -5,14 +5,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from pymodbus import FramerType
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 from textual.widgets import Checkbox, DataTable, Input, RichLog, Static
 
 from c20sim import control
+from c20sim.serve import ServeOptions, Server
 from c20sim.tui.app import Dashboard, HelpScreen, SaveLogScreen
 from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel, NumberInput
-from tests.tui.conftest import Bench, running
+from tests.tui.conftest import Bench, attached, running, serving, until
 
 STATUS1, STATUS2, FAULT, SPEED, INPUTS = 0x2100, 0x2101, 0x2102, 0x3006, 0x300D
 
@@ -81,14 +83,14 @@ async def test_clicking_fault_buttons(bench: Bench) -> None:
 
 async def test_link_faults_offline_and_forced_exception(bench: Bench) -> None:
     await bench.press("f5", "o")
-    assert bench.app.sim.link_faults(1).offline
+    assert bench.served.call(lambda: bench.served.sim.link_faults(1).offline)
     with pytest.raises(ModbusIOException):
         await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
     await bench.press("o", "e", "e")  # online; forced exception 0x01, then 0x02
     response = await bench.client.read_holding_registers(STATUS1, count=1, device_id=1)
     assert (response.function_code, response.exception_code) == (0x83, 0x02)
     await bench.press("b", "c")  # the whole bus: bad CRC
-    assert bench.app.sim.link_faults(None).corrupt_crc
+    assert bench.served.call(lambda: bench.served.sim.link_faults(None).corrupt_crc)
     await bench.press("z", "b", "z")  # clear the bus, back to the drive, clear it
     assert await bench.read(STATUS1) == 3
 
@@ -113,6 +115,7 @@ async def test_frame_log_shows_filters_pauses_and_saves(bench: Bench, tmp_path: 
     assert await bench.read(STATUS1) == 3
     response = await bench.client.read_holding_registers(0x0032, count=1, device_id=1)
     assert response.exception_code == 0x02
+    await until(lambda: len(log.records) == 4, "4 frames in the log over the stream")
     await bench.pilot.pause()
     text = "\n".join(line.text for line in lines.lines)
     assert "read 2100H (status word 1)" in text
@@ -122,9 +125,8 @@ async def test_frame_log_shows_filters_pauses_and_saves(bench: Bench, tmp_path: 
     await bench.press("e", "space")  # all again; paused
     before = len(lines.lines)
     assert await bench.read(STATUS1) == 3
-    await bench.pilot.pause()
+    await until(lambda: "PAUSED (2 new)" in str(log.query_one("#log-status").render()), "2 frames held while paused")
     assert len(lines.lines) == before
-    assert "PAUSED (2 new)" in str(log.query_one("#log-status").render())
     await bench.press("space")
     assert len(lines.lines) == before + 2
     path = tmp_path / "frames.log"
@@ -211,11 +213,11 @@ async def test_every_link_switch_key_switches_its_fault(bench: Bench) -> None:
 @pytest.mark.parametrize("tab", ["f2", "f3", "f4", "f5"])
 async def test_x_resets_a_fault_on_every_tab(bench: Bench, tab: str) -> None:
     await bench.press(tab)
-    control.inject_fault(bench.app.sim, 1, 0x15)
+    bench.served.call(control.inject_fault, bench.served.sim, 1, 0x15)
     assert await bench.read(FAULT) == 0x15
     await bench.press("x")
     assert await bench.read(FAULT) == 0
-    assert not bench.app.sim.link_faults(1).active  # the key did nothing else
+    assert not bench.served.call(lambda: bench.served.sim.link_faults(1).active)  # the key did nothing else
 
 
 async def test_no_panel_binding_shadows_a_dashboard_key(bench: Bench) -> None:
@@ -236,19 +238,22 @@ async def test_jog_reverse_key_pressed_again_releases(bench: Bench) -> None:
 
 
 async def test_dashboard_shows_conditions_set_by_the_control_api(bench: Bench) -> None:
-    sim = bench.app.sim
+    sim = bench.served.sim
     await bench.press("f3", "escape")  # the conditions, no field being edited
-    control.set_conditions(sim, 1, {"supply_v": 18, "load_torque_nm": 0.5, "ai1_v": 2.5, "terminal_inputs": 0x010})
-    bench.app.refresh_views()
-    await bench.pilot.pause()
+    bench.served.call(
+        control.set_conditions, sim, 1, {"supply_v": 18, "load_torque_nm": 0.5, "ai1_v": 2.5, "terminal_inputs": 0x010}
+    )
     screen = bench.app.get_screen_main()
-    shown = {name: screen.query_one(f"#cond-{name}", Input).value for name in ("supply", "load", "ai1")}
-    assert shown == {"supply": "18", "load": "0.5", "ai1": "2.5"}
+
+    def shown() -> dict[str, str]:
+        return {name: screen.query_one(f"#cond-{name}", Input).value for name in ("supply", "load", "ai1")}
+
+    await until(lambda: shown() == {"supply": "18", "load": "0.5", "ai1": "2.5"}, "the conditions over the stream")
     assert screen.query_one("#term-S1", Checkbox).value
     await bench.press("f4")
     assert bench.app.get_screen_main().query_one("#dev-u").has_class("-on")
     await bench.press("u")  # the undervoltage the API made, switched off here
-    assert sim.drives[1].telemetry().supply_v == sim.profile.supply.voltage_v
+    assert bench.served.call(lambda: sim.drives[1].telemetry().supply_v) == sim.profile.supply.voltage_v
 
 
 async def test_condition_fields_take_the_control_api_range(bench: Bench) -> None:
@@ -259,16 +264,48 @@ async def test_condition_fields_take_the_control_api_range(bench: Bench) -> None
     ambient = screen.query_one("#cond-ambient", NumberInput)
     assert (ambient.low, ambient.high) == (-50.0, 150.0)
     await bench.press("home", "ctrl+k", "5", "0", "0", "0", "enter")
-    assert bench.app.sim.drives[1].telemetry().supply_v == 48.0  # refused, as the API refuses it
+    assert bench.served.call(lambda: bench.served.sim.drives[1].telemetry().supply_v) == 48.0  # refused, as the API
     errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
     assert any("supply_v: 5000 is outside 0-2000" in e for e in errors)
 
 
-async def test_server_is_closed_on_exit() -> None:
-    async with running() as bench:
-        port = bench.app.server.endpoints.tcp.port  # type: ignore[union-attr]
-    client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=0.5, retries=0)
-    assert not await client.connect()
+async def test_closing_an_attached_dashboard_leaves_the_server_serving() -> None:
+    with serving() as served:
+        async with attached(served) as (app, pilot):
+            await pilot.press("f4", "u")  # act: undervoltage, through the API
+            await pilot.press("q")
+        assert not app.is_running
+        client = AsyncModbusTcpClient("127.0.0.1", port=served.port, framer=FramerType.RTU, timeout=0.5, retries=0)
+        assert await client.connect()
+        try:
+            response = await client.read_holding_registers(0x3007, count=1, device_id=1)  # 3007H: the supply
+            assert not response.isError(), response
+            assert served.call(lambda: served.sim.drives[1].telemetry().supply_v) == 10.0
+            async with attached(served) as (again, _):  # and another dashboard attaches to it
+                assert again.bench.conditions(1).supply_v == 10.0
+        finally:
+            client.close()
+
+
+async def test_a_server_gone_is_said_and_keys_answer_with_an_error_until_it_is_back() -> None:
+    with serving() as served:
+        async with attached(served) as (app, pilot):
+            port = int(served.url.rsplit(":", 1)[1])
+            served.thread.run(served.server.aclose())
+            await until(lambda: not app.streaming, "the dashboard to see the server gone")
+            assert "server lost" in str(app.get_screen_main().query_one("#title").render())
+            await pilot.press("f")  # a key while the server is gone: an error notification, no traceback
+            await pilot.pause()
+            errors = [str(n.message) for n in app._notifications if n.severity == "error"]
+            assert any("lost the server" in e for e in errors), errors
+            assert any("does not answer" in e for e in errors), errors
+            assert app.is_running
+            # the server back on the same address: the dashboard attaches again by itself
+            served.server = Server(served.sim, ServeOptions(control=f"127.0.0.1:{port}"))
+            served.thread.run(served.server.start())
+            before = app.received
+            await until(lambda: app.streaming and app.received > before, "the dashboard to attach again")
+            assert "server lost" not in str(app.get_screen_main().query_one("#title").render())
 
 
 async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import socket
 import subprocess
 import sys
 import time
@@ -32,6 +35,9 @@ def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0, show: 
 class Terminal:
     def __init__(self, session: str) -> None:
         self.session = session
+        self.address = ("", 0)  #: the served RTU-over-TCP endpoint
+        self.ready = Path()
+        self.status_file = Path()
 
     def screen(self) -> str:
         result = subprocess.run(
@@ -56,15 +62,21 @@ class Terminal:
         )
         return result.stdout.strip()
 
-    def exit_status(self) -> str:
-        """Wait for the program in the pane to end (the pane stays: remain-on-exit); how it ended.
+    def run(self, command: str, cwd: Path, status_file: Path) -> None:
+        """Run ``command`` in the pane; its exit status goes to ``status_file`` (tmux's own pane_dead_status is
+        sometimes never filled in once the pane is dead, so the shell writes it)."""
+        self.status_file = status_file
+        wrapped = f"{command}; echo $? > {status_file}"
+        subprocess.run([TMUX or "tmux", "respawn-pane", "-k", "-t", self.session, "-c", str(cwd), wrapped], check=True)
 
-        ``status N`` or ``signal N``: tmux marks the pane dead a moment before it has the status.
-        """
-        ended = "status #{pane_dead_status} signal #{pane_dead_signal}"  # a tmux condition takes status 0 for false
-        wait_for("the program's exit status", lambda: self.pane(ended) != "status  signal", show=self.screen)
-        status, signal = self.pane("#{pane_dead_status}"), self.pane("#{pane_dead_signal}")
-        return f"status {status}" if status else f"signal {signal}"
+    def exit_status(self) -> str:
+        """Wait for the program in the pane to end; how it ended: ``status N`` or ``signal N``."""
+        path = self.status_file
+        wait_for(
+            "the program's exit status", lambda: path.exists() and path.read_text().endswith("\n"), show=self.screen
+        )
+        code = int(path.read_text())
+        return f"signal {code - 128}" if code > 128 else f"status {code}"
 
 
 @pytest.fixture
@@ -78,12 +90,14 @@ def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
     subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
         subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
         terminal = Terminal(session)
+        terminal.run(command, cwd, tmp_path / "status")
         wait_for("the ready file", ready.exists)
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
         client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
         assert client.connect()
+        terminal.address = (host, int(port))
+        terminal.ready = ready
         try:
             yield terminal, client
         finally:
@@ -120,10 +134,47 @@ def test_dashboard_in_tmux(dashboard: tuple[Terminal, ModbusTcpClient]) -> None:
     assert read(client, 0x2100) == 4
     terminal.keys("q")
     assert terminal.exit_status() == "status 0", terminal.screen()
+    # The serve the dashboard started is stopped with it: its port is closed, its ready file gone.
+    with socket.socket() as probe:
+        assert probe.connect_ex(terminal.address) != 0, "the server the dashboard started still listens"
+    assert not terminal.ready.exists()
 
 
-@pytest.mark.parametrize("sig", ["TERM", "HUP"])
-def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: str) -> None:
+@pytest.mark.parametrize("how", ["kill-session", "SIGTERM"])
+def test_a_dashboard_ended_from_outside_stops_its_server(dashboard: tuple[Terminal, ModbusTcpClient], how: str) -> None:
+    """The terminal closed (tmux kills the session: SIGHUP) or a kill (SIGTERM): the dashboard closes as q does
+    and stops the serve it started; none is left running on its own."""
+    terminal, _ = dashboard
+    terminal.wait_for_text("STOPPED")
+    if how == "SIGTERM":
+        os.kill(int(terminal.pane("#{pane_pid}")), signal.SIGTERM)  # the shell: it passes nothing on
+        os.kill(_dashboard_pid(terminal.ready), signal.SIGTERM)
+    else:
+        subprocess.run([TMUX or "tmux", "kill-session", "-t", terminal.session], check=True)
+
+    def port_closed() -> bool:
+        with socket.socket() as probe:
+            return probe.connect_ex(terminal.address) != 0
+
+    wait_for("the started server to stop", port_closed)
+    wait_for("its ready file to go", lambda: not terminal.ready.exists())
+
+
+def _dashboard_pid(ready: Path) -> int:
+    """The dashboard's process: the one whose command line names the ready file and is not the serve."""
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                args = (entry / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if str(ready).encode() in args and b"serve" not in args and b"c20sim" in args:
+                return int(entry.name)
+    raise AssertionError("no dashboard process")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: signal.Signals) -> None:
     """kill -TERM, or the terminal window closed (HUP): the alternate screen and mouse tracking are switched
     off, the link and the ready file are removed, exit status 0."""
     ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
@@ -134,16 +185,16 @@ def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: str) -> None:
     subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
         subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        subprocess.run([tmux, "respawn-pane", "-k", "-t", session, "-c", str(cwd), command], check=True)
         terminal = Terminal(session)
+        terminal.run(command, cwd, tmp_path / "status")
         wait_for("the ready file", ready.exists)
         terminal.wait_for_text("STOPPED")
         assert link.is_symlink()
         assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "1 1"
-        found = subprocess.run(["pgrep", "-f", f"ready-file {ready}"], capture_output=True, text=True, check=True)
-        subprocess.run(["kill", f"-{sig}", *found.stdout.split()], check=True)
+        os.kill(_dashboard_pid(ready), sig)
         assert terminal.exit_status() == "status 0", terminal.screen()
         assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "0 0"
-        assert not link.is_symlink() and not ready.exists()
+        wait_for("the link to go", lambda: not link.is_symlink())
+        wait_for("the ready file to go", lambda: not ready.exists())
     finally:
         subprocess.run([tmux, "kill-session", "-t", session], check=False)

@@ -1,0 +1,259 @@
+"""A client of the control API: a blocking JSON caller, and the dashboard's operations over it.
+
+:class:`ControlClient` calls a running ``c20sim serve --control`` over one
+kept-alive HTTP connection (stdlib only), with the token where the server asks
+for one; an error reply becomes a :class:`~c20sim.control.ops.ControlError`
+with the server's own sentence and status, and a server that cannot be
+reached becomes one too (status 503), so a front end has one error to show.
+
+:class:`RemoteOps` is the dashboard's bench over that client: every action is
+one API call, and what the dashboard reads comes from the latest telemetry
+snapshot (``GET /telemetry``, or a ``/stream`` message handed to
+:meth:`RemoteOps.update`), so a redraw asks the server nothing. After an
+action the snapshot is fetched again, so what is shown is what was done.
+
+:func:`attach_target` turns ``--attach ready.json`` or ``--attach
+http://HOST:PORT`` into the API's URL and token.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import http.client
+import json
+import socket
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from ..drive.model import Telemetry
+from ..errors import C20SimError
+from ..profile import Profile, load_profile
+from ..registers import Command, Reg
+from .ops import ControlError
+
+__all__ = ["ControlClient", "RemoteOps", "attach_target"]
+
+#: Seconds a call may take before the server counts as unreachable.
+TIMEOUT = 5.0
+#: The registers a snapshot carries, by address (the rest are read with a call).
+_SNAPSHOT_REGISTERS = {
+    Reg.STATUS2: "status2",
+    Reg.OUTPUT_FREQUENCY: "output_frequency",
+    Reg.SET_FREQUENCY: "set_frequency",
+}
+_TELEMETRY_FIELDS = tuple(f.name for f in dataclasses.fields(Telemetry))
+
+
+def attach_target(target: str, token: str | None = None) -> tuple[str, str | None]:
+    """``http://HOST:PORT`` (with ``token``), or a ready file's path -> (url, token); C20SimError if neither."""
+    if target.startswith(("http://", "https://")):
+        parts = urlsplit(target)
+        if parts.scheme != "http" or not parts.hostname or parts.port is None:
+            raise C20SimError(f"--attach {target}: give http://HOST:PORT (the ready file's control), or a ready file")
+        return f"http://{parts.netloc}", token
+    path = Path(target)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise C20SimError(f"--attach {target}: cannot read the ready file: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise C20SimError(f"--attach {target}: not a ready file (not JSON: {exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("control"), str):
+        raise C20SimError(
+            f"--attach {target}: the ready file has no control address; start serve with --control 127.0.0.1:0"
+        )
+    found = data.get("token")
+    return data["control"], token if token is not None else (found if isinstance(found, str) else None)
+
+
+class ControlClient:
+    """Blocking JSON calls to the control API at ``url`` (``http://HOST:PORT``)."""
+
+    def __init__(self, url: str, token: str | None = None, timeout: float = TIMEOUT) -> None:
+        parts = urlsplit(url)
+        if parts.scheme != "http" or not parts.hostname:
+            raise C20SimError(f"control API {url!r}: give http://HOST:PORT")
+        self.url = url.rstrip("/")
+        self.token = token
+        self._host, self._port = parts.hostname, parts.port or 80
+        self._timeout = timeout
+        self._conn: http.client.HTTPConnection | None = None
+
+    def headers(self) -> dict[str, str]:
+        out = {"Accept": "application/json"}
+        if self.token is not None:
+            out["Authorization"] = f"Bearer {self.token}"
+        return out
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def _request(self, method: str, path: str, body: object = None) -> tuple[int, bytes]:
+        data = None if body is None else json.dumps(body).encode()
+        headers = self.headers()
+        if data is not None:
+            headers["Content-Type"] = "application/json"
+        for attempt in (1, 2):  # a kept-alive connection the server closed is opened again, once
+            if self._conn is None:
+                self._conn = http.client.HTTPConnection(self._host, self._port, timeout=self._timeout)
+            try:
+                self._conn.request(method, path, body=data, headers=headers)
+                response = self._conn.getresponse()
+                return response.status, response.read()
+            except (OSError, http.client.HTTPException) as exc:
+                self.close()
+                if attempt == 2 or isinstance(exc, socket.timeout):
+                    raise ControlError(f"the control API at {self.url} does not answer: {exc}", status=503) from None
+        raise AssertionError("unreachable")
+
+    def call(self, method: str, path: str, body: object = None) -> Any:
+        """One call; the decoded JSON reply, or ControlError with the server's message."""
+        status, raw = self._request(method, path, body)
+        try:
+            data = json.loads(raw) if raw else None
+        except json.JSONDecodeError:
+            data = None
+        if status >= 400:
+            message = data.get("error") if isinstance(data, dict) else None
+            raise ControlError(str(message or f"{method} {path}: HTTP {status}"), status=status)
+        return data
+
+    def text(self, path: str) -> str:
+        status, raw = self._request("GET", path)
+        if status >= 400:
+            raise ControlError(f"GET {path}: HTTP {status}", status=status)
+        return raw.decode("utf-8")
+
+
+class RemoteOps:
+    """The dashboard's bench over the control API (see the module's docstring)."""
+
+    def __init__(self, client: ControlClient) -> None:
+        self.client = client
+        index = client.call("GET", "/")
+        self.index: dict[str, Any] = index
+        self.addresses: tuple[int, ...] = tuple(index["drives"])
+        self.virtual: bool = index["clock"] == "virtual"
+        self.endpoints: dict[str, str] = dict(index.get("endpoints", {}))
+        self.profile: Profile = self._load_profile(index["profile"])
+        self.latest: dict[str, Any] = {}
+        self.refresh()
+
+    def _load_profile(self, name: str) -> Profile:
+        """The served profile, from its TOML as the server has it (the two machines may differ)."""
+        text = self.client.text("/profile")
+        with tempfile.TemporaryDirectory(prefix="c20sim-") as tmp:
+            path = Path(tmp) / f"{name}.toml"
+            path.write_text(text, encoding="utf-8")
+            return load_profile(str(path))
+
+    # --- the snapshot
+
+    def update(self, snapshot: Mapping[str, Any]) -> bool:
+        """Take a telemetry snapshot (from the stream) if it is newer than the one held; True if taken."""
+        if snapshot.get("n", 0) <= self.latest.get("n", -1):
+            return False
+        self.latest = {**snapshot, "by_address": {d["address"]: d for d in snapshot["drives"]}}
+        return True
+
+    def refresh(self) -> None:
+        self.update(self.client.call("GET", "/telemetry"))
+
+    def _drive(self, address: int) -> dict[str, Any]:
+        try:
+            found: dict[str, Any] = self.latest["by_address"][address]
+        except KeyError:
+            raise ControlError(f"no drive at address {address}", status=404) from None
+        return found
+
+    def _act(self, method: str, path: str, body: object | None = None) -> Any:
+        body = {} if body is None else body  # always JSON: the API takes application/json only
+        try:
+            return self.client.call(method, path, body)
+        finally:
+            self.refresh()
+
+    # --- reading
+
+    def now(self) -> float:
+        return float(self.latest["t"])
+
+    def telemetry(self, address: int) -> Telemetry:
+        state = self._drive(address)
+        return Telemetry(**{name: state[name] for name in _TELEMETRY_FIELDS})
+
+    def conditions(self, address: int) -> dict[str, object]:
+        return dict(self._drive(address)["conditions"])
+
+    def held_fault(self, address: int) -> int | None:
+        held = self._drive(address)["held_fault"]
+        return None if held is None else int(held)
+
+    def register(self, address: int, register: int) -> int:
+        if register in _SNAPSHOT_REGISTERS:
+            return int(self._drive(address)["registers"][_SNAPSHOT_REGISTERS[Reg(register)]])
+        return int(self.client.call("GET", f"/drives/{address}/registers/{int(register):04X}H")["raw"])
+
+    def registers(self, address: int) -> list[dict[str, Any]]:
+        return list(self.client.call("GET", f"/drives/{address}/registers")["registers"])
+
+    def counters(self, address: int) -> dict[str, object]:
+        return dict(self.client.call("GET", f"/drives/{address}/counters"))
+
+    def clock(self) -> dict[str, Any]:
+        return dict(self.client.call("GET", "/clock"))
+
+    def causes(self, address: int) -> dict[str, bool]:
+        return dict(self._drive(address)["causes"])
+
+    def link(self, scope: int | None) -> dict[str, Any]:
+        return dict(self.latest["link"] if scope is None else self._drive(scope)["link_faults"])
+
+    # --- acting: one call each
+
+    def advance(self, seconds: float) -> float:
+        return float(self._act("POST", "/time/advance", {"seconds": seconds})["t"])
+
+    def press_key(self, address: int, command: Command) -> bool:
+        return bool(self._act("POST", f"/drives/{address}/keypad", {"key": int(command)})["accepted"])
+
+    def set_run_channel(self, address: int, channel: int) -> int:
+        return int(self._act("POST", f"/drives/{address}/run-channel", {"channel": channel})["channel"])
+
+    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]:
+        return dict(self._act("PUT", f"/drives/{address}/panel/{int(register):04X}H", {"value": value}))
+
+    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]:
+        return dict(self._act("PUT", f"/drives/{address}/registers/{register}", {"value": value}))
+
+    def power_cycle(self, address: int) -> None:
+        self._act("POST", f"/drives/{address}/power-cycle")
+
+    def restore_defaults(self, address: int) -> None:
+        self._act("POST", f"/drives/{address}/restore-defaults")
+
+    def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
+        self._act("PATCH", f"/drives/{address}/conditions", dict(values))
+
+    def trip(self, address: int, cause: str) -> str:
+        return str(self._act("POST", f"/drives/{address}/fault", {"cause": cause})["note"])
+
+    def release(self, address: int, cause: str) -> str:
+        return str(self._act("DELETE", f"/drives/{address}/fault", {"cause": cause, "reset": False})["note"])
+
+    def clear_causes(self, address: int) -> None:
+        self._act("DELETE", f"/drives/{address}/causes")
+
+    def _link_path(self, scope: int | None) -> str:
+        return "/link" if scope is None else f"/drives/{scope}/link"
+
+    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None:
+        self._act("PATCH", self._link_path(scope), dict(values))
+
+    def clear_link_faults(self, scope: int | None) -> None:
+        self._act("DELETE", self._link_path(scope))
