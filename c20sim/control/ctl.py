@@ -12,9 +12,12 @@ that closes the pipe early (``ctl frames | head -1``) ends the output quietly.
 from __future__ import annotations
 
 import argparse
+import functools
+import http.client
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +30,13 @@ __all__ = ["add_ctl_command", "call", "render", "rounded"]
 TIME_KEYS = ("t", "model_t", "seconds")
 
 
-def _ctl_url(args: argparse.Namespace) -> str:
+def _ctl_target(args: argparse.Namespace) -> tuple[str, str | None]:
+    """The API's address and token: --url (with --token), or the ready file serve wrote (its token, if any)."""
+    url, token = _ctl_url(args)
+    return url, args.token if getattr(args, "token", None) else token
+
+
+def _ctl_url(args: argparse.Namespace) -> tuple[str, str | None]:
     if args.url:
         from urllib.parse import urlsplit
 
@@ -41,7 +50,7 @@ def _ctl_url(args: argparse.Namespace) -> str:
             raise C20SimError(
                 f"--url {args.url!r}: give the API's address as http://HOST:PORT, such as http://127.0.0.1:8020"
             )
-        return given
+        return given, None
     if args.ready_file:
         try:
             data = json.loads(Path(args.ready_file).read_text())
@@ -54,12 +63,16 @@ def _ctl_url(args: argparse.Namespace) -> str:
             raise C20SimError(
                 f"--ready-file {args.ready_file}: no control address; start the server with --control 127.0.0.1:0"
             )
-        return url.rstrip("/")
+        token = data.get("token")
+        return url.rstrip("/"), token if isinstance(token, str) else None
     raise C20SimError("give the API's address: --url http://HOST:PORT or --ready-file PATH (from serve --ready-file)")
 
 
-def call(url: str, method: str, path: str, data: object = None, timeout: float = 10.0) -> Any:
-    """One API request with urllib; a 4xx/5xx answer raises C20SimError with the API's error message."""
+def call(
+    url: str, method: str, path: str, data: object = None, timeout: float = 10.0, *, token: str | None = None
+) -> Any:
+    """One API request with urllib; a 4xx/5xx answer, or an answer that is not the API's, raises C20SimError
+    with one sentence saying what is wrong."""
     import urllib.error
     import urllib.request
 
@@ -67,9 +80,23 @@ def call(url: str, method: str, path: str, data: object = None, timeout: float =
     request = urllib.request.Request(url + path, data=payload, method=method)
     if method != "GET":  # the API takes state changes only as JSON, even without a body
         request.add_header("Content-Type", "application/json")
+    if token is not None:
+        request.add_header("Authorization", f"Bearer {token}")
+    not_api = f"{url}: not c20sim's control API"
     try:
         with urllib.request.urlopen(request, timeout=timeout) as response:
-            return json.loads(response.read() or b"null")
+            body = response.read()
+        return json.loads(body or b"null")
+    except json.JSONDecodeError:
+        raise C20SimError(
+            f"{not_api} (its answer to {method} {path} is not JSON); check --url or --ready-file"
+        ) from None
+    except TimeoutError:
+        raise C20SimError(
+            f"{not_api}, or it is stuck: no answer to {method} {path} within {timeout:g} s; check --url or --ready-file"
+        ) from None
+    except (http.client.HTTPException, ConnectionError) as exc:
+        raise C20SimError(f"{not_api} ({type(exc).__name__}: {exc}); check --url or --ready-file") from None
     except urllib.error.HTTPError as exc:
         text = exc.read().decode(errors="replace")
         try:
@@ -118,22 +145,22 @@ def _at_least_one(text: str) -> int:
 GLOBAL_ACTIONS = ("health", "clock", "pause", "resume", "speed", "reset")
 
 
-def _service(url: str, args: argparse.Namespace, at: str) -> Any:
+def _service(api: Callable[..., Any], args: argparse.Namespace, at: str) -> Any:
     action: str = args.action
     if action == "health":
-        return call(url, "GET", "/health")
+        return api("GET", "/health")
     if action == "clock":
-        return call(url, "GET", "/clock")
+        return api("GET", "/clock")
     if action in ("pause", "resume"):
-        return call(url, "POST", f"/clock/{action}")
+        return api("POST", f"/clock/{action}")
     if action == "speed":
-        return call(url, "PUT", "/clock/speed", {"speed": args.factor})
+        return api("PUT", "/clock/speed", {"speed": args.factor})
     if action == "reset":
         setup = args.setup if args.setup == "defaults" else str(Path(args.setup).resolve())  # the server's cwd differs
-        return call(url, "POST", "/reset", {"setup": setup})
+        return api("POST", "/reset", {"setup": setup})
     if args.clear is not None:  # generators --clear [CONDITION]
-        return call(url, "DELETE", f"{at}/generators", {"condition": args.clear} if args.clear else {})
-    return call(url, "GET", f"{at}/generators")
+        return api("DELETE", f"{at}/generators", {"condition": args.clear} if args.clear else {})
+    return api("GET", f"{at}/generators")
 
 
 def rounded(value: Any, key: str = "") -> Any:
@@ -210,68 +237,75 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
     if action == "key" and result.get("accepted") is False:
         return f"key {args.key}: refused by the drive ({result.get('state')}, run channel {result.get('run_channel')})"
     if action == "clear" and not args.no_reset and result.get("reset") is False:
-        return f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}"
+        return (
+            f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}; "
+            "the cause is ended, but the drive may need time to recover (the bus to charge, the module to cool): "
+            "let time pass (ctl advance 1 on a virtual clock) and press reset (ctl key reset)"
+        )
     return None
 
 
 def cmd_ctl(args: argparse.Namespace) -> int:
-    url = _ctl_url(args)
+    url, token = _ctl_target(args)
+    api = functools.partial(call, url, token=token)
     action: str = args.action
     drive = args.drive
     if drive is None and action not in ("time", "advance", "frames", "info", "link", *GLOBAL_ACTIONS):
-        drive = call(url, "GET", "/")["drives"][0]
+        drive = api("GET", "/")["drives"][0]
     at = f"/drives/{drive}"
     result: Any
     if action == "info":
-        result = call(url, "GET", "/")
+        result = api("GET", "/")
     elif action == "state":
-        result = call(url, "GET", at if args.drive is not None else "/drives")
+        result = api("GET", at if args.drive is not None else "/drives")
     elif action == "read":
-        result = call(url, "GET", f"{at}/registers/{args.register}")
+        result = api("GET", f"{at}/registers/{args.register}")
     elif action == "write":
-        result = call(url, "PUT", f"{at}/registers/{args.register}", {"value": args.value})
+        result = api("PUT", f"{at}/registers/{args.register}", {"value": args.value})
     elif action == "registers":
-        result = call(url, "GET", f"{at}/registers")
+        result = api("GET", f"{at}/registers")
     elif action == "counters":
-        result = call(url, "GET", f"{at}/counters")
+        result = api("GET", f"{at}/counters")
     elif action == "set":
-        result = call(url, "PUT", f"{at}/conditions", _pairs(args.values))
+        result = api("PUT", f"{at}/conditions", _pairs(args.values))
     elif action == "fault":
         if (args.code is None) == (args.cause is None):
             raise C20SimError("ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)")
         if args.cause is not None:
-            result = call(url, "POST", f"{at}/fault", {"cause": args.cause})
+            result = api("POST", f"{at}/fault", {"cause": args.cause})
         else:
-            result = call(url, "POST", f"{at}/fault", {"code": args.code, "persistent": args.persistent})
+            result = api("POST", f"{at}/fault", {"code": args.code, "persistent": args.persistent})
     elif action == "clear":
         body: dict[str, object] = {"reset": not args.no_reset}
         if args.cause is not None:
             body["cause"] = args.cause
-        result = call(url, "DELETE", f"{at}/fault", body)
+        else:
+            api("DELETE", f"{at}/causes")  # every cause ended (the supply back, the load off, ...), then reset
+        result = api("DELETE", f"{at}/fault", body)
     elif action == "causes":
-        result = call(url, "GET", f"{at}/causes")
+        result = api("GET", f"{at}/causes")
     elif action == "key":
         key: object = int(args.key) if args.key.isdigit() else args.key
-        result = call(url, "POST", f"{at}/keypad", {"key": key})
+        result = api("POST", f"{at}/keypad", {"key": key})
     elif action == "power-cycle":
-        result = call(url, "POST", f"{at}/power-cycle")
+        result = api("POST", f"{at}/power-cycle")
     elif action == "link":
         where = f"/drives/{drive}/link" if drive is not None else "/link"
         if args.clear:
-            result = call(url, "DELETE", where)
+            result = api("DELETE", where)
         elif args.values:
-            result = call(url, "PATCH", where, _pairs(args.values))
+            result = api("PATCH", where, _pairs(args.values))
         else:
-            result = call(url, "GET", where)
+            result = api("GET", where)
     elif action == "advance":
-        result = call(url, "POST", "/time/advance", {"seconds": args.seconds})
+        result = api("POST", "/time/advance", {"seconds": args.seconds})
     elif action in GLOBAL_ACTIONS or action == "generators":
-        result = _service(url, args, at)
+        result = _service(api, args, at)
     elif action == "time":
-        result = call(url, "GET", "/time")
+        result = api("GET", "/time")
     else:  # frames
         query = "&".join(f"{k}={v}" for k, v in (("last", args.last), ("slave", args.slave)) if v is not None)
-        result = call(url, "GET", "/frames" + (f"?{query}" if query else ""))
+        result = api("GET", "/frames" + (f"?{query}" if query else ""))
         if args.format != "json" and not args.json:
             _write(_frame_lines(result["frames"]))
             return 0
@@ -292,7 +326,10 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     where = ctl.add_mutually_exclusive_group()
     where.add_argument("--url", help="the API's address, such as http://127.0.0.1:8020")
-    where.add_argument("--ready-file", metavar="PATH", help="read the API's address from serve's ready file")
+    where.add_argument(
+        "--ready-file", metavar="PATH", help="read the API's address (and token) from serve's ready file"
+    )
+    ctl.add_argument("--token", help="the API's token, for a server beyond loopback (default: the ready file's)")
     ctl.add_argument("--drive", type=int, metavar="N", help="drive address (default: the first drive)")
     ctl.add_argument(
         "--format",
@@ -323,7 +360,7 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     fault.add_argument("code", type=int, nargs="?", help="a fault code to latch, such as 16")
     fault.add_argument("--cause", metavar="NAME", help="a cause, such as undervoltage (see: ctl causes)")
     fault.add_argument("--persistent", action="store_true", help="a reset fails until the fault is cleared")
-    clear = action("clear", help="end a fault's cause (--cause NAME; default: the latched fault) and press reset")
+    clear = action("clear", help="end a fault's cause (--cause NAME; default: every cause) and press reset")
     clear.add_argument("--cause", metavar="NAME", help="the cause to end, such as undervoltage")
     clear.add_argument("--no-reset", action="store_true", help="release the cause only")
     action("causes", help="every fault cause of the profile, and whether it is there now")

@@ -199,3 +199,75 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         "c20sim: PUT /drives/1/registers/F00.10: 409: F00.10 = 2500 refused: exception 0x04 (operation failed), "
         "as a master would get it\n"
     )
+
+
+def test_ctl_against_something_that_is_not_the_api_is_one_line(served: tuple[dict[str, str], Path]) -> None:
+    """A wrong --url (a Modbus port, another web server) is one sentence and exit 2, never a traceback."""
+    info, _ = served
+    modbus = info["tcp"]  # RTU over TCP: it never answers HTTP
+    command = [sys.executable, "-m", "c20sim", "ctl", "--url", f"http://{modbus}", "state"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr.startswith(f"c20sim: http://{modbus}: not c20sim's control API")
+    assert "Traceback" not in result.stderr and len(result.stderr.splitlines()) == 1
+    with subprocess.Popen(
+        [sys.executable, "-m", "http.server", "0", "--bind", "127.0.0.1"], stdout=subprocess.PIPE, text=True
+    ) as web:
+        try:
+            assert web.stdout is not None
+            port = web.stdout.readline().split("port ")[1].split()[0]
+            command = [sys.executable, "-m", "c20sim", "ctl", "--url", f"http://127.0.0.1:{port}", "info"]
+            result = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+        finally:
+            web.terminate()
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == (
+        f"c20sim: http://127.0.0.1:{port}: not c20sim's control API (its answer to GET / is not JSON); "
+        "check --url or --ready-file\n"
+    )
+
+
+def test_ctl_clear_ends_every_cause_then_resets(served: tuple[dict[str, str], Path]) -> None:
+    info, ready = served
+    host, port = info["tcp"].rsplit(":", 1)
+    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
+    assert client.connect()
+    try:
+        write(client, 0x2001, 1500)
+        write(client, 0x2000, 1)
+        ctl(ready, "advance", "2")
+        ctl(ready, "fault", "--cause", "overheat")
+        ctl(ready, "advance", "200")
+        assert read(client, 0x2102) == 0x10
+        result = ctl(ready, "clear")  # the ambient back, but the module is still hot: refused, and it says why
+        assert result.returncode == 1
+        assert "the cause is ended, but the drive may need time to recover" in result.stderr
+        assert json.loads(ctl(ready, "causes").stdout)["causes"]["overheat"] is False
+        ctl(ready, "advance", "600")
+        assert ctl(ready, "clear").returncode == 0
+        assert read(client, 0x2102) == 0
+    finally:
+        client.close()
+
+
+def test_ctl_sends_the_token_of_the_ready_file(tmp_path: Path) -> None:
+    ready = tmp_path / "ready.json"
+    options = ["--clock", "virtual", "--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--control-token", "s3cret"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", "serve", *options, "--ready-file", str(ready)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        url = wait_for_ready_file(ready, proc)["control"]
+        assert json.loads(ctl(ready, "time").stdout) == {"t": 0.0, "clock": "virtual"}
+        command = [sys.executable, "-m", "c20sim", "ctl", "--url", url, "time"]
+        refused = subprocess.run(command, capture_output=True, text=True, timeout=30, check=False)
+        assert (refused.returncode, refused.stderr.startswith("c20sim: GET /time: 401: ")) == (2, True)
+        with_token = [*command[:-1], "--token", "s3cret", "time"]
+        given = subprocess.run(with_token, capture_output=True, text=True, timeout=30, check=False)
+        assert (given.returncode, json.loads(given.stdout)) == (0, {"t": 0.0, "clock": "virtual"})
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
