@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 from collections.abc import Iterable, Sequence
@@ -49,7 +50,10 @@ def parse_hex(words: Sequence[str]) -> bytes:
     try:
         return bytes.fromhex(joined)
     except ValueError:
-        raise C20SimError(f"not hex bytes: {text.strip()!r}; {_EXAMPLE}") from None
+        hint = ""
+        if len(words) == 1 and os.path.exists(words[0]):  # a capture's path given as if it were its bytes
+            hint = f"; to read the file, give --file {words[0]} (or - for stdin)"
+        raise C20SimError(f"not hex bytes: {text.strip()!r}; {_EXAMPLE}{hint}") from None
 
 
 _XXD = re.compile(r"^\s*[0-9a-fA-F]{4,16}:\s")  # xxd: "00000000: 0103 2100 ...  ..!."

@@ -11,6 +11,7 @@ import os
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import NoReturn, cast
 
 from .capture import add_decode_command
 from .control.ctl import add_ctl_command
@@ -138,8 +139,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
 def cmd_serve(args: argparse.Namespace) -> int:
     options = serve_options(args)
     sim = build_simulator(args)
-    run(run_server(sim, options))
-    return 0
+    return run(run_server(sim, options))  # 1 if a --scenario failed: CI sees it in the exit code
 
 
 def cmd_dashboard(args: argparse.Namespace) -> int:
@@ -188,19 +188,35 @@ def render_profile(profile: Profile) -> str:
         mirror = profile.registers.mirrored_by.get(spec.address)
         mirror_text = f"<-> {mirror:04X}H" if mirror is not None else ""
         default = spec.describe(profile.defaults[spec.address])
+        # the range in the value's own units (0.1-600.0 s), or raw where values have names (0-4: keypad ...)
+        span = (
+            f"{spec.minimum}-{spec.maximum}"
+            if spec.values
+            else f"{spec.describe(spec.minimum)} - {spec.describe(spec.maximum)}"
+        )
         lines.append(
-            f"  {format_fcode(spec.address)} {spec.address:04X}H  {spec.name:<26} {default:<12} "
-            f"{spec.minimum}-{spec.maximum:<6} {spec.access.value:<4} {mirror_text:<9} [{spec.source}]"
+            f"  {format_fcode(spec.address)} {spec.address:04X}H  {spec.name:<26} {default:<18} "
+            f"{span:<22} {spec.access.value:<4} {mirror_text:<9} [{spec.source}]"
         )
     return "\n".join(lines) + "\n"
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a bad option is one line (what is wrong, and where the usage is) and exit 2, as every other
+    error of c20sim; ``--help`` still prints the whole usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"c20sim: {self.prog}: {message} (see: {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="c20sim",
         description="A virtual ZBLD.C20 brushless DC drive behind a Modbus RTU slave.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = cast(
+        "argparse._SubParsersAction[argparse.ArgumentParser]", parser.add_subparsers(dest="command", metavar="COMMAND")
+    )
 
     add_decode_command(sub)
 

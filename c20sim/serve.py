@@ -324,8 +324,8 @@ def run(main: Coroutine[Any, Any, T]) -> T:
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
-async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> None:
-    """Serve until SIGINT, SIGTERM or SIGHUP."""
+async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> int:
+    """Serve until SIGINT, SIGTERM or SIGHUP; the exit code: 1 if a played scenario failed or stopped, else 0."""
     server = Server(sim, options)
     stop = asyncio.Event()
     # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
@@ -336,7 +336,11 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
         await stop.wait()
     finally:
         restore()
+        task = server.scenario_task
         await server.aclose()
+    if task is None or task.cancelled():
+        return 0
+    return 1 if task.exception() is not None or not task.result().ok else 0
 
 
 def _on_stop_signals(stop: asyncio.Event) -> Callable[[], None]:

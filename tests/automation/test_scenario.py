@@ -389,3 +389,32 @@ def test_a_bad_cause_names_the_key(fault: dict[str, object], message: str) -> No
     with pytest.raises(ScenarioError) as caught:
         parse_scenario({"step": [{"at": 0, "fault": fault}]}, "c.toml")
     assert str(caught.value).startswith(message)
+
+
+def test_serve_exits_1_when_its_scenario_failed(tmp_path: Path) -> None:
+    """CI that runs serve --scenario sees a failed expectation in the exit code, not only in the output."""
+    path = write(tmp_path, "[[step]]\nat = 0.5\nexpect = { status1 = 1 }\n", "fails.toml")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "c20sim",
+            "serve",
+            "--clock",
+            "virtual",
+            "--tcp",
+            "127.0.0.1:0",
+            "--scenario",
+            str(path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        lines = read_lines(proc, 3)  # the ready line, the check, the verdict
+        assert lines[-1] == "scenario fails: FAILED (1 of 1 checks)\n"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+    assert proc.returncode == 1
