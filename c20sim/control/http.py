@@ -375,21 +375,20 @@ def make_app(api: ControlApi) -> web.Application:
     async def get_register(request: web.Request) -> web.Response:
         return reply(ops.read_register(sim, address(request), request.match_info["register"]))
 
-    async def put_register(request: web.Request) -> web.Response:
+    async def register_write(request: web.Request) -> tuple[int, str, object]:
+        """(drive, register, value) of a register write's route and body ``{"value": N}``."""
         where = address(request)
         data = await body(request)
         only(data, "value")
         if "value" not in data:
             raise ControlError('give the raw value, such as {"value": 1500}')
-        return reply(ops.write_register(sim, where, request.match_info["register"], data["value"]))
+        return where, request.match_info["register"], data["value"]
+
+    async def put_register(request: web.Request) -> web.Response:
+        return reply(ops.write_register(sim, *await register_write(request)))
 
     async def put_panel(request: web.Request) -> web.Response:
-        where = address(request)
-        data = await body(request)
-        only(data, "value")
-        if "value" not in data:
-            raise ControlError('give the raw value, such as {"value": 3}')
-        return reply(ops.keypad_edit(sim, where, request.match_info["register"], data["value"]))
+        return reply(ops.keypad_edit(sim, *await register_write(request)))
 
     async def list_registers(request: web.Request) -> web.Response:
         return reply({"registers": ops.registers(sim, address(request))})

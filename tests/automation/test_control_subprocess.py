@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -42,6 +43,18 @@ def served(tmp_path: Path) -> Iterator[tuple[dict[str, str], Path]]:
             proc.wait()
 
 
+@contextlib.contextmanager
+def master(info: dict[str, str], timeout: float = 2.0) -> Iterator[ModbusTcpClient]:
+    """A pymodbus master on the served RTU-over-TCP port, closed on the way out."""
+    host, port = info["tcp"].rsplit(":", 1)
+    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=timeout, retries=0)
+    assert client.connect()
+    try:
+        yield client
+    finally:
+        client.close()
+
+
 def read(client: ModbusTcpClient, register: int) -> int:
     response = client.read_holding_registers(register, count=1, device_id=1)
     assert not response.isError(), response
@@ -57,10 +70,7 @@ def test_undervoltage_trip_over_http_and_modbus(served: tuple[dict[str, str], Pa
     info, _ = served
     url = info["control"]
     assert url.startswith("http://127.0.0.1:")
-    host, port = info["tcp"].rsplit(":", 1)
-    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
-    assert client.connect()
-    try:
+    with master(info) as client:
         write(client, 0x2001, 1500)
         write(client, 0x2000, 1)  # forward run
         assert call(url, "POST", "/time/advance", {"seconds": 2.0}) == {"t": 2.0}
@@ -90,8 +100,6 @@ def test_undervoltage_trip_over_http_and_modbus(served: tuple[dict[str, str], Pa
             ("01 06 20 00 00 01 43 CA", "write 2000H = 0001: forward run"),
         ]
         assert [r["seq"] for r in log] == list(range(len(log)))
-    finally:
-        client.close()
 
 
 def test_bad_requests_say_what_is_wrong(served: tuple[dict[str, str], Path]) -> None:
@@ -136,10 +144,7 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
 def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
     """``ctl fault --cause`` brings the cause about; the drive trips by its own physics, as the bench would."""
     info, ready = served
-    host, port = info["tcp"].rsplit(":", 1)
-    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
-    assert client.connect()
-    try:
+    with master(info) as client:
         write(client, 0x2001, 1500)
         write(client, 0x2000, 1)
         assert ctl(ready, "advance", "2").returncode == 0
@@ -156,8 +161,6 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
         ctl(ready, "advance", "1")
         assert json.loads(ctl(ready, "key", "reset").stdout)["accepted"] is True
         assert read(client, 0x2102) == 0
-    finally:
-        client.close()
     result = ctl(ready, "fault", "--cause", "undervoltag")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr.startswith(
@@ -169,10 +172,7 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
 
 def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -> None:
     info, ready = served
-    host, port = info["tcp"].rsplit(":", 1)
-    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=0.3, retries=0)
-    assert client.connect()
-    try:
+    with master(info, timeout=0.3) as client:
         for _ in range(3):
             read(client, 0x2100)
         assert client.read_holding_registers(0x0032, count=1, device_id=1).exception_code == 0x02
@@ -183,8 +183,6 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         ctl(ready, "link", "--clear", "--drive", "1")
         client.send(bytes.fromhex("01 03 21 00 00 01 00 00"))  # a bad CRC: the drive answers 0x06
         assert client.recv(5) == bytes.fromhex("01 83 06 C1 32")
-    finally:
-        client.close()
     counters = json.loads(ctl(ready, "counters").stdout)
     assert counters == {
         "requests": 6,
@@ -231,10 +229,7 @@ def test_ctl_against_something_that_is_not_the_api_is_one_line(served: tuple[dic
 
 def test_ctl_clear_ends_every_cause_then_resets(served: tuple[dict[str, str], Path]) -> None:
     info, ready = served
-    host, port = info["tcp"].rsplit(":", 1)
-    client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
-    assert client.connect()
-    try:
+    with master(info) as client:
         write(client, 0x2001, 1500)
         write(client, 0x2000, 1)
         ctl(ready, "advance", "2")
@@ -248,8 +243,6 @@ def test_ctl_clear_ends_every_cause_then_resets(served: tuple[dict[str, str], Pa
         ctl(ready, "advance", "600")
         assert ctl(ready, "clear").returncode == 0
         assert read(client, 0x2102) == 0
-    finally:
-        client.close()
 
 
 def test_ctl_sends_the_token_of_the_ready_file(tmp_path: Path) -> None:
