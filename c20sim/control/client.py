@@ -208,6 +208,18 @@ class RemoteOps:
     def clock(self) -> dict[str, Any]:
         return dict(self.client.call("GET", "/clock"))
 
+    def pause(self) -> dict[str, Any]:
+        return dict(self._act("POST", "/clock/pause"))
+
+    def resume(self) -> dict[str, Any]:
+        return dict(self._act("POST", "/clock/resume"))
+
+    def set_speed(self, factor: float) -> dict[str, Any]:
+        return dict(self._act("PUT", "/clock/speed", {"speed": factor}))
+
+    def reset(self) -> dict[str, Any]:
+        return dict(self._act("POST", "/reset", {"setup": "defaults"}))
+
     def causes(self, address: int) -> dict[str, bool]:
         return dict(self._drive(address)["causes"])
 

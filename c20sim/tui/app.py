@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
+from platformdirs import user_downloads_path
 from rich.text import Text
 from textual import on
 from textual.app import App, ComposeResult, SystemCommand
@@ -94,6 +95,7 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code) |
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |
+| `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
 | `ctrl+p` | the command palette: every action by name |
 | `?` | this help; `q` quits |
 """
@@ -192,6 +194,9 @@ class Dashboard(App[int]):
         Binding("x", "keypad('reset')", "Reset"),
         Binding("m", "channel", "Channel", show=False),
         Binding("S", "speed_source", "Speed source", show=False),
+        Binding("p", "pause", "Pause clock", show=False),
+        Binding("less_than_sign", "clock_speed(0.5)", "Clock slower", show=False),
+        Binding("greater_than_sign", "clock_speed(2)", "Clock faster", show=False),
         Binding("plus", "keypad_speed(1)", "Speed +", show=False),
         Binding("minus", "keypad_speed(-1)", "Speed -", show=False),
         Binding("P", "power_cycle", "Power cycle", show=False),
@@ -460,6 +465,8 @@ class Dashboard(App[int]):
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if action == "advance" and not self.bench.virtual:
             return None
+        if action in ("pause", "clock_speed") and self.bench.virtual:
+            return None  # a virtual clock stands still until advanced (t / T)
         if action == "drive" and len(self.bench.addresses) < 2:
             return None
         return True
@@ -519,6 +526,33 @@ class Dashboard(App[int]):
         }[tab]
         screen.query_one(target).focus()  # type: ignore[call-overload]
 
+    def action_pause(self) -> None:
+        """The realtime clock: pause it, or resume it (the model stands still meanwhile; the wire still answers)."""
+        paused = bool(self.remote.latest.get("paused"))
+        state = self._call(self.bench.ops.resume if paused else self.bench.ops.pause)
+        if state is not None:
+            self.notify("clock " + ("paused: the model stands still" if state["paused"] else "running"), timeout=3)
+
+    def action_clock_speed(self, factor: float) -> None:
+        speed = float(self.remote.latest.get("speed") or 1.0) * float(factor)
+        state = self._call(lambda: self.bench.ops.set_speed(speed))
+        if state is not None:
+            self.notify(f"clock ×{float(state['speed']):g}", timeout=2)
+
+    def action_reset_setup(self) -> None:
+        """Every drive back to the profile's defaults, as at start (the server keeps running)."""
+        if self._call(self.bench.ops.reset) is not None:
+            self.notify("every drive reset to the profile's defaults", timeout=3)
+        self.refresh_views()
+
+    def action_screenshot(self, filename: str | None = None, path: str | None = None) -> None:
+        """Textual's screenshot, into ~/Downloads where it exists, else the current directory (Textual's own
+        default fails, and says only that, on a machine with no Downloads folder)."""
+        if path is None:
+            downloads = user_downloads_path()
+            path = str(downloads if downloads.is_dir() else Path.cwd())
+        self.deliver_screenshot(filename, path)
+
     def action_help(self) -> None:
         self.push_screen(HelpScreen())
 
@@ -549,6 +583,15 @@ class Dashboard(App[int]):
             yield SystemCommand(f"Keypad: {name}", "press the drive's keypad key", lambda k=key: self.action_keypad(k))
         yield SystemCommand("Run channel: next", "F00.01 keypad/terminals/communication", self.action_channel)
         yield SystemCommand("Power cycle", "switch the drive off and on", self.action_power_cycle)
+        yield SystemCommand(
+            "Reset to the profile's defaults",
+            "every drive as at start; the server keeps serving",
+            self.action_reset_setup,
+        )
+        if not self.bench.virtual:
+            yield SystemCommand(
+                "Pause or resume the clock", "the model stands still; the wire answers", self.action_pause
+            )
         yield SystemCommand("Restore defaults", "200FH = 1 (only while stopped)", self.action_restore_defaults)
         yield SystemCommand("Save frame log", "write the frames shown to a file", self.action_save_log)
         for switch in self.bench.device_switches:

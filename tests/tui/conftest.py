@@ -19,7 +19,7 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusTcpClient
 from textual.pilot import Pilot
 
-from c20sim.clock import VirtualClock
+from c20sim.clock import Clock, VirtualClock
 from c20sim.control.client import ControlClient, RemoteOps
 from c20sim.profile import load_profile
 from c20sim.serve import ServeOptions, Server
@@ -65,9 +65,14 @@ class Served:
 
 @contextmanager
 def serving(
-    drives: tuple[int, ...] = (1,), *, tcp: bool = True, control: str = "127.0.0.1:0", token: str | None = None
+    drives: tuple[int, ...] = (1,),
+    *,
+    tcp: bool = True,
+    control: str = "127.0.0.1:0",
+    token: str | None = None,
+    clock: Clock | None = None,
 ) -> Iterator[Served]:
-    sim = Simulator(load_profile(), drives, clock=VirtualClock(), seed=1)
+    sim = Simulator(load_profile(), drives, clock=clock if clock is not None else VirtualClock(), seed=1)
     options = ServeOptions(tcp="127.0.0.1:0" if tcp else None, control=control, control_token=token)
     thread = _LoopThread()
 

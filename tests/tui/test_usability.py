@@ -3,14 +3,18 @@ wrap at 80x24, help that scrolls, fields that never change a value by themselves
 
 from __future__ import annotations
 
+import time
+from pathlib import Path
+
 import pytest
 from rich.color import Color, ColorSystem
 from rich.style import Style
 from textual.widgets import Markdown, Static
 
+from c20sim.tui import app as app_module
 from c20sim.tui.app import HelpScreen
 from c20sim.tui.widgets import STATUS_STYLES, DriveStatus
-from tests.tui.conftest import Bench, running
+from tests.tui.conftest import Bench, attached, running, serving, until
 
 #: Colour systems a terminal may have: 16 colours, 256, truecolor.
 SYSTEMS = (ColorSystem.STANDARD, ColorSystem.EIGHT_BIT, ColorSystem.TRUECOLOR)
@@ -98,3 +102,42 @@ async def test_the_models_time_and_clock_are_always_in_sight(bench: Bench) -> No
         "virtual time +1 s: t = 1.0 s",
         "virtual time +10 s: t = 11.0 s",
     ]
+
+
+async def test_a_screenshot_with_no_downloads_folder_goes_to_the_current_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(app_module, "user_downloads_path", lambda: tmp_path / "no-such-Downloads")
+    monkeypatch.chdir(tmp_path)
+    async with running(size=(80, 24)) as bench:
+        bench.app.action_screenshot()
+        deadline = time.monotonic() + 10
+        while not list(tmp_path.glob("*.svg")):
+            assert time.monotonic() < deadline, "no screenshot in the current directory"
+            await bench.pilot.pause(0.05)
+        errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
+        assert errors == []
+    (shot,) = tmp_path.glob("*.svg")
+    assert "FORWARD" in shot.read_text() or "STOPPED" in shot.read_text()
+
+
+async def test_the_realtime_clock_is_paused_sped_up_and_reset_from_the_dashboard() -> None:
+    from c20sim.clock import RealtimeClock
+
+    with serving(clock=RealtimeClock()) as served:
+        async with attached(served) as (app, pilot):
+            await pilot.press("p")
+            await until(lambda: app.remote.latest.get("paused") is True, "the clock paused")
+            t = app.remote.now()
+            await pilot.press("greater_than_sign", "greater_than_sign")
+            await until(lambda: app.remote.latest.get("speed") == 4.0, "the clock at x4")
+            assert app.remote.now() == t  # paused: the model stands still
+            title = app.get_screen_main().query_one("#title", Static)
+            await until(lambda: "×4 realtime paused" in str(title.render()), "the title to say so")
+            await pilot.press("p")
+            await until(lambda: app.remote.latest.get("paused") is False, "the clock running")
+            await until(lambda: app.remote.now() > t, "the model's time moving again")
+            app.bench.set_supply(1, 30.0)
+            app.action_reset_setup()
+            await pilot.pause()
+            assert app.bench.conditions(1).supply_v == 48.0  # the profile's set-up again
