@@ -167,7 +167,8 @@ class ControlApi:
 
     def snapshot(self) -> dict[str, Any]:
         self.snapshots += 1
-        return {**snapshot(self.sim), "n": self.snapshots}
+        dropped = self.frame_log.dropped if self.frame_log is not None else 0  # --log-frames records lost
+        return {**snapshot(self.sim), "n": self.snapshots, "log_dropped": dropped}
 
     @property
     def first_seq(self) -> int:

@@ -300,6 +300,7 @@ class Dashboard(App[int]):
             self.received += 1
             if self.remote.update(data):
                 self.refresh_views()
+            framelog.show_log_dropped(int(data.get("log_dropped", 0)))
         elif kind == "frames":
             missed = int(data.get("missed", 0))
             for record in data["frames"]:

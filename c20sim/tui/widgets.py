@@ -268,6 +268,8 @@ class FrameLog(Vertical, can_focus=True):
 
     def __init__(self, drives: Sequence[int], id: str | None = None) -> None:
         super().__init__(id=id)
+        #: records serve's --log-frames writer lost (a slow or full sink), as the server counts them
+        self.log_dropped = 0
         self.drives = list(drives)
         self.records: deque[FrameRecord] = deque(maxlen=self.KEEP)
         self._inbox: list[FrameRecord] = []
@@ -285,6 +287,12 @@ class FrameLog(Vertical, can_focus=True):
         self.query_one(RichLog).can_focus = False
         self._show_status()
         self._rebuild()
+
+    def show_log_dropped(self, dropped: int) -> None:
+        """What --log-frames lost so far, from the telemetry; shown in the status line when it changes."""
+        if dropped != self.log_dropped:
+            self.log_dropped = dropped
+            self._show_status()
 
     def add(self, record: FrameRecord, missed: int = 0) -> None:
         """A new record (after ``missed`` the stream skipped): queue it and ask for one merged refresh."""
@@ -337,6 +345,8 @@ class FrameLog(Vertical, can_focus=True):
         self._missed_shown = self.missed
         if self.missed:
             text.append(f"  {self.missed} skipped (the log was behind the bus)", style="bold yellow")
+        if self.log_dropped:
+            text.append(f"  --log-frames lost {self.log_dropped}", style="bold yellow")
         if self.paused:
             text.append(f"  PAUSED ({self._held} new)", style="bold black on yellow")
         text.append("   space pause · a drive · n function · e errors · w save", style="dim")

@@ -141,3 +141,20 @@ async def test_the_realtime_clock_is_paused_sped_up_and_reset_from_the_dashboard
             app.action_reset_setup()
             await pilot.pause()
             assert app.bench.conditions(1).supply_v == 48.0  # the profile's set-up again
+
+
+async def test_the_frame_logs_losses_are_shown_in_the_dashboard() -> None:
+    """--log-frames into a slow or full sink loses records, counted by its writer: the dashboard says how many."""
+    from types import SimpleNamespace
+
+    from c20sim.tui.widgets import FrameLog
+
+    with serving() as served:
+        async with attached(served) as (app, _):
+            status = app.get_screen_main().query_one("#log-status", Static)
+            assert "--log-frames lost" not in str(status.render())
+            control = served.server.control
+            assert control is not None
+            served.call(lambda: setattr(control, "frame_log", SimpleNamespace(dropped=7)))
+            await until(lambda: "--log-frames lost 7" in str(status.render()), "the loss in the status line")
+            assert app.get_screen_main().query_one(FrameLog).log_dropped == 7
