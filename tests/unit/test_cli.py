@@ -62,7 +62,14 @@ def test_profiles_list_and_show(capsys: pytest.CaptureFixture[str]) -> None:
     assert "c20-2200hv" in out
     code, out, _ = run(capsys, "profiles", "show", "c20-400hr")
     assert code == 0
-    assert "  F00.10 000AH  keypad speed setting       50.00 Hz     0-40000  W/R            [sheet]" in out
+    assert (
+        "  F00.10 000AH  keypad speed setting       50.00 Hz           0.00 Hz - 400.00 Hz    W/R            [sheet]"
+        in out
+    )
+    assert (
+        "  F00.01 0001H  run command channel        communication      0-4                    W/R  <-> 2006H [field]"
+        in out
+    )
     assert "  0x0A UV     bus undervoltage [sheet]" in out
 
 
