@@ -257,10 +257,15 @@ def test_a_frame_after_t35_of_silence_is_a_frame_of_its_own(m19200: Master) -> N
 
 def test_a_1ms_gap_inside_a_frame_at_19200_is_discarded(m19200: Master) -> None:
     # t1.5 = 0.78 ms at 19200 8N1: a 1.0 ms gap makes the frame invalid; 0.5 ms does not.
+    # What a pty lets us see: the bytes before the gap are stamped when the reader thread wakes for them, up to
+    # a few hundred us late, which shortens the gap it measures; so a gap just over t1.5 (1.0 ms: 1.28 x) is
+    # caught in most trials (measured 75-97 %, by load), one of 2 x t1.5 in nearly all (docs/line-timing.md).
     n = 40
     over, over_words = answered(m19200, READ, {4: 0.0010}, n)
+    wide, wide_words = answered(m19200, READ, {4: 0.0016}, n)
     under, under_words = answered(m19200, READ, {4: 0.0005}, n, slack=0.0002)
-    assert over <= 0.2, f"a 1.0 ms gap: {over_words}; expected (almost) none"
+    assert over < 0.5, f"a 1.0 ms gap: {over_words}; expected most discarded"
+    assert wide <= 0.1, f"a 1.6 ms gap (2 x t1.5): {wide_words}; expected (almost) none"
     assert under >= 0.75, f"a 0.5 ms gap: {under_words}; expected (almost) all"
 
 
