@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -79,19 +80,28 @@ class Terminal:
         return f"signal {code - 128}" if code > 128 else f"status {code}"
 
 
-@pytest.fixture
-def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
-    ready = tmp_path / "ready.json"
+@contextlib.contextmanager
+def terminal_running(tmp_path: Path, command: str) -> Iterator[Terminal]:
+    """``command`` in a tmux pane (100x30) that is kept when it ends, its exit status written to a file."""
     session = f"c20sim-{uuid.uuid4().hex[:8]}"
-    command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
     tmux = TMUX or "tmux"
     cwd = Path(__file__).parents[2]
-    # A shell first, so the pane is kept when the dashboard ends (remain-on-exit) before the dashboard starts.
+    # A shell first, so the pane is kept when the program ends (remain-on-exit) before the program starts.
     subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
         subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
         terminal = Terminal(session)
         terminal.run(command, cwd, tmp_path / "status")
+        yield terminal
+    finally:
+        subprocess.run([tmux, "kill-session", "-t", session], check=False)
+
+
+@pytest.fixture
+def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
+    ready = tmp_path / "ready.json"
+    command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
+    with terminal_running(tmp_path, command) as terminal:
         wait_for("the ready file", ready.exists)
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
         client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
@@ -102,8 +112,6 @@ def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
             yield terminal, client
         finally:
             client.close()
-    finally:
-        subprocess.run([TMUX or "tmux", "kill-session", "-t", session], check=False)
 
 
 def read(client: ModbusTcpClient, address: int) -> int:
@@ -178,15 +186,8 @@ def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: signal.Signals) -
     """kill -TERM, or the terminal window closed (HUP): the alternate screen and mouse tracking are switched
     off, the link and the ready file are removed, exit status 0."""
     ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
-    session = f"c20sim-{uuid.uuid4().hex[:8]}"
     command = f"{sys.executable} -m c20sim --pty --link {link} --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
-    tmux = TMUX or "tmux"
-    cwd = Path(__file__).parents[2]
-    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
-    try:
-        subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        terminal = Terminal(session)
-        terminal.run(command, cwd, tmp_path / "status")
+    with terminal_running(tmp_path, command) as terminal:
         wait_for("the ready file", ready.exists)
         terminal.wait_for_text("STOPPED")
         assert link.is_symlink()
@@ -196,5 +197,3 @@ def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: signal.Signals) -
         assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "0 0"
         wait_for("the link to go", lambda: not link.is_symlink())
         wait_for("the ready file to go", lambda: not ready.exists())
-    finally:
-        subprocess.run([tmux, "kill-session", "-t", session], check=False)

@@ -25,6 +25,7 @@ from c20sim.drive.physics import HALL_SEQUENCE, RPM
 from c20sim.drive.terminals import Input
 from c20sim.profile import FaultCause, Profile, load_profile
 from c20sim.registers import Reg
+from tests.unit.drive.test_drive_faults import faulted, first_time
 
 PROFILES = ("c20-400hr", "c20-2200hv")
 
@@ -45,22 +46,6 @@ def running(profile: Profile, rpm: int, *, accel_raw: int = 5, until: float = 3.
     drive.write(Reg.COMMAND, 1)
     drive.advance_to(until)
     return drive
-
-
-def first_time(drive: Drive, condition: Callable[[Drive], bool], until: float, step: float = STEP) -> float | None:
-    start, i = drive.t, 0
-    while True:
-        i += 1
-        t = start + i * step
-        if t > until + 1e-9:
-            return None
-        drive.advance_to(t)
-        if condition(drive):
-            return t
-
-
-def faulted(drive: Drive) -> bool:
-    return drive.read(Reg.STATUS1) == 4
 
 
 # --- 1. Overvoltage stall prevention.
