@@ -9,10 +9,11 @@ line-timed stream does its timing off the loop:
   stamps every chunk with ``time.perf_counter`` as it arrives, feeds the
   strict framer and ticks it at its t3.5 deadline; the framing events go to
   the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`.
-  Inside a frame at 19200 baud and above (t1.5 under 1 ms) it polls without
-  sleeping until the frame ends, since a thread's wake-up can be late by more
-  than t1.5 on a busy machine: a frame costs that thread's CPU for its own
-  length plus t3.5 (about 6.5 ms for an 8-byte request at 19200 baud);
+  Without real-time scheduling (below), inside a frame at 19200 baud and
+  above (t1.5 under 1 ms) it polls without sleeping until the frame ends,
+  since an ordinary thread's wake-up can be late by more than t1.5 on a busy
+  machine: a frame then costs that thread's CPU for its own length plus t3.5
+  (about 6.5 ms for an 8-byte request at 19200 baud);
 - a writer thread puts each reply on the port starting t3.5 + the reply's
   turnaround after the request's last byte, and, where the port does not pace
   bytes itself (a pty), one byte every character time: it sleeps to just
@@ -21,10 +22,19 @@ line-timed stream does its timing off the loop:
 
 While a line-timed port is open the interpreter's switch interval is lowered
 to 0.2 ms (from 5 ms), so that a timing thread waking up gets the GIL from a
-busy loop thread within a fraction of a character. Each timing thread also
-asks the kernel for a higher priority (nice -10) where it is allowed (root or
-CAP_SYS_NICE); elsewhere it runs at the process's own, and on a loaded machine
-its arrival times are as late as the scheduler makes them.
+busy loop thread within a fraction of a character.
+
+Each timing thread asks the kernel for real-time scheduling (SCHED_FIFO, at a
+low real-time priority) where it is allowed: root, CAP_SYS_NICE, or an
+RLIMIT_RTPRIO (``ulimit -r``). A real-time thread that wakes takes its CPU
+from any ordinary thread at once, so neither thread needs to spin for long:
+the reader waits for each byte asleep, and the writer spins only the last
+0.1 ms before a byte. Without it they ask for nice -10 (root or
+CAP_SYS_NICE), where a woken thread can still wait up to a scheduler tick
+behind another on its CPU (kernel threads included: seen with ftrace), and
+so the reader polls through a fast frame as above; elsewhere they run at the
+process's own priority, and on a loaded machine arrival times are as late as
+the scheduler makes them.
 """
 
 from __future__ import annotations
@@ -50,13 +60,18 @@ __all__ = ["TimedEndpoint"]
 
 log = logging.getLogger(__name__)
 
-#: The last stretch before a byte's time is spun, not slept: a sleep overshoots by 50-100 us.
+#: The last stretch before a byte's time is spun, not slept: an ordinary thread's sleep overshoots by 50-100 us.
 SPIN = 0.0003
+#: The same for a real-time thread, whose timers have no slack and whose wake-up takes its CPU at once.
+SPIN_REALTIME = 0.0001
 #: Inside a frame whose t1.5 is shorter than this, the reader polls the port without sleeping (seconds).
 SPIN_READ_BELOW = 0.001
 #: Replies waiting for the writer at most; more means the master does not wait for answers: they are dropped.
 MAX_PENDING_REPLIES = 8
-#: The nice value the timing threads ask for (granted to root or with CAP_SYS_NICE only).
+#: The SCHED_FIFO priority the timing threads ask for (1-99): above every ordinary thread, below the
+#: kernel's interrupt threads (50), so that the port's own interrupts are never held up by it.
+REALTIME_PRIORITY = 10
+#: The nice value they ask for where real-time scheduling is not allowed (root or CAP_SYS_NICE only).
 THREAD_NICE = -10
 #: The interpreter's switch interval while a line-timed port is open (seconds).
 SWITCH_INTERVAL = 0.0002
@@ -66,10 +81,16 @@ _switch_users = 0
 _switch_saved = 0.005
 
 
-def _raise_thread_priority() -> None:
-    """Ask for :data:`THREAD_NICE` for the calling thread; where it is not allowed, nothing changes."""
-    with contextlib.suppress(OSError, AttributeError):
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), THREAD_NICE)
+def _raise_thread_priority() -> bool:
+    """Real-time scheduling for the calling thread where allowed (True); else nice -10 where allowed; else nothing."""
+    tid = threading.get_native_id()
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+    except (OSError, AttributeError):  # not allowed here, or not Linux
+        with contextlib.suppress(OSError, AttributeError):
+            os.setpriority(os.PRIO_PROCESS, tid, THREAD_NICE)
+        return False
+    return True
 
 
 def _lower_switch_interval() -> None:
@@ -126,6 +147,7 @@ class TimedEndpoint:
         self._wake_r, self._wake_w = os.pipe()
         self._jobs: queue.SimpleQueue[tuple[bytes, int, float] | int | None] = queue.SimpleQueue()
         self._pending = 0  # replies queued for the writer, bounded by MAX_PENDING_REPLIES
+        self._spin = SPIN  # the writer's, once it knows its scheduling
         self._detach = line.on_baud(self._baud_changed)
         _lower_switch_interval()
         self._reader = threading.Thread(target=self._read_loop, name=f"c20sim reader {name}", daemon=True)
@@ -152,13 +174,13 @@ class TimedEndpoint:
     # --- the reader thread
 
     def _read_loop(self) -> None:
-        _raise_thread_priority()
+        realtime = _raise_thread_priority()
         fd, wake = self.fd, self._wake_r
         while not self._stop.is_set():
             with self._lock:
                 deadline = self.framer.deadline()
             timeout = None if deadline is None else max(0.0, deadline - time.perf_counter())
-            if timeout is not None and self.framer.t15 < SPIN_READ_BELOW:
+            if timeout is not None and not realtime and self.framer.t15 < SPIN_READ_BELOW:
                 timeout = 0.0  # inside a fast frame: poll without sleeping, so that no wake-up delays a stamp
             try:
                 ready, _, _ = select.select([fd, wake], [], [], timeout)
@@ -218,7 +240,7 @@ class TimedEndpoint:
     # --- the writer thread
 
     def _write_loop(self) -> None:
-        _raise_thread_priority()
+        self._spin = SPIN_REALTIME if _raise_thread_priority() else SPIN
         while True:
             job = self._jobs.get()
             if job is None or self._stop.is_set():
@@ -267,7 +289,7 @@ class TimedEndpoint:
     def _sleep_until(self, target: float) -> bool:
         """Wait until ``target`` on the monotonic clock; False if the endpoint closed meanwhile."""
         remaining = target - time.perf_counter()
-        if remaining > SPIN and self._stop.wait(remaining - SPIN):
+        if remaining > self._spin and self._stop.wait(remaining - self._spin):
             return False
         while time.perf_counter() < target:
             pass
