@@ -70,18 +70,23 @@ class PtyPort:
                 raise C20SimError(
                     f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
                 ) from None
+        self._openers = PtyOpeners(self.path, self._master_gone)
+        if not self._openers.start():
+            self._openers = None
         framer = stream_framer(self.line.sim.bus.line_baud, line_timing=self.line_timing)
         if self.line_timing:  # a pty has no line format: it is the sheet's 8N1
-            # Replies to a master that has gone are not dropped here: the timed writer owns the fd.
-            self._endpoint = TimedEndpoint(self.line, self._master, framer, pace=True, name=f"pty {self.path}")
+            self._endpoint = TimedEndpoint(
+                self.line, self._master, framer, pace=True, name=f"pty {self.path}", may_reply=self._still_open
+            )
             return
         self._endpoint = RtuEndpoint(
             self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
         )
         asyncio.get_running_loop().add_reader(self._master, self._readable)
-        self._openers = PtyOpeners(self.path, self._master_gone)
-        if not self._openers.start():
-            self._openers = None
+
+    def _still_open(self) -> bool:
+        """Has the master that asked still the device open (True where that is not known)?"""
+        return self._openers is None or self._openers.still_open()
 
     def _take_link_lock(self, link: Path) -> None:
         """Hold ``LINK.lock`` for as long as this port owns the link: a second c20sim is refused, naming the first.
@@ -146,6 +151,8 @@ class PtyPort:
         # request with them (it times out and asks again): better than reading the old master's answers.
         import termios  # POSIX only, as tty above
 
+        if isinstance(self._endpoint, TimedEndpoint):
+            self._endpoint.reset()  # first: no byte of its replies is written after the flush
         termios.tcflush(self._slave, termios.TCIOFLUSH)
         if self._unsent:
             self._unsent.clear()
@@ -155,7 +162,7 @@ class PtyPort:
             self._endpoint.reset()
 
     def _send(self, data: bytes, baud: int) -> None:
-        if self._openers is not None and not self._openers.still_open():
+        if not self._still_open():
             return  # the master that asked has gone: the reply is lost, as on a real port
         if self._unsent:
             self._unsent += data

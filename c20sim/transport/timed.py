@@ -118,7 +118,8 @@ class TimedEndpoint:
     start time (a UART paces it itself). ``write`` writes bytes to the port
     and returns how many it took (default: ``os.write`` on ``fd``).
     ``on_baud`` runs on the writer thread once every reply before a baud
-    change has been handed to the port.
+    change has been handed to the port. ``may_reply`` is asked on the loop
+    before a reply is queued: False drops it (the master that asked has gone).
     """
 
     def __init__(
@@ -131,6 +132,7 @@ class TimedEndpoint:
         name: str = "",
         write: Callable[[bytes], int] | None = None,
         on_baud: Callable[[int], None] | None = None,
+        may_reply: Callable[[], bool] | None = None,
     ) -> None:
         if not framer.strict:
             raise ValueError("a line-timed endpoint needs a strict framer")
@@ -141,11 +143,15 @@ class TimedEndpoint:
         self.name = name
         self._write = write if write is not None else functools.partial(os.write, fd)
         self._on_baud = on_baud
+        self._may_reply = may_reply
         self._loop = asyncio.get_running_loop()
         self._lock = threading.Lock()  # the framer: fed by the reader, its baud set from the loop
         self._stop = threading.Event()
         self._wake_r, self._wake_w = os.pipe()
-        self._jobs: queue.SimpleQueue[tuple[bytes, int, float] | int | None] = queue.SimpleQueue()
+        self._jobs: queue.SimpleQueue[tuple[bytes, int, float, int] | int | None] = queue.SimpleQueue()
+        #: Bumped by :meth:`reset`: a reply of an earlier generation is not sent, or not sent further.
+        self._generation = 0
+        self._write_lock = threading.Lock()  # a byte's write against reset's bump: no byte of a dropped reply after
         self._pending = 0  # replies queued for the writer, bounded by MAX_PENDING_REPLIES
         self._spin = SPIN  # the writer's, once it knows its scheduling
         self._detach = line.on_baud(self._baud_changed)
@@ -170,6 +176,16 @@ class TimedEndpoint:
         os.close(self._wake_r)
         os.close(self._wake_w)
         _restore_switch_interval()
+
+    def reset(self) -> None:
+        """The master went away (on the loop): its half-received frame, its requests waiting on the line and the
+        replies not yet sent are dropped. A reply's bytes written before are the caller's to flush, after this."""
+        self.line.cancel(self)
+        with self._lock:
+            self.framer.flush()
+            self.framer.events()
+        with self._write_lock:
+            self._generation += 1
 
     # --- the reader thread
 
@@ -218,18 +234,21 @@ class TimedEndpoint:
         if self._stop.is_set():
             return
         for event in events:
-            self.line.submit(event, SelfTimed(functools.partial(self._respond, event.t, self.framer.t35)))
+            respond = functools.partial(self._respond, event.t, self.framer.t35, self._generation)
+            self.line.submit(event, SelfTimed(respond), self)
 
-    def _respond(self, request_end: float, t35: float, reply: Reply | None) -> None:
-        if reply is None or self._stop.is_set():
+    def _respond(self, request_end: float, t35: float, generation: int, reply: Reply | None) -> None:
+        if reply is None or self._stop.is_set() or generation != self._generation:
             return
+        if self._may_reply is not None and not self._may_reply():
+            return  # the master that asked has gone: the reply is lost, as on a real port
         if self._pending >= MAX_PENDING_REPLIES:
             log.info("reply on %s dropped: %d replies wait for the line already", self.name, self._pending)
             return
         self._pending += 1
         # Handed over at once (SelfTimed): the reply starts t3.5 after the request's last byte (the end of
         # the frame), plus its delay (the profile's turnaround, and any injected delay), on this clock.
-        self._jobs.put((reply.data, reply.baud, request_end + t35 + reply.delay))
+        self._jobs.put((reply.data, reply.baud, request_end + t35 + reply.delay, generation))
 
     def _baud_changed(self, baud: int) -> None:
         with self._lock:
@@ -252,9 +271,9 @@ class TimedEndpoint:
                 except Exception:
                     log.exception("bug while changing %s to %d baud; it keeps serving", self.name, job)
                 continue
-            data, baud, start = job
+            data, baud, start, generation = job
             try:
-                self._transmit(data, char_time(baud, self.framer.bits), start)
+                self._transmit(data, char_time(baud, self.framer.bits), start, generation)
             except OSError as exc:
                 log.info("reply on %s not sent: %s", self.name, exc)
             finally:
@@ -264,27 +283,35 @@ class TimedEndpoint:
     def _sent(self) -> None:
         self._pending -= 1
 
-    def _transmit(self, data: bytes, per_char: float, start: float) -> None:
+    def _transmit(self, data: bytes, per_char: float, start: float, generation: int) -> None:
         t0 = max(start, time.perf_counter())
         if not self.pace:
             self._sleep_until(t0)
             sent = 0
-            while sent < len(data) and not self._stop.is_set():
-                sent += self._write_or_wait(data[sent:], per_char)
+            while 0 <= sent < len(data) and not self._stop.is_set():
+                written = self._write_or_wait(data[sent:], per_char, generation)
+                sent = sent + written if written >= 0 else -1
             return
         for i in range(len(data)):
             if not self._sleep_until(t0 + i * per_char):
                 return
-            if self._write_or_wait(data[i : i + 1], per_char) == 0:
+            written = self._write_or_wait(data[i : i + 1], per_char, generation)
+            if written == 0:
                 log.info("reply on %s cut short: the port takes no more bytes (no one reads them)", self.name)
+            if written <= 0:
                 return
 
-    def _write_or_wait(self, data: bytes, per_char: float) -> int:
-        try:
-            return self._write(data)
-        except BlockingIOError:
-            self._stop.wait(per_char)
-            return 0
+    def _write_or_wait(self, data: bytes, per_char: float, generation: int) -> int:
+        """Bytes written; 0 if the port took none (after waiting a character); -1 if the reply was dropped."""
+        with self._write_lock:
+            if generation != self._generation:
+                return -1
+            try:
+                return self._write(data)
+            except BlockingIOError:
+                pass
+        self._stop.wait(per_char)
+        return 0
 
     def _sleep_until(self, target: float) -> bool:
         """Wait until ``target`` on the monotonic clock; False if the endpoint closed meanwhile."""
