@@ -181,11 +181,11 @@ class TimedEndpoint:
         """The master went away (on the loop): its half-received frame, its requests waiting on the line and the
         replies not yet sent are dropped. A reply's bytes written before are the caller's to flush, after this."""
         self.line.cancel(self)
-        with self._lock:
+        with self._lock:  # the reader's frames framed before this are of the old generation, even those in flight
             self.framer.flush()
             self.framer.events()
-        with self._write_lock:
-            self._generation += 1
+            with self._write_lock:
+                self._generation += 1
 
     # --- the reader thread
 
@@ -222,19 +222,20 @@ class TimedEndpoint:
                     self.framer.feed(data, now)
                 self.framer.tick(now)
                 events = self.framer.events()
+                generation = self._generation
             if events:
                 try:
-                    self._loop.call_soon_threadsafe(self._submit, events)
+                    self._loop.call_soon_threadsafe(self._submit, events, generation)
                 except RuntimeError:  # the loop has closed: the server is shutting down
                     return
 
     # --- on the loop
 
-    def _submit(self, events: list[FrameEvent]) -> None:
-        if self._stop.is_set():
+    def _submit(self, events: list[FrameEvent], generation: int) -> None:
+        if self._stop.is_set() or generation != self._generation:
             return
         for event in events:
-            respond = functools.partial(self._respond, event.t, self.framer.t35, self._generation)
+            respond = functools.partial(self._respond, event.t, self.framer.t35, generation)
             self.line.submit(event, SelfTimed(respond), self)
 
     def _respond(self, request_end: float, t35: float, generation: int, reply: Reply | None) -> None:
