@@ -14,6 +14,7 @@ in the message.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -71,6 +72,10 @@ class Master:
             before = time.perf_counter()  # the bytes cannot have arrived before this; after is later still
             os.write(self.fd, data)
             return before
+        with _raised_priority():
+            return self._send_timed(data, gaps)
+
+    def _send_timed(self, data: bytes, gaps: dict[int, float]) -> float:
         t = time.perf_counter()
         for i in range(len(data)):
             # From when the last byte really went: this process running late lengthens a gap, never shortens it.
@@ -143,15 +148,23 @@ def _wait_until(due: float) -> None:
         pass
 
 
-def _raise_priority() -> bool:
-    """Give this thread nice -10 where allowed: the master spins the last moment before each byte, and loses its
-    CPU to the simulator's timing threads otherwise on a small machine. Not real-time: the pty's worker must
-    still get this CPU between bytes (see :func:`_wait_until`)."""
+@contextlib.contextmanager
+def _raised_priority() -> Iterator[None]:
+    """Nice -10 for this thread while in the block, where allowed: the master spins the last moment before each
+    byte, and loses its CPU to the simulator's timing threads otherwise on a small machine. Only while it sends:
+    a server started meanwhile would inherit it. Not real-time: the pty's worker must still get this CPU
+    between bytes (see :func:`_wait_until`)."""
+    tid = threading.get_native_id()
+    before = os.getpriority(os.PRIO_PROCESS, tid)
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), -10)
+        os.setpriority(os.PRIO_PROCESS, tid, min(before, -10))
     except OSError:
-        return False
-    return True
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.setpriority(os.PRIO_PROCESS, tid, before)
 
 
 def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
@@ -184,7 +197,6 @@ def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
             time.sleep(0.02)
         fd = os.open(json.loads(ready.read_text())["pty"], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         tty.setraw(fd)
-        raised = _raise_priority()
         try:
             master = Master(fd, baud)
             # The first request of a fresh server is served late (imports, the model's first step): warm it up.
@@ -193,8 +205,6 @@ def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
             master.quiet()
             yield master
         finally:
-            if raised:
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 0)
             os.close(fd)
     finally:
         proc.terminate()
