@@ -20,7 +20,7 @@ import select
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -84,14 +84,15 @@ print(data.hex(" "), retry)
 """
 
 
-def test_the_next_master_never_reads_an_old_masters_replies(pty: str) -> None:
+def next_masters_after(pty: str, old_master: Callable[[int, int], None]) -> None:
+    """20 trials: ``old_master(fd, trial)`` talks on the device and it is closed; then the next program asks.
+    Every reply the next programs read must be the answer to their own question."""
     wrong: list[str] = []
     retries = 0
     for trial in range(20):
         old = os.open(pty, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         try:
-            os.write(old, OLD * (20 + trial))
-            assert read_reply(old, 7) is not None  # an answer came: more are on their way; gone without them
+            old_master(old, trial)
         finally:
             os.close(old)
         done = subprocess.run(
@@ -102,31 +103,26 @@ def test_the_next_master_never_reads_an_old_masters_replies(pty: str) -> None:
         if reply != ANSWER.hex(" "):
             wrong.append(f"trial {trial}: read {reply!r}")
     assert not wrong, f"{len(wrong)} of 20 programs read an old master's reply ({retries} retries): {wrong[:3]}"
+
+
+def test_the_next_master_never_reads_an_old_masters_replies(pty: str) -> None:
+    def burst(fd: int, trial: int) -> None:
+        os.write(fd, OLD * (20 + trial))
+        assert read_reply(fd, 7) is not None  # an answer came: more are on their way; gone without them
+
+    next_masters_after(pty, burst)
 
 
 @pytest.mark.parametrize("pty", [["--line-timing"]], indirect=True)
 def test_a_line_timed_reply_cut_off_by_a_close_leaves_no_byte_behind(pty: str) -> None:
-    wrong: list[str] = []
-    retries = 0
-    for trial in range(20):
-        old = os.open(pty, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-        try:
-            # Its reply has begun (paced at 0.52 ms a byte at 19200, 3.6 ms for 7 bytes): close in the middle.
-            # Asked again after a timeout, as the next master does: opened just after the last program closed,
-            # it may lose its request with what that program left.
-            for _ in range(3):
-                os.write(old, OLD)
-                if read_reply(old, 1 + trial % 4, timeout=0.5) is not None:
-                    break
-            else:
-                pytest.fail(f"trial {trial}: no reply to the old master in 3 tries")
-        finally:
-            os.close(old)
-        done = subprocess.run(
-            [sys.executable, "-c", NEXT_MASTER, pty], capture_output=True, text=True, timeout=30, check=True
-        )
-        reply, again = done.stdout.rsplit(" ", 1)
-        retries += int(again)
-        if reply != ANSWER.hex(" "):
-            wrong.append(f"trial {trial}: read {reply!r}")
-    assert not wrong, f"{len(wrong)} of 20 programs read an old master's reply ({retries} retries): {wrong[:3]}"
+    def cut_off(fd: int, trial: int) -> None:
+        # Its reply has begun (paced at 0.52 ms a byte at 19200, 3.6 ms for 7 bytes): close in the middle.
+        # Asked again after a timeout, as the next master does: opened just after the last program closed,
+        # it may lose its request with what that program left.
+        for _ in range(3):
+            os.write(fd, OLD)
+            if read_reply(fd, 1 + trial % 4, timeout=0.5) is not None:
+                return
+        pytest.fail(f"trial {trial}: no reply to the old master in 3 tries")
+
+    next_masters_after(pty, cut_off)
