@@ -291,9 +291,11 @@ class TimedEndpoint:
         if not self.pace:
             self._sleep_until(t0)
             sent = 0
-            while 0 <= sent < len(data) and not self._stop.is_set():
+            while sent < len(data) and not self._stop.is_set():
                 written = self._write_or_wait(data[sent:], per_char, generation)
-                sent = sent + written if written >= 0 else -1
+                if written < 0:
+                    return
+                sent += written
             return
         for i in range(len(data)):
             if not self._sleep_until(t0 + i * per_char):
