@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import json
 import os
 import select
 import subprocess
@@ -40,6 +39,7 @@ from c20sim.protocol import (
     expected_length,
     silence_times,
 )
+from tests.conftest import wait_for_ready_file
 
 READ = encode(ReadRequest(1, 0x2103, 1))  # read the drive ID
 READ2 = encode(ReadRequest(2, 0x2103, 1))
@@ -190,12 +190,7 @@ def _server(tmp: Path, baud: int, drives: str = "1") -> Iterator[Master]:
         stderr=subprocess.PIPE,
     )
     try:
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
-            assert time.monotonic() < deadline, "server not ready"
-            time.sleep(0.02)
-        fd = os.open(json.loads(ready.read_text())["pty"], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        fd = os.open(wait_for_ready_file(ready, proc, 30)["pty"], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         tty.setraw(fd)
         try:
             master = Master(fd, baud)
@@ -387,11 +382,7 @@ def _serial_server(tmp: Path, parity: str) -> Iterator[Master]:
         stderr=subprocess.PIPE,
     )
     try:
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
-            assert time.monotonic() < deadline, "server not ready"
-            time.sleep(0.02)
+        wait_for_ready_file(ready, proc, 30)
         os.set_blocking(ours, False)
         master = Master(ours, 1200)
         reply, _ = master.receive(master.send(READ) + 10.0)
