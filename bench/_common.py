@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from c20sim.protocol import crc_ok, expected_length  # noqa: E402
+from c20sim.wire.protocol import crc_ok, expected_length  # noqa: E402
 
 CTX = mp.get_context("spawn")
 
@@ -190,7 +190,7 @@ def _server_main(spec: ServerSpec, conn: Connection) -> None:
 
 
 def _profile(turnaround_ms: float | None) -> Any:
-    from c20sim.profile import load_profile
+    from c20sim.drive.profile import load_profile
 
     profile = load_profile()
     if turnaround_ms is not None:
@@ -218,9 +218,9 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
     closers: list[Callable[[], Any]] = []
     switched = 0
     if spec.kind == "c20sim":
-        from c20sim.clock import RealtimeClock
+        from c20sim.core.clock import RealtimeClock
+        from c20sim.core.simulator import Simulator
         from c20sim.serve import ServeOptions, Server
-        from c20sim.simulator import Simulator
 
         profile = _profile(spec.turnaround_ms)
         sims = []

@@ -46,8 +46,8 @@ from pathlib import Path
 
 from _common import CTX, ROOT, RawRtuClient, ReplyError, machine, percentile, rss_kib
 
-from c20sim.protocol import ReadRequest, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, encode
+from c20sim.wire.registers import Reg
 
 POLL = encode(ReadRequest(1, Reg.STATUS1, 1))
 BURST_READ = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))

@@ -42,9 +42,9 @@ from pathlib import Path
 from _common import ROOT, RawRtuClient, machine, percentile
 
 from c20sim.control.client import ControlClient
-from c20sim.profile import load_profile
-from c20sim.protocol import ReadRequest, WriteSingleRequest, encode
-from c20sim.registers import Reg
+from c20sim.drive.profile import load_profile
+from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
+from c20sim.wire.registers import Reg
 
 TMUX = shutil.which("tmux")
 

@@ -23,8 +23,8 @@ from c20sim.drive.model import (
     Drive,
 )
 from c20sim.drive.physics import HALL_SEQUENCE, RPM
-from c20sim.profile import Profile, available_profiles, load_profile
-from c20sim.registers import Reg
+from c20sim.drive.profile import Profile, available_profiles, load_profile
+from c20sim.wire.registers import Reg
 
 Row = tuple[str, str, str]
 

@@ -22,8 +22,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from c20sim.control import ops
-from c20sim.profile import load_profile
-from c20sim.simulator import Simulator
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 
 MINUTE = 60.0
 

@@ -49,8 +49,8 @@ import tty
 from dataclasses import dataclass
 from pathlib import Path
 
-from c20sim.profile import load_profile
-from c20sim.protocol import ReadRequest, ReadResponse, char_time, crc_ok, encode, expected_length, silence_times
+from c20sim.drive.profile import load_profile
+from c20sim.wire.protocol import ReadRequest, ReadResponse, char_time, crc_ok, encode, expected_length, silence_times
 
 BAUDS = (1200, 9600, 19200, 57600)
 REQUEST = encode(ReadRequest(1, 0x2103, 1))

@@ -16,8 +16,8 @@ import time
 from collections.abc import Callable
 
 from c20sim.drive.model import Drive
-from c20sim.profile import Profile, load_profile
-from c20sim.registers import Reg
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.wire.registers import Reg
 
 HOUR = 3600.0
 

@@ -86,7 +86,7 @@ def run_suite(files: list[str], jobs: int, junit: Path) -> float:
 def cpu_per_scenario(files: list[str]) -> float:
     """Mean CPU seconds (process_time: not inflated by other processes' load) of run_file, in this process."""
     sys.path.insert(0, str(ROOT))
-    from c20sim.suite import run_file
+    from c20sim.scenario.suite import run_file
 
     run_file(files[0])  # imports and caches first
     start = time.process_time()

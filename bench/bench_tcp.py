@@ -25,8 +25,8 @@ from typing import Any
 import pymodbus
 from _common import ChildServer, RawRtuClient, ServerSpec, machine, percentile
 
-from c20sim.protocol import ReadRequest, WriteSingleRequest, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
+from c20sim.wire.registers import Reg
 
 SERVERS = {
     "c20sim (turnaround 0)": ServerSpec("c20sim", turnaround_ms=0.0),

@@ -20,7 +20,7 @@ from _common import machine
 from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
-from c20sim.protocol import Request, encode
+from c20sim.wire.protocol import Request, encode
 from tests.unit.test_fuzz import (
     Piece,
     answered_requests,

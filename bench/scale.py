@@ -27,8 +27,8 @@ from pathlib import Path
 
 from _common import CTX, ChildServer, RawRtuClient, ServerSpec, machine
 
-from c20sim.protocol import ReadRequest, WriteSingleRequest, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
+from c20sim.wire.registers import Reg
 
 DRIVES = tuple(range(1, 248))
 

@@ -28,8 +28,8 @@ from multiprocessing.connection import Connection
 
 from _common import CTX, ChildServer, RawRtuClient, ReplyError, ServerSpec, machine
 
-from c20sim.protocol import ReadRequest, WriteSingleRequest, decode_response, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, decode_response, encode
+from c20sim.wire.registers import Reg
 
 CLIENTS = 4
 

@@ -1,16 +1,16 @@
 """c20sim: a virtual ZBLD.C20 brushless DC drive behind a Modbus RTU slave."""
 
-from .bus import Bus, FrameRecord
-from .clock import RealtimeClock, VirtualClock
+from .core.bus import Bus, FrameRecord
+from .core.clock import RealtimeClock, VirtualClock
+from .core.linkfaults import LinkFaults
+from .core.simulator import Simulator
+from .core.slave import Slave
 from .drive.model import Drive, HallFault, Telemetry
 from .drive.params import StateFileError
-from .errors import C20SimError, ModbusError, ProfileError
-from .linkfaults import LinkFaults
-from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
-from .protocol import ExceptionCode, FunctionCode, RtuFramer, crc16
-from .registers import Access, Reg, RegisterMap
-from .simulator import Simulator
-from .slave import Slave
+from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
+from .wire.errors import C20SimError, ModbusError, ProfileError
+from .wire.protocol import ExceptionCode, FunctionCode, RtuFramer, crc16
+from .wire.registers import Access, Reg, RegisterMap
 
 __all__ = [
     "DEFAULT_PROFILE",

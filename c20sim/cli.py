@@ -13,18 +13,18 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NoReturn, cast
 
-from .capture import add_decode_command
 from .control.ctl import add_ctl_command
-from .errors import C20SimError
+from .core.simulator import Simulator, make_clock
+from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .plant import add_plant_commands, drive_addresses
-from .profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
-from .record import add_record_command
-from .registers import BAUD_RATES, format_fcode
-from .replay import add_replay_command
-from .schema import add_schema_command
+from .scenario.schema import add_schema_command
+from .scenario.suite import add_run_scenario_command
 from .serve import ServeOptions, pty_supported, run, run_server
-from .simulator import Simulator, make_clock
-from .suite import add_run_scenario_command
+from .traffic.capture import add_decode_command
+from .traffic.record import add_record_command
+from .traffic.replay import add_replay_command
+from .wire.errors import C20SimError
+from .wire.registers import BAUD_RATES, format_fcode
 
 __all__ = ["main"]
 
@@ -228,7 +228,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve = sub.add_parser("serve", help="run the simulator headless until SIGINT or SIGTERM")
     add_endpoint_options(serve)
     serve.add_argument(
-        "--scenario", metavar="FILE", help="play a TOML scenario against the served drives once ready (c20sim.scenario)"
+        "--scenario",
+        metavar="FILE",
+        help="play a TOML scenario against the served drives once ready (c20sim.scenario.timeline)",
     )
     serve.set_defaults(func=cmd_serve)
 

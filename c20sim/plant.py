@@ -25,13 +25,13 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, Profile, load_profile
-from .protocol import ExceptionResponse
-from .registers import STATUS_WORDS, Reg
-from .simulator import parse_addresses
+from .core.simulator import parse_addresses
+from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .transport.probe import NoAnswer, Prober
 from .transport.tcp import parse_host_port
+from .wire.errors import C20SimError
+from .wire.protocol import ExceptionResponse
+from .wire.registers import STATUS_WORDS, Reg
 
 __all__ = ["PlantSpec", "add_plant_commands", "check_bus", "plant_manifests", "to_yaml"]
 

@@ -19,9 +19,9 @@ from typing import Any
 
 import pytest
 
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, Profile
+from .drive.profile import DEFAULT_PROFILE, Profile
 from .testing import SETTINGS, C20Sim, Settings, check_settings, start
+from .wire.errors import C20SimError
 
 __all__ = ["c20sim", "c20sim_drives", "c20sim_profile", "c20sim_transport", "settings_for"]
 

@@ -20,16 +20,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol, TypeVar
 
-from .errors import C20SimError
-from .simulator import Simulator
+from .core.simulator import Simulator
 from .transport.framelog import FrameLog
 from .transport.line import Line
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
+from .wire.errors import C20SimError
 
 if TYPE_CHECKING:
     # Imported where used: pty needs tty/termios and pyserial needs them on POSIX, which Windows lacks.
     from .control.http import ControlApi
-    from .scenario import Report, Scenario
+    from .scenario.timeline import Report, Scenario
     from .transport.pty import PtyPort
     from .transport.serial import SerialPort
 
@@ -83,7 +83,7 @@ class ServeOptions:
     control: str | None = None
     #: the token the control API asks for; None: none on loopback, a generated one beyond it
     control_token: str | None = None
-    #: a scenario file (c20sim.scenario) to play against the served simulator once ready
+    #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
     scenario: str | None = None
     extra_ready: dict[str, str] = field(default_factory=dict)
 
@@ -138,7 +138,7 @@ class Server:
             raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000")
         scenario = None
         if opts.scenario:
-            from .scenario import check, load_scenario
+            from .scenario.timeline import check, load_scenario
 
             scenario = load_scenario(opts.scenario)
             for warning in _scenario_differences(scenario, sim):
@@ -194,7 +194,7 @@ class Server:
             if self.control is not None:
                 self.control.serving = True
             if scenario is not None:
-                from .scenario import play
+                from .scenario.timeline import play
 
                 self.scenario_task = asyncio.create_task(play(scenario, sim, line=line, out=sys.stdout))
                 self.scenario_task.add_done_callback(_report_scenario_error)
@@ -281,7 +281,7 @@ class Server:
 
 
 def _profile_name(name_or_path: str) -> str:
-    from .profile import load_profile
+    from .drive.profile import load_profile
 
     try:
         return load_profile(name_or_path).name

@@ -1,6 +1,6 @@
 """The test handle: a running C20 on real ports, driven from a test, a script or a unittest, no pytest needed.
 
-:class:`C20Sim` serves a :class:`~c20sim.simulator.Simulator` with
+:class:`C20Sim` serves a :class:`~c20sim.core.simulator.Simulator` with
 :class:`~c20sim.serve.Server` on an event loop of its own, in a background
 thread: the test's client (sync or async, any library) talks to a real port,
 and the test's own loop is never asked to run the server. Every call from
@@ -31,14 +31,14 @@ from collections.abc import Callable, Coroutine, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from .bus import Direction, FrameRecord, RecordKind
 from .control import causes, ops
+from .core.bus import Direction, FrameRecord, RecordKind
+from .core.simulator import Simulator, check_addresses, make_clock
 from .drive.model import Telemetry
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, Profile, load_profile
-from .protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
+from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .serve import ServeOptions, Server
-from .simulator import Simulator, check_addresses, make_clock
+from .wire.errors import C20SimError
+from .wire.protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
 
 __all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start"]
 
@@ -404,7 +404,7 @@ class DriveHandle:
         """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ...
 
         A continuous condition may be given a generator: ``set(supply_v={"ramp": 30, "over": 5})``,
-        ``{"sine": 2, "period": 0.5}`` or ``{"noise": 0.5, "seed": 1}`` (c20sim.generators).
+        ``{"sine": 2, "period": 0.5}`` or ``{"noise": 0.5, "seed": 1}`` (c20sim.core.generators).
         """
         self._owner._op(ops.set_conditions, self.address, conditions)
 

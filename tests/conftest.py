@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from c20sim.bus import Bus, Reply
-from c20sim.profile import Profile, load_profile
-from c20sim.protocol import RtuFramer
+from c20sim.core.bus import Bus, Reply
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.wire.protocol import RtuFramer
 
 
 @pytest.fixture(scope="session")

@@ -21,10 +21,10 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from ..core.simulator import Simulator
+from ..drive.profile import FaultCause, Profile
 from ..drive.terminals import Input
-from ..profile import FaultCause, Profile
-from ..registers import fcode_address
-from ..simulator import Simulator
+from ..wire.registers import fcode_address
 from . import ops
 
 __all__ = ["CAUSES", "Cause", "active", "cause_names", "clear_all", "overheat_seconds", "release", "trip"]

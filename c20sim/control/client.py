@@ -29,9 +29,9 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ..drive.model import Telemetry
-from ..errors import C20SimError
-from ..profile import Profile, load_profile
-from ..registers import Command, Reg
+from ..drive.profile import Profile, load_profile
+from ..wire.errors import C20SimError
+from ..wire.registers import Command, Reg
 from .ops import ControlError
 
 __all__ = ["ControlClient", "RemoteOps", "attach_target"]

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..errors import C20SimError
+from ..wire.errors import C20SimError
 from .ops import CONDITIONS, KEYS
 
 __all__ = ["add_ctl_command", "call", "render", "rounded"]

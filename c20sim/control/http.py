@@ -35,13 +35,12 @@ from typing import Any
 
 from aiohttp import web
 
-from .. import httpguard
-from ..bus import FrameRecord
-from ..errors import C20SimError
-from ..registers import Reg
-from ..simulator import Simulator
+from ..core.bus import FrameRecord
+from ..core.simulator import Simulator
 from ..transport.wallclock import WALL_OFFSET
-from . import causes, ops, service
+from ..wire.errors import C20SimError
+from ..wire.registers import Reg
+from . import causes, httpguard, ops, service
 from .ops import ControlError, unknown
 
 log = logging.getLogger(__name__)

@@ -2,7 +2,7 @@
 
 Every route of :data:`c20sim.control.http.ROUTES` is described; the request
 bodies are built from :data:`~c20sim.control.ops.CONDITIONS`,
-:data:`~c20sim.linkfaults.KNOBS`, :data:`~c20sim.control.ops.KEYS` and the
+:data:`~c20sim.core.linkfaults.KNOBS`, :data:`~c20sim.control.ops.KEYS` and the
 causes, so a condition or link fault added there is described here too. A
 test checks the document against the routes the app really serves.
 """
@@ -14,8 +14,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from .. import __version__
-from ..generators import MAX_SECONDS, MIN_PERIOD
-from ..linkfaults import KNOBS
+from ..core.generators import MAX_SECONDS, MIN_PERIOD
+from ..core.linkfaults import KNOBS
 from . import ops
 
 __all__ = ["document", "generator_schema", "route_key"]
@@ -35,7 +35,7 @@ def route_key(method: str, path: str) -> str:
 
 
 def generator_schema(low: float, high: float) -> dict[str, Any]:
-    """A generator for a condition of range ``low``-``high`` (c20sim.generators)."""
+    """A generator for a condition of range ``low``-``high`` (c20sim.core.generators)."""
     value = {"type": "number", "minimum": low, "maximum": high}
     seconds = {"type": "number", "minimum": 0, "maximum": MAX_SECONDS}
     period = {"type": "number", "minimum": MIN_PERIOD, "maximum": MAX_SECONDS}

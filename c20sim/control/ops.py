@@ -3,12 +3,12 @@
 The dashboard, the HTTP API, ``c20sim ctl``, the scenarios and the pytest
 handle all call these functions and nothing below them: none of them touches
 a :class:`~c20sim.drive.model.Drive` or a
-:class:`~c20sim.linkfaults.LinkFaults` itself. Each function checks its
+:class:`~c20sim.core.linkfaults.LinkFaults` itself. Each function checks its
 inputs (JSON-like values: the same check whoever asks) and raises
 :class:`ControlError` with an HTTP status and a sentence saying what is wrong;
 nothing is changed unless every input is right. The names come from the
-register map (:class:`~c20sim.registers.Command`, ...), the link faults'
-:data:`~c20sim.linkfaults.KNOBS`, the :data:`CONDITIONS` table here and the
+register map (:class:`~c20sim.wire.registers.Command`, ...), the link faults'
+:data:`~c20sim.core.linkfaults.KNOBS`, the :data:`CONDITIONS` table here and the
 :mod:`~c20sim.control.causes` table: a new condition or link fault is defined
 in one of those places and every front end has it.
 
@@ -26,15 +26,15 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from ..clock import RealtimeClock
+from ..core.clock import RealtimeClock
+from ..core.generators import GeneratorError, parse_generator
+from ..core.linkfaults import KNOBS, LinkFaults
+from ..core.simulator import Simulator, set_address
 from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.params import ParameterStore
-from ..errors import C20SimError, ModbusError
-from ..generators import GeneratorError, parse_generator
-from ..linkfaults import KNOBS, LinkFaults
-from ..protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
-from ..registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
-from ..simulator import Simulator, set_address
+from ..wire.errors import C20SimError, ModbusError
+from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
+from ..wire.registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
 
 __all__ = [
     "CONDITIONS",
@@ -320,7 +320,7 @@ class Condition:
     write: Callable[[Drive, Any], None]
     check: Callable[[str, object], object]
     help: str = ""
-    #: a continuous quantity: it may be given a generator (c20sim.generators) instead of a value
+    #: a continuous quantity: it may be given a generator (c20sim.core.generators) instead of a value
     continuous: bool = False
 
 
@@ -402,7 +402,7 @@ def check_conditions(values: object) -> dict[str, object]:
     """Check conditions by their :data:`CONDITIONS` names; returns the checked values.
 
     A continuous condition may be given a generator instead of a value, such as ``{"ramp": 30, "over": 5}``
-    (:func:`c20sim.generators.parse_generator`): it is checked here, and started by :func:`set_conditions`.
+    (:func:`c20sim.core.generators.parse_generator`): it is checked here, and started by :func:`set_conditions`.
     """
     if not isinstance(values, Mapping) or not values:
         raise ControlError(f'give conditions as an object, such as {{"supply_v": 30}}; known: {", ".join(CONDITIONS)}')
@@ -638,7 +638,7 @@ def _exception_code(key: str, value: object) -> ExceptionCode | None:
         raise ControlError(f"{key}: {json.dumps(value)} is not an exception code; use one of {codes}") from None
 
 
-#: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.linkfaults.Knob`).
+#: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.core.linkfaults.Knob`).
 KIND_CHECKS: Mapping[str, Callable[[str, object], object]] = {
     "flag": flag,
     "count": lambda k, v: integer(k, v, 0, 1_000_000),
@@ -656,7 +656,7 @@ LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
 
 
 def check_link_faults(values: object) -> dict[str, object]:
-    """Check link faults by their :data:`~c20sim.linkfaults.KNOBS` names; returns the values to set."""
+    """Check link faults by their :data:`~c20sim.core.linkfaults.KNOBS` names; returns the values to set."""
     if not isinstance(values, Mapping) or not values:
         raise ControlError(f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(KNOBS)}')
     checked = {}

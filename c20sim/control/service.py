@@ -12,7 +12,7 @@ from typing import Any, Protocol
 
 from aiohttp import web
 
-from ..simulator import Simulator
+from ..core.simulator import Simulator
 from . import ops
 from .ops import ControlError
 

@@ -35,13 +35,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ModbusError
-from ..profile import FaultCause, Profile
-from ..protocol import ExceptionCode
-from ..registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, RunChannel, SpeedSource, fcode_address
+from ..wire.errors import ModbusError
+from ..wire.protocol import ExceptionCode
+from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, RunChannel, SpeedSource, fcode_address
 from . import physics
 from .params import ParameterStore
 from .physics import ACCEL, CONSTANT, DECEL, RPM, Segment
+from .profile import FaultCause, Profile
 from .statemachine import DRIVEN, STATUS_WORD, Event, State, next_state
 from .terminals import Input, Output, multi_speed_index
 

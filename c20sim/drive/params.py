@@ -28,10 +28,10 @@ from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any
 
-from ..errors import C20SimError, ModbusError
-from ..profile import Profile
-from ..protocol import ExceptionCode
-from ..registers import format_fcode, parse_fcode
+from ..wire.errors import C20SimError, ModbusError
+from ..wire.protocol import ExceptionCode
+from ..wire.registers import format_fcode, parse_fcode
+from .profile import Profile
 
 __all__ = ["STATE_FORMAT", "ParameterStore", "StateFileError"]
 

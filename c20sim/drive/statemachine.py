@@ -13,7 +13,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Mapping
 
-from ..registers import Command
+from ..wire.registers import Command
 
 __all__ = [
     "DRIVEN",
@@ -41,7 +41,7 @@ class State(enum.Enum):
 
 
 class Event(enum.Enum):
-    """Commands (the 2000H values of :class:`~c20sim.registers.Command`) and the model's own events."""
+    """Commands (the 2000H values of :class:`~c20sim.wire.registers.Command`) and the model's own events."""
 
     FORWARD = int(Command.FORWARD)
     REVERSE = int(Command.REVERSE)

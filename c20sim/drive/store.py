@@ -7,9 +7,9 @@ from its settings, and reads 0 for every measurement. The behavioural model
 
 from __future__ import annotations
 
-from ..profile import Profile
-from ..registers import FIXED_REGISTERS, Reg
+from ..wire.registers import FIXED_REGISTERS, Reg
 from .params import ParameterStore
+from .profile import Profile
 
 __all__ = ["RegisterStoreDrive"]
 

@@ -30,8 +30,8 @@ import logging
 import time
 from collections.abc import Callable
 
-from ..bus import Reply
-from ..protocol import SHEET_CHAR_BITS, FrameEvent, RtuFramer, char_time
+from ..core.bus import Reply
+from ..wire.protocol import SHEET_CHAR_BITS, FrameEvent, RtuFramer, char_time
 from .line import Line
 
 __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]
@@ -50,7 +50,7 @@ FEED_SLICE = 512
 def stream_framer(baud: int, *, line_timing: bool = False, bits: int = SHEET_CHAR_BITS) -> RtuFramer:
     """The framer of a byte stream: strict, held to t1.5/t3.5 with line timing, else completed on length.
 
-    ``bits``: bits of one character in the line's format (10 for 8N1; see :func:`~c20sim.protocol.char_bits`).
+    ``bits``: bits of one character in the line's format (10 for 8N1; see :func:`~c20sim.wire.protocol.char_bits`).
     """
     if line_timing:
         return RtuFramer(baud, bits=bits, strict=True)

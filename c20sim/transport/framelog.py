@@ -31,8 +31,8 @@ import time
 from collections import deque
 from pathlib import Path
 
-from ..bus import FrameRecord
-from ..errors import C20SimError
+from ..core.bus import FrameRecord
+from ..wire.errors import C20SimError
 from .wallclock import WALL_OFFSET
 
 __all__ = ["KEEP", "FrameLog"]

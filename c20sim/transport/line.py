@@ -25,9 +25,9 @@ import logging
 from collections import deque
 from collections.abc import Callable
 
-from ..bus import Reply
-from ..protocol import FrameEvent
-from ..simulator import Simulator
+from ..core.bus import Reply
+from ..core.simulator import Simulator
+from ..wire.protocol import FrameEvent
 
 __all__ = ["Line", "Respond", "SelfTimed"]
 

@@ -16,7 +16,7 @@ import struct
 import time
 from dataclasses import dataclass
 
-from ..protocol import (
+from ..wire.protocol import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,

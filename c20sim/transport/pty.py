@@ -23,7 +23,7 @@ import fcntl
 import os
 from pathlib import Path
 
-from ..errors import C20SimError
+from ..wire.errors import C20SimError
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 from .ptywatch import PtyOpeners

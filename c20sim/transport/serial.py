@@ -24,8 +24,8 @@ import logging
 
 import serial
 
-from ..errors import C20SimError
-from ..protocol import char_bits
+from ..wire.errors import C20SimError
+from ..wire.protocol import char_bits
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 from .timed import TimedEndpoint

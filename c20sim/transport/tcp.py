@@ -30,9 +30,9 @@ import struct
 from collections.abc import Callable
 from typing import cast
 
-from ..bus import Reply
-from ..errors import C20SimError
-from ..protocol import BROADCAST, RtuFramer, crc_ok, with_crc
+from ..core.bus import Reply
+from ..wire.errors import C20SimError
+from ..wire.protocol import BROADCAST, RtuFramer, crc_ok, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 

@@ -52,8 +52,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from ..bus import Reply
-from ..protocol import FrameEvent, RtuFramer, char_time
+from ..core.bus import Reply
+from ..wire.protocol import FrameEvent, RtuFramer, char_time
 from .line import Line, SelfTimed
 
 __all__ = ["TimedEndpoint"]

@@ -36,8 +36,8 @@ from textual.widgets.option_list import Option
 
 from ..control.client import RemoteOps
 from ..control.ops import ControlError
-from ..errors import C20SimError
-from ..registers import RUN_CHANNELS
+from ..wire.errors import C20SimError
+from ..wire.registers import RUN_CHANNELS
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
 from .widgets import (

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..control.client import ControlClient, RemoteOps, attach_target
-from ..errors import C20SimError
+from ..wire.errors import C20SimError
 
 __all__ = ["SERVE_OPTIONS", "run_dashboard", "serve_argv", "served"]
 

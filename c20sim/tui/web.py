@@ -27,8 +27,8 @@ import sys
 from typing import Any
 
 from ..control.client import attach_target
-from ..errors import C20SimError
 from ..transport.tcp import parse_host_port
+from ..wire.errors import C20SimError
 from .session import TOKEN_ENV, check_attach_options, served
 
 __all__ = ["run_web"]

@@ -24,11 +24,11 @@ from textual.reactive import reactive
 from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
-from ..bus import Direction, FrameRecord, RecordKind
 from ..control.ops import ControlError
+from ..core.bus import Direction, FrameRecord, RecordKind
 from ..drive.terminals import Input as Terminal
 from ..drive.terminals import Output
-from ..registers import RUN_CHANNELS, SPEED_SOURCES, STATUS_WORDS
+from ..wire.registers import RUN_CHANNELS, SPEED_SOURCES, STATUS_WORDS
 from .messages import ConditionsChanged, FramesLogged, SaveLogRequested
 from .workbench import (
     DEVICE_SWITCHES,

@@ -24,13 +24,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 from ..control import causes, ops
+from ..core.linkfaults import KNOBS
+from ..core.simulator import Simulator
 from ..drive.model import HallFault, Telemetry
-from ..errors import C20SimError
-from ..linkfaults import KNOBS
-from ..profile import Profile
-from ..protocol import ExceptionCode
-from ..registers import RUN_CHANNELS, Command, Reg, RunChannel, fcode_address
-from ..simulator import Simulator
+from ..drive.profile import Profile
+from ..wire.errors import C20SimError
+from ..wire.protocol import ExceptionCode
+from ..wire.registers import RUN_CHANNELS, Command, Reg, RunChannel, fcode_address
 
 __all__ = [
     "DEVICE_SWITCHES",

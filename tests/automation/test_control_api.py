@@ -8,10 +8,10 @@ from typing import Any
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
-from c20sim.clock import RealtimeClock, VirtualClock
 from c20sim.control.http import ControlApi, make_app
-from c20sim.profile import load_profile
-from c20sim.simulator import Simulator
+from c20sim.core.clock import RealtimeClock, VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 
 Api = Callable[..., Awaitable[tuple[int, Any]]]
 
@@ -220,7 +220,7 @@ async def test_a_bug_answers_json_500_and_logs_the_traceback(
 async def test_last_frames_are_the_newest_and_only_they_are_put_in_words(
     client: Callable[[Simulator], Awaitable[Api]], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from c20sim.bus import FrameRecord
+    from c20sim.core.bus import FrameRecord
     from tests.conftest import Line
 
     sim = virtual()

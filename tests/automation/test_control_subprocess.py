@@ -17,7 +17,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from c20sim.control.ctl import call
-from c20sim.errors import C20SimError
+from c20sim.wire.errors import C20SimError
 from tests.conftest import wait_for_ready_file
 
 

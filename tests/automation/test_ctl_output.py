@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from c20sim.control.ctl import render, rounded
-from c20sim.protocol import ReadRequest, encode
+from c20sim.wire.protocol import ReadRequest, encode
 from tests.conftest import wait_for_ready_file
 
 

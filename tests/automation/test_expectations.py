@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from c20sim.profile import load_profile
-from c20sim.scenario import POLL, ScenarioError, parse_scenario, run
-from c20sim.simulator import Simulator
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.scenario.timeline import POLL, ScenarioError, parse_scenario, run
 
 START = {"at": 0, "write": {"2001H": 1500, "2000H": 1}}
 
@@ -148,8 +148,8 @@ def test_bad_expectations_name_the_step_and_key(step: dict[str, object], message
 
 
 async def test_play_polls_a_realtime_clock_until_true() -> None:
-    from c20sim.clock import RealtimeClock
-    from c20sim.scenario import play
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.scenario.timeline import play
 
     sim = Simulator(load_profile(), (1,), clock=RealtimeClock(speed=20))
     scenario = parse_scenario({"step": [START, {"at": 0, "within": 5.0, "expect": {"motor_speed": 1500}}]}, "rt")
@@ -160,7 +160,7 @@ async def test_play_polls_a_realtime_clock_until_true() -> None:
 
 
 async def test_served_refusal_and_silence_go_through_the_line() -> None:
-    from c20sim.scenario import play
+    from c20sim.scenario.timeline import play
     from c20sim.transport.line import Line
 
     sim = Simulator(load_profile(), (1,))  # a virtual clock: play advances it to each step

@@ -9,13 +9,13 @@ from dataclasses import fields
 import pytest
 
 from c20sim import control
-from c20sim.clock import VirtualClock
 from c20sim.control import causes, ops
-from c20sim.linkfaults import KNOBS, LinkFaults
-from c20sim.profile import load_profile
-from c20sim.registers import Command, Reg
-from c20sim.simulator import Simulator
+from c20sim.core.clock import VirtualClock
+from c20sim.core.linkfaults import KNOBS, LinkFaults
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 from c20sim.tui.workbench import DEVICE_SWITCHES, LINK_SWITCHES
+from c20sim.wire.registers import Command, Reg
 
 
 def running(profile: str = "c20-400hr") -> Simulator:

@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 from c20sim import control
-from c20sim.capture import parse_log
-from c20sim.clock import VirtualClock
-from c20sim.errors import C20SimError
-from c20sim.profile import Profile, load_profile
-from c20sim.protocol import FrameEvent, FrameKind, ReadRequest, ReadResponse, WriteSingleRequest, encode
-from c20sim.replay import replay
-from c20sim.simulator import Simulator
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.traffic.capture import parse_log
+from c20sim.traffic.replay import replay
+from c20sim.wire.errors import C20SimError
+from c20sim.wire.protocol import FrameEvent, FrameKind, ReadRequest, ReadResponse, WriteSingleRequest, encode
 
 POLLED = (0x3006, 0x3007, 0x3008)  # speed, output power, DC bus voltage
 
@@ -134,7 +134,7 @@ def test_a_bad_log_is_one_line_and_exit_2(tmp_path: Path, lines: list[str], mess
 
 
 def test_replay_needs_a_virtual_clock() -> None:
-    from c20sim.clock import RealtimeClock
+    from c20sim.core.clock import RealtimeClock
 
     with pytest.raises(C20SimError, match="virtual clock"):
         replay([], Simulator(load_profile(), clock=RealtimeClock()))

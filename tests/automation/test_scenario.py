@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.profile import load_profile
-from c20sim.scenario import ScenarioError, load_scenario, parse_scenario, run
-from c20sim.simulator import Simulator
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.scenario.timeline import ScenarioError, load_scenario, parse_scenario, run
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -274,8 +274,8 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
 
 
 async def test_play_follows_a_realtime_clock() -> None:
-    from c20sim.clock import RealtimeClock
-    from c20sim.scenario import play
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.scenario.timeline import play
 
     sim = Simulator(load_profile(), (1,), clock=RealtimeClock(speed=20))
     scenario = parse_scenario(
@@ -289,10 +289,10 @@ async def test_play_follows_a_realtime_clock() -> None:
 async def test_a_served_scenario_writes_on_the_line_in_its_turn() -> None:
     import asyncio
 
-    from c20sim.bus import Reply
-    from c20sim.protocol import FrameEvent, FrameKind, ReadRequest, encode
-    from c20sim.scenario import play
+    from c20sim.core.bus import Reply
+    from c20sim.scenario.timeline import play
     from c20sim.transport.line import Line
+    from c20sim.wire.protocol import FrameEvent, FrameKind, ReadRequest, encode
 
     sim = Simulator(load_profile(), (1,))
     line = Line(sim)
@@ -342,7 +342,7 @@ async def test_serve_warns_of_the_scenario_settings_it_does_not_take(
 
 
 async def test_closing_the_server_waits_for_the_scenario_to_stop(tmp_path: Path) -> None:
-    from c20sim.clock import RealtimeClock
+    from c20sim.core.clock import RealtimeClock
     from c20sim.serve import ServeOptions, Server
 
     path = write(tmp_path, "[[step]]\nat = 3600\nexpect = { status1 = 3 }\n")

@@ -14,10 +14,10 @@ from typing import Any
 import jsonschema
 import pytest
 
-from c20sim.errors import C20SimError
-from c20sim.profile import parse_profile
-from c20sim.scenario import parse_scenario
-from c20sim.schema import KINDS, build, render, shipped, shipped_path
+from c20sim.drive.profile import parse_profile
+from c20sim.scenario.schema import KINDS, build, render, shipped, shipped_path
+from c20sim.scenario.timeline import parse_scenario
+from c20sim.wire.errors import C20SimError
 
 ROOT = Path(__file__).resolve().parents[2]
 PROFILES = sorted((ROOT / "profiles").glob("*.toml"))
@@ -33,7 +33,7 @@ def validator(kind: str) -> jsonschema.Draft7Validator:
 @pytest.mark.parametrize("kind", KINDS)
 def test_the_shipped_schema_is_the_one_the_loaders_tables_build(kind: str) -> None:
     assert shipped_path(kind).read_text(encoding="utf-8") == render(kind), (
-        f"{shipped_path(kind)} is stale: run python -m c20sim.schema"
+        f"{shipped_path(kind)} is stale: run python -m c20sim.scenario.schema"
     )
 
 

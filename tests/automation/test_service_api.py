@@ -12,14 +12,14 @@ import jsonschema
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
-from c20sim.clock import RealtimeClock, VirtualClock
 from c20sim.control import ops
 from c20sim.control.http import ROUTES, ControlApi, make_app
 from c20sim.control.openapi import document
+from c20sim.core.clock import RealtimeClock, VirtualClock
+from c20sim.core.simulator import Simulator
 from c20sim.drive.params import ParameterStore
-from c20sim.profile import load_profile
+from c20sim.drive.profile import load_profile
 from c20sim.serve import ServeOptions, Server
-from c20sim.simulator import Simulator
 
 Api = Callable[..., Awaitable[tuple[int, Any]]]
 

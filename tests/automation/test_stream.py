@@ -20,8 +20,8 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-from c20sim.bus import Direction, FrameRecord, RecordKind
 from c20sim.control.http import ControlApi
+from c20sim.core.bus import Direction, FrameRecord, RecordKind
 from tests.tui.conftest import Served, serving
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.errors import C20SimError
-from c20sim.suite import expand, junit_xml, run_file
+from c20sim.scenario.suite import expand, junit_xml, run_file
+from c20sim.wire.errors import C20SimError
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 
@@ -117,7 +117,7 @@ def test_expand_keeps_order_and_each_file_once(suite: Path) -> None:
 
 
 def test_parallel_results_equal_serial_ones(suite: Path) -> None:
-    from c20sim.suite import run_files
+    from c20sim.scenario.suite import run_files
 
     paths = expand([str(suite)]) * 3
     serial = [(r.path, r.status, r.report) for r in run_files(paths, jobs=1)]

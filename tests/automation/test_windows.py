@@ -58,7 +58,7 @@ def started() -> Iterator[list[subprocess.Popen[str]]]:
         proc.wait()
 
 
-IMPORTS = "import c20sim, c20sim.testing, c20sim.pytest_plugin, c20sim.cli, c20sim.control, c20sim.scenario"
+IMPORTS = "import c20sim, c20sim.testing, c20sim.pytest_plugin, c20sim.cli, c20sim.control, c20sim.scenario.timeline"
 LOADED = "import sys; print(sorted(m for m in ('termios', 'tty', 'pty') if sys.modules.get(m) is not None))"
 
 

@@ -15,11 +15,11 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-from c20sim.behaviours import GROUP, available
-from c20sim.errors import ProfileError
-from c20sim.profile import load_profile, profile_path
-from c20sim.simulator import Simulator
+from c20sim.core.simulator import Simulator
+from c20sim.drive.behaviours import GROUP, available
+from c20sim.drive.profile import load_profile, profile_path
 from c20sim.testing import C20Sim
+from c20sim.wire.errors import ProfileError
 
 HERE = Path(__file__).resolve().parent
 ENTRY_POINTS = f"""[{GROUP}]

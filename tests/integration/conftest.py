@@ -11,10 +11,10 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 
-from c20sim.clock import VirtualClock
-from c20sim.profile import Profile, load_profile
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import Profile, load_profile
 from c20sim.serve import ServeOptions, Server
-from c20sim.simulator import Simulator
 
 
 @dataclass

@@ -25,9 +25,9 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
-from c20sim.bus import FrameRecord
-from c20sim.protocol import ReadRequest, ReadResponse, encode
-from c20sim.registers import Reg
+from c20sim.core.bus import FrameRecord
+from c20sim.wire.protocol import ReadRequest, ReadResponse, encode
+from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 from tests.integration.conftest import ServeFactory
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.profile import profile_path
+from c20sim.drive.profile import profile_path
 
 
 def c20sim(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:

@@ -18,7 +18,7 @@ from pathlib import Path
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-from c20sim.registers import Reg
+from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 
 

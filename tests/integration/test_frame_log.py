@@ -23,7 +23,7 @@ from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
-from c20sim.registers import Reg
+from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 
 

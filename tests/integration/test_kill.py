@@ -25,9 +25,9 @@ from pathlib import Path
 import pytest
 
 from c20sim.drive.model import Drive
-from c20sim.profile import load_profile
-from c20sim.protocol import WriteSingleRequest, encode
-from c20sim.registers import Reg, parse_fcode
+from c20sim.drive.profile import load_profile
+from c20sim.wire.protocol import WriteSingleRequest, encode
+from c20sim.wire.registers import Reg, parse_fcode
 from tests.conftest import wait_for_ready_file
 
 #: F00.11, acceleration time: 1-6000, mirrored by 2003H, kept in the EEPROM.

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import asyncio
 
-from c20sim.bus import Reply
-from c20sim.clock import VirtualClock
-from c20sim.profile import load_profile
-from c20sim.protocol import FrameEvent, FrameKind, ReadRequest, encode
-from c20sim.simulator import Simulator
+from c20sim.core.bus import Reply
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 from c20sim.transport.line import Line, SelfTimed
+from c20sim.wire.protocol import FrameEvent, FrameKind, ReadRequest, encode
 
 
 def frame(data: bytes) -> FrameEvent:

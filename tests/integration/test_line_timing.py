@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.protocol import (
+from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
     ReadRequest,

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from c20sim.drive.profile import load_profile
 from c20sim.plant import check_bus
-from c20sim.profile import load_profile
-from c20sim.protocol import ExceptionResponse
 from c20sim.transport.probe import NoAnswer, Prober
+from c20sim.wire.protocol import ExceptionResponse
 
 from .conftest import ServeFactory
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.protocol import ReadRequest, ReadResponse, WriteSingleRequest, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, ReadResponse, WriteSingleRequest, encode
+from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 
 OLD = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))  # the old master's question: 2001H (reads 1500)

@@ -24,7 +24,7 @@ import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from c20sim.profile import load_profile
+from c20sim.drive.profile import load_profile
 from tests.conftest import wait_for_ready_file
 
 #: What the master asks, and what c20-400hr answers (at standstill, so no answer depends on timing).

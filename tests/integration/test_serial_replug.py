@@ -17,8 +17,8 @@ import time
 import tty
 from pathlib import Path
 
-from c20sim.protocol import ReadRequest, ReadResponse, encode
-from c20sim.registers import Reg
+from c20sim.wire.protocol import ReadRequest, ReadResponse, encode
+from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 
 ASK = encode(ReadRequest(1, Reg.STATUS1, 1))

@@ -8,7 +8,7 @@ import select
 import tty
 
 from c20sim.drive.model import Drive
-from c20sim.protocol import ExceptionCode, with_crc
+from c20sim.wire.protocol import ExceptionCode, with_crc
 from tests.integration.conftest import ServeFactory
 
 X = ExceptionCode

@@ -16,8 +16,8 @@ import pytest
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
-from c20sim.profile import load_profile
-from c20sim.protocol import ExceptionCode
+from c20sim.drive.profile import load_profile
+from c20sim.wire.protocol import ExceptionCode
 from tests.integration.conftest import Served, ServeFactory, need
 
 X = ExceptionCode

@@ -19,11 +19,11 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusTcpClient
 from textual.pilot import Pilot
 
-from c20sim.clock import Clock, VirtualClock
 from c20sim.control.client import ControlClient, RemoteOps
-from c20sim.profile import load_profile
+from c20sim.core.clock import Clock, VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 from c20sim.serve import ServeOptions, Server
-from c20sim.simulator import Simulator
 from c20sim.testing import _LoopThread
 from c20sim.tui import Dashboard
 

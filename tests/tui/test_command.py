@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from c20sim import cli
-from c20sim.errors import C20SimError
 from c20sim.tui import session
+from c20sim.wire.errors import C20SimError
 
 
 @pytest.fixture

@@ -12,10 +12,10 @@ import pytest
 from textual.pilot import Pilot
 
 from c20sim.control import http
-from c20sim.protocol import RtuFramer
-from c20sim.registers import Reg
 from c20sim.tui import Dashboard, widgets
 from c20sim.tui.widgets import FrameLog
+from c20sim.wire.protocol import RtuFramer
+from c20sim.wire.registers import Reg
 from tests.tui.conftest import Served, serving, until
 
 

@@ -125,7 +125,7 @@ async def test_a_screenshot_with_no_downloads_folder_goes_to_the_current_directo
 
 
 async def test_the_realtime_clock_is_paused_sped_up_and_reset_from_the_dashboard() -> None:
-    from c20sim.clock import RealtimeClock
+    from c20sim.core.clock import RealtimeClock
 
     with serving(clock=RealtimeClock()) as served:
         async with attached(served) as (app, pilot):

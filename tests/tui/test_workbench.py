@@ -5,13 +5,13 @@ from __future__ import annotations
 import pytest
 
 from c20sim import control
-from c20sim.clock import VirtualClock
 from c20sim.control import ControlError
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
 from c20sim.drive.terminals import Input
-from c20sim.profile import load_profile
-from c20sim.registers import Reg
-from c20sim.simulator import Simulator
 from c20sim.tui.workbench import History, Workbench, condition_range
+from c20sim.wire.registers import Reg
 
 
 def running_bench() -> Workbench:

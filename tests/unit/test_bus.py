@@ -6,10 +6,11 @@ import dataclasses
 
 import pytest
 
-from c20sim.bus import Bus
+from c20sim.core.bus import Bus
+from c20sim.core.slave import Slave
+from c20sim.drive.profile import Profile
 from c20sim.drive.store import RegisterStoreDrive
-from c20sim.profile import Profile
-from c20sim.protocol import (
+from c20sim.wire.protocol import (
     ExceptionCode,
     ReadRequest,
     ReadResponse,
@@ -18,8 +19,7 @@ from c20sim.protocol import (
     encode,
     with_crc,
 )
-from c20sim.registers import Reg
-from c20sim.slave import Slave
+from c20sim.wire.registers import Reg
 from tests.conftest import Line
 
 

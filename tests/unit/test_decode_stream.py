@@ -14,12 +14,12 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from c20sim.capture import parse_dump, parse_log
 from c20sim.cli import main
-from c20sim.decode import split_frames
-from c20sim.errors import C20SimError
-from c20sim.profile import load_profile
-from c20sim.protocol import (
+from c20sim.drive.profile import load_profile
+from c20sim.traffic.capture import parse_dump, parse_log
+from c20sim.wire.decode import split_frames
+from c20sim.wire.errors import C20SimError
+from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
     ReadRequest,

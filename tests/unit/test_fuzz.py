@@ -18,10 +18,11 @@ from dataclasses import dataclass
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from c20sim.bus import Reply
-from c20sim.clock import VirtualClock
-from c20sim.profile import Profile, load_profile
-from c20sim.protocol import (
+from c20sim.core.bus import Reply
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.wire.protocol import (
     BROADCAST,
     FrameEvent,
     FrameKind,
@@ -38,8 +39,7 @@ from c20sim.protocol import (
     encode,
     silence_times,
 )
-from c20sim.registers import Reg
-from c20sim.simulator import Simulator
+from c20sim.wire.registers import Reg
 
 #: The drives on the fuzzed bus.
 ADDRESSES = (1, 2, 5)

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from c20sim.control import ops
-from c20sim.generators import TICK, GeneratorError, Noise, Ramp, Sine, parse_generator
-from c20sim.profile import load_profile
-from c20sim.scenario import load_scenario, run
-from c20sim.simulator import Simulator
+from c20sim.core.generators import TICK, GeneratorError, Noise, Ramp, Sine, parse_generator
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.scenario.timeline import load_scenario, run
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import pytest
 
-from c20sim.bus import Bus
+from c20sim.core.bus import Bus
+from c20sim.core.slave import Slave
 from c20sim.drive.model import Drive
-from c20sim.profile import Profile
-from c20sim.slave import Slave
+from c20sim.drive.profile import Profile
 from tests.conftest import Line
 
 ECHO = "echo"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from c20sim.httpguard import check_bind, host_allowed, is_loopback, json_depth
+from c20sim.control.httpguard import check_bind, host_allowed, is_loopback, json_depth
 from c20sim.transport.tcp import host_port, parse_host_port
 
 

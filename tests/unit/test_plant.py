@@ -11,9 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from c20sim.cli import main
-from c20sim.errors import C20SimError
+from c20sim.drive.profile import load_profile
 from c20sim.plant import PlantSpec, plant_manifests, to_yaml
-from c20sim.profile import load_profile
+from c20sim.wire.errors import C20SimError
 
 PROFILE = Path(load_profile().path)
 

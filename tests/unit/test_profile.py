@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.errors import ProfileError
-from c20sim.profile import DEFAULT_PROFILE, FaultCause, available_profiles, load_profile, profile_path
-from c20sim.registers import Access, Reg, parse_fcode
+from c20sim.drive.profile import DEFAULT_PROFILE, FaultCause, available_profiles, load_profile, profile_path
+from c20sim.wire.errors import ProfileError
+from c20sim.wire.registers import Access, Reg, parse_fcode
 
 DEFAULT_TEXT = profile_path(DEFAULT_PROFILE).read_text()
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from c20sim.protocol import (
+from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
     FrameKind,

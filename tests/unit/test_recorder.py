@@ -6,8 +6,8 @@ import asyncio
 import io
 import json
 
-from c20sim.profile import load_profile
-from c20sim.record import Recorder
+from c20sim.drive.profile import load_profile
+from c20sim.traffic.record import Recorder
 
 
 async def wait_for_lines(out: io.StringIO, count: int, deadline: float = 5.0) -> list[dict[str, object]]:

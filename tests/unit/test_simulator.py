@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.clock import VirtualClock
-from c20sim.errors import C20SimError
-from c20sim.profile import Profile
-from c20sim.registers import Reg
-from c20sim.simulator import Simulator, parse_addresses, state_path_for
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator, parse_addresses, state_path_for
+from c20sim.drive.profile import Profile
+from c20sim.wire.errors import C20SimError
+from c20sim.wire.registers import Reg
 
 
 @pytest.mark.parametrize(
@@ -58,7 +58,7 @@ def test_one_state_file_per_drive(tmp_path: Path) -> None:
 
 
 def test_advance_needs_the_virtual_clock(profile: Profile) -> None:
-    from c20sim.clock import RealtimeClock
+    from c20sim.core.clock import RealtimeClock
 
     with pytest.raises(C20SimError, match="only be advanced with the virtual clock"):
         Simulator(profile, (1,), clock=RealtimeClock()).advance(1.0)

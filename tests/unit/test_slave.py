@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from c20sim.bus import Bus
+from c20sim.core.bus import Bus
+from c20sim.core.slave import Slave
+from c20sim.drive.profile import Profile, parse_profile
 from c20sim.drive.store import RegisterStoreDrive
-from c20sim.profile import Profile, parse_profile
-from c20sim.protocol import (
+from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
     ReadRequest,
@@ -22,8 +23,7 @@ from c20sim.protocol import (
     WriteSingleResponse,
     with_crc,
 )
-from c20sim.registers import Reg
-from c20sim.slave import Slave
+from c20sim.wire.registers import Reg
 from tests.conftest import Line
 
 X = ExceptionCode
@@ -41,7 +41,7 @@ class RefusingDrive(RegisterStoreDrive):
     """A drive that refuses run commands, as the model does off the communication channel."""
 
     def check_write(self, address: int, value: int) -> None:
-        from c20sim.errors import ModbusError
+        from c20sim.wire.errors import ModbusError
 
         if address == Reg.COMMAND and value == 1:
             raise ModbusError(ExceptionCode.OPERATION_FAILED, "not the communication channel")

@@ -12,15 +12,15 @@ and a profile selects them by name, at its top::
     behaviours = ["quantised-speed", "no-setpoint-in-fault", "weak-supply"]
 
 Each is a class called once per drive with the drive's bus address and the profile;
-each defines only the hooks it needs (see c20sim.behaviours).
+each defines only the hooks it needs (see c20sim.drive.behaviours).
 """
 
 from __future__ import annotations
 
 from c20sim.drive.model import Drive
-from c20sim.errors import ModbusError
-from c20sim.profile import Profile
-from c20sim.protocol import ExceptionCode
+from c20sim.drive.profile import Profile
+from c20sim.wire.errors import ModbusError
+from c20sim.wire.protocol import ExceptionCode
 
 MOTOR_SPEED = 0x3006
 SPEED_SETPOINT = 0x2001

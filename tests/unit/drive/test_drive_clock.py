@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from c20sim.clock import Clock, RealtimeClock, VirtualClock
+from c20sim.core.clock import Clock, RealtimeClock, VirtualClock
 
 
 def test_virtual_clock_moves_only_when_told() -> None:

@@ -12,9 +12,9 @@ from collections.abc import Callable
 import pytest
 
 from c20sim.drive.model import Drive, Telemetry
+from c20sim.drive.profile import Profile, load_profile
 from c20sim.drive.terminals import Input
-from c20sim.profile import Profile, load_profile
-from c20sim.registers import FIXED_REGISTERS, Reg
+from c20sim.wire.registers import FIXED_REGISTERS, Reg
 
 Action = Callable[[Drive], None]
 

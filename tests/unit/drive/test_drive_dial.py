@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 
 from c20sim.drive.model import Drive
-from c20sim.errors import ModbusError
-from c20sim.profile import load_profile
-from c20sim.protocol import ExceptionCode
-from c20sim.registers import Reg
+from c20sim.drive.profile import load_profile
+from c20sim.wire.errors import ModbusError
+from c20sim.wire.protocol import ExceptionCode
+from c20sim.wire.registers import Reg
 
 
 def fresh() -> Drive:

@@ -13,9 +13,9 @@ import pytest
 
 from c20sim.drive.model import Drive
 from c20sim.drive.params import ParameterStore, StateFileError
-from c20sim.errors import C20SimError
-from c20sim.profile import Profile, load_profile
-from c20sim.registers import Reg
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.wire.errors import C20SimError
+from c20sim.wire.registers import Reg
 
 F00_10 = 0x000A
 
@@ -122,7 +122,7 @@ def test_a_crash_before_the_rename_leaves_the_old_file(
 CHILD = """
 import sys
 from c20sim.drive.params import ParameterStore
-from c20sim.profile import load_profile
+from c20sim.drive.profile import load_profile
 store = ParameterStore(load_profile("c20-400hr"), sys.argv[1])
 i = 0
 while True:

@@ -7,9 +7,9 @@ from collections.abc import Callable
 import pytest
 
 from c20sim.drive.model import F_MOTOR_OVERLOAD_COEFFICIENT, F_OV_STALL, STEP, Drive
+from c20sim.drive.profile import FaultCause, Profile, load_profile
 from c20sim.drive.terminals import Input, Output
-from c20sim.profile import FaultCause, Profile, load_profile
-from c20sim.registers import Reg
+from c20sim.wire.registers import Reg
 
 
 @pytest.fixture(scope="module")

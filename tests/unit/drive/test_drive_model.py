@@ -9,11 +9,11 @@ import pytest
 
 from c20sim.drive.base import DrivePort
 from c20sim.drive.model import STEP, Drive, HallFault
+from c20sim.drive.profile import Profile, load_profile
 from c20sim.drive.terminals import Input, Output
-from c20sim.errors import ModbusError
-from c20sim.profile import Profile, load_profile
-from c20sim.protocol import ExceptionCode
-from c20sim.registers import FIXED_REGISTERS, Reg
+from c20sim.wire.errors import ModbusError
+from c20sim.wire.protocol import ExceptionCode
+from c20sim.wire.registers import FIXED_REGISTERS, Reg
 
 
 @pytest.fixture(scope="module")

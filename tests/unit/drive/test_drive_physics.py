@@ -22,9 +22,9 @@ from c20sim.drive.model import (
     Drive,
 )
 from c20sim.drive.physics import HALL_SEQUENCE, RPM
+from c20sim.drive.profile import FaultCause, Profile, load_profile
 from c20sim.drive.terminals import Input
-from c20sim.profile import FaultCause, Profile, load_profile
-from c20sim.registers import Reg
+from c20sim.wire.registers import Reg
 from tests.unit.drive.test_drive_faults import faulted, first_time
 
 PROFILES = ("c20-400hr", "c20-2200hv")

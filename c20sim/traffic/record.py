@@ -29,13 +29,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any, Literal, cast
 
-from .decode import decode_frame, describe
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, load_profile
-from .protocol import FrameEvent, FrameKind, Request, RtuFramer, decode_request, decode_response
-from .registers import BAUD_RATES, RegisterMap
-from .transport.endpoint import UNTIMED_SILENCE
-from .transport.tcp import parse_host_port
+from ..drive.profile import DEFAULT_PROFILE, load_profile
+from ..transport.endpoint import UNTIMED_SILENCE
+from ..transport.tcp import parse_host_port
+from ..wire.decode import decode_frame, describe
+from ..wire.errors import C20SimError
+from ..wire.protocol import FrameEvent, FrameKind, Request, RtuFramer, decode_request, decode_response
+from ..wire.registers import BAUD_RATES, RegisterMap
 
 __all__ = ["Recorder", "add_record_command"]
 

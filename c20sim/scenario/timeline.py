@@ -50,10 +50,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
-from .control import causes, ops
-from .errors import C20SimError
-from .profile import FaultCause
-from .protocol import (
+from ..control import causes, ops
+from ..core.simulator import Simulator
+from ..drive.profile import FaultCause
+from ..wire.errors import C20SimError
+from ..wire.protocol import (
     ExceptionCode,
     FrameEvent,
     FrameKind,
@@ -63,12 +64,11 @@ from .protocol import (
     decode_response,
     encode,
 )
-from .registers import Reg, format_fcode
-from .simulator import Simulator
+from ..wire.registers import Reg, format_fcode
 
 if TYPE_CHECKING:
-    from .bus import Reply
-    from .transport.line import Line
+    from ..core.bus import Reply
+    from ..transport.line import Line
 
 T = TypeVar("T")
 
@@ -538,7 +538,7 @@ def _written(
 
 def _answered(sim: Simulator, step: Step, t: float, label: str, request: Request, reply: Reply | None) -> Outcome:
     """A master's request and its reply, judged by what the step expects: taken, refused, or silence."""
-    from .decode import describe
+    from ..wire.decode import describe
 
     wanted = step.expect_exception
     wanted_text = f"exception 0x{wanted:02X} ({ExceptionCode(wanted).meaning})" if wanted is not None else ""

@@ -21,10 +21,10 @@ applied whole: all or nothing. The drive behind it is any
 
 from __future__ import annotations
 
-from .drive.base import DrivePort
-from .errors import ModbusError
-from .profile import Profile
-from .protocol import (
+from ..drive.base import DrivePort
+from ..drive.profile import Profile
+from ..wire.errors import ModbusError
+from ..wire.protocol import (
     MAX_WRITE_REGISTERS,
     ExceptionCode,
     ExceptionResponse,
@@ -38,7 +38,7 @@ from .protocol import (
     WriteSingleRequest,
     WriteSingleResponse,
 )
-from .registers import BAUD_RATES, Access, Reg, RegisterSpec, is_fcode
+from ..wire.registers import BAUD_RATES, Access, Reg, RegisterSpec, is_fcode
 
 #: 2000H values that run or jog the motor (sheet: 1 forward, 2 reverse, 3 forward jog, 4 reverse jog).
 RUN_COMMAND_VALUES = frozenset({1, 2, 3, 4})

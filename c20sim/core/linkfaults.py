@@ -15,7 +15,7 @@ import random
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from .protocol import ExceptionCode, crc16
+from ..wire.protocol import ExceptionCode, crc16
 
 __all__ = ["KNOBS", "Knob", "LinkFaults", "Mangled"]
 

@@ -1,7 +1,7 @@
 """``c20sim replay LOG``: play the master's side of a frame log against a simulated drive, and compare.
 
 The log is JSONL as ``c20sim record`` and ``serve --log-frames`` write it
-(:mod:`c20sim.capture`). Each frame the master sent (``rx``) is framed and
+(:mod:`c20sim.traffic.capture`). Each frame the master sent (``rx``) is framed and
 handed to a simulator with a virtual clock, at the log's time for it (the
 first frame at model time 0): the drive's model runs exactly as long between
 two requests as the real drive did. The simulator's reply is compared, byte
@@ -18,14 +18,14 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from ..core.clock import VirtualClock
+from ..core.simulator import Simulator, parse_addresses
+from ..drive.profile import DEFAULT_PROFILE, load_profile
+from ..wire.decode import decode_frame, describe, split_frames
+from ..wire.errors import C20SimError
+from ..wire.protocol import Request, RtuFramer, decode_request
+from ..wire.registers import RegisterMap
 from .capture import LogRecord, load_frame_log
-from .clock import VirtualClock
-from .decode import decode_frame, describe, split_frames
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, load_profile
-from .protocol import Request, RtuFramer, decode_request
-from .registers import RegisterMap
-from .simulator import Simulator, parse_addresses
 
 __all__ = ["Difference", "Exchange", "ReplayResult", "add_replay_command", "exchanges", "replay"]
 

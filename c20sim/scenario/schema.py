@@ -22,10 +22,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .control import causes, ops
-from .control.openapi import conditions_schema, link_schema
-from .errors import C20SimError
-from .profile import (
+from ..control import causes, ops
+from ..control.openapi import conditions_schema, link_schema
+from ..drive.profile import (
     _FAULT_KEYS,
     _PARAM_KEYS,
     _SOURCES,
@@ -39,13 +38,14 @@ from .profile import (
     SupplyParams,
     ThermalParams,
 )
-from .registers import Access
+from ..wire.errors import C20SimError
+from ..wire.registers import Access
 
 __all__ = ["KINDS", "add_schema_command", "build", "shipped", "shipped_path"]
 
 DRAFT = "http://json-schema.org/draft-07/schema#"
 KINDS = ("profile", "scenario")
-SCHEMA_DIR = Path(__file__).resolve().parent / "schemas"
+SCHEMA_DIR = Path(__file__).resolve().parent.parent / "schemas"
 
 
 def _section(cls: type) -> dict[str, Any]:
@@ -155,7 +155,7 @@ def profile_schema() -> dict[str, Any]:
 
 
 def scenario_schema() -> dict[str, Any]:
-    from .scenario import CAUSE_NAMES, STEP_KEYS, TOP_KEYS
+    from .timeline import CAUSE_NAMES, STEP_KEYS, TOP_KEYS
 
     raw = {"type": "integer", "minimum": 0, "maximum": 65535}
     cause = {"enum": list(CAUSE_NAMES)}
@@ -311,7 +311,7 @@ def add_schema_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     parser.set_defaults(func=cmd_schema)
 
 
-if __name__ == "__main__":  # python -m c20sim.schema: write the shipped files
+if __name__ == "__main__":  # python -m c20sim.scenario.schema: write the shipped files
     SCHEMA_DIR.mkdir(exist_ok=True)
     for each in KINDS:
         shipped_path(each).write_text(render(each), encoding="utf-8")

@@ -1,6 +1,6 @@
 """Several drives on one RS485 line: addressing, broadcast, and the frame log.
 
-The bus takes framing events (:class:`~c20sim.protocol.FrameEvent`) and gives
+The bus takes framing events (:class:`~c20sim.wire.protocol.FrameEvent`) and gives
 back the reply to put on the line, if any. Address 0 is broadcast: a write
 acts on every drive and is never answered, a read is ignored. Reserved
 addresses (F8H-FFH) and absent drives get silence. A frame with a bad CRC or
@@ -29,9 +29,8 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from .decode import describe
-from .linkfaults import LinkFaults
-from .protocol import (
+from ..wire.decode import describe
+from ..wire.protocol import (
     BROADCAST,
     ExceptionCode,
     ExceptionResponse,
@@ -43,7 +42,8 @@ from .protocol import (
     decode_request,
     encode,
 )
-from .registers import RegisterMap
+from ..wire.registers import RegisterMap
+from .linkfaults import LinkFaults
 from .slave import Slave
 
 __all__ = ["Bus", "Counters", "Direction", "FrameRecord", "RecordKind", "Reply"]

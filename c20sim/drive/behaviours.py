@@ -12,16 +12,16 @@ each optional:
 
 - ``on_read(drive, cell, value) -> int``: the value a master reads from a storage cell
   (a mirrored 20xxH register arrives as its function code's address);
-- ``check_write(drive, cell, value) -> None``: raise :class:`~c20sim.errors.ModbusError` to refuse a
+- ``check_write(drive, cell, value) -> None``: raise :class:`~c20sim.wire.errors.ModbusError` to refuse a
   write (the master gets that exception; nothing of the request is written);
 - ``on_write(drive, cell, value) -> int``: the value actually stored;
-- ``on_step(drive, t) -> None``: called every :data:`~c20sim.generators.TICK` of model time, as the drive
+- ``on_step(drive, t) -> None``: called every :data:`~c20sim.core.generators.TICK` of model time, as the drive
   is advanced (it may set the drive's conditions).
 
 Hooks run in the profile's order; at each tick the generators' values
-(:mod:`c20sim.generators`) are applied first, then the steps, so a condition is
+(:mod:`c20sim.core.generators`) are applied first, then the steps, so a condition is
 best driven by one or the other. They see the :class:`~c20sim.drive.model.Drive` itself. An unknown
-name, or an entry point that fails to load, is a :class:`~c20sim.errors.ProfileError` naming the
+name, or an entry point that fails to load, is a :class:`~c20sim.wire.errors.ProfileError` naming the
 profile, and the behaviours that are installed.
 """
 
@@ -31,8 +31,8 @@ from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata
 from typing import Any
 
-from .drive.model import Drive
-from .errors import ProfileError
+from ..wire.errors import ProfileError
+from .model import Drive
 from .profile import Profile
 
 __all__ = ["GROUP", "Factory", "HookedDrive", "available", "load"]

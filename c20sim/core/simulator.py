@@ -13,17 +13,17 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from . import behaviours as behaviour_plugins
+from ..drive import behaviours as behaviour_plugins
+from ..drive.base import DrivePort
+from ..drive.model import Drive
+from ..drive.profile import Profile
+from ..wire.errors import C20SimError
+from ..wire.protocol import FrameEvent
+from ..wire.registers import BAUD_RATES, Reg
 from .bus import Bus, Reply
 from .clock import Clock, RealtimeClock, VirtualClock
-from .drive.base import DrivePort
-from .drive.model import Drive
-from .errors import C20SimError
 from .generators import TICK, Generator, clamp
 from .linkfaults import LinkFaults
-from .profile import Profile
-from .protocol import FrameEvent
-from .registers import BAUD_RATES, Reg
 from .slave import Slave
 
 __all__ = [
@@ -248,7 +248,7 @@ class Simulator:
             for step in steps:
                 step(self.drives[address], at)
 
-    # --- Generators (c20sim.generators): the checking is control.ops'.
+    # --- Generators (c20sim.core.generators): the checking is control.ops'.
 
     def set_generator(
         self,

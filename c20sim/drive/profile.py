@@ -21,8 +21,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import ProfileError
-from .registers import FIXED_REGISTERS, Access, Reg, RegisterMap, RegisterSpec, format_fcode, is_fcode, parse_fcode
+from ..wire.errors import ProfileError
+from ..wire.registers import (
+    FIXED_REGISTERS,
+    Access,
+    Reg,
+    RegisterMap,
+    RegisterSpec,
+    format_fcode,
+    is_fcode,
+    parse_fcode,
+)
 
 __all__ = [
     "DEFAULT_PROFILE",
@@ -275,9 +284,9 @@ class Profile:
 
 
 def _profile_dirs() -> list[Path]:
-    here = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parent.parent
     # Inside the wheel the profiles are package data; in a checkout they sit beside the package.
-    return [d for d in (here / "profiles", here.parent / "profiles") if d.is_dir()]
+    return [d for d in (package / "profiles", package.parent / "profiles") if d.is_dir()]
 
 
 def available_profiles() -> dict[str, Path]:

@@ -4,7 +4,7 @@ A capture is bytes in hex (``01 03 21 00 ...``, ``010321...``, ``0x01,0x03``),
 a ``hexdump -C`` or ``xxd`` dump (offsets and the text column are skipped),
 or a JSONL frame log as ``serve --log-frames`` and ``c20sim record`` write
 (one JSON object a line: ``t`` seconds, ``dir`` ``rx`` from the master or
-``tx`` from the drive, ``hex`` the bytes). :func:`c20sim.decode.split_frames`
+``tx`` from the drive, ``hex`` the bytes). :func:`c20sim.wire.decode.split_frames`
 cuts the bytes into frames by the protocol.
 """
 
@@ -20,11 +20,11 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import cast
 
-from .decode import Piece, decode_frame, split_frames
-from .errors import C20SimError
-from .profile import DEFAULT_PROFILE, load_profile
-from .protocol import Request
-from .registers import RegisterMap
+from ..drive.profile import DEFAULT_PROFILE, load_profile
+from ..wire.decode import Piece, decode_frame, split_frames
+from ..wire.errors import C20SimError
+from ..wire.protocol import Request
+from ..wire.registers import RegisterMap
 
 __all__ = ["LogRecord", "add_decode_command", "load_frame_log", "parse_dump", "parse_hex", "parse_log"]
 

@@ -1,7 +1,7 @@
 """``c20sim run-scenario``: scenario files in virtual time, many at once, with a JUnit report for CI.
 
 Each file is played in its own simulator, in worker processes (``--jobs``),
-instantly in virtual time (:func:`c20sim.scenario.run`). One file prints its
+instantly in virtual time (:func:`c20sim.scenario.timeline.run`). One file prints its
 full report; several print one line per scenario, in the order given, then a
 summary. Exit 0 if every expectation holds, 1 if one fails, 2 if a file cannot
 be loaded or played (its line says which file, step and key).
@@ -24,7 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import C20SimError
+from ..wire.errors import C20SimError
 
 __all__ = ["Result", "add_run_scenario_command", "expand", "junit_xml", "run_file"]
 
@@ -77,9 +77,9 @@ def expand(patterns: Sequence[str]) -> list[str]:
 
 def run_file(path: str, profile: str | None = None, drives: str | None = None, seed: int = 1) -> Result:
     """Load and play one scenario file; never raises for a bad file (its Result says what is wrong)."""
-    from .profile import DEFAULT_PROFILE, load_profile
-    from .scenario import load_scenario, run
-    from .simulator import Simulator, parse_addresses
+    from ..core.simulator import Simulator, parse_addresses
+    from ..drive.profile import DEFAULT_PROFILE, load_profile
+    from .timeline import load_scenario, run
 
     started = time.perf_counter()
     name = Path(path).stem

@@ -1,0 +1,1 @@
+"""Scenarios: TOML timelines in virtual time (timeline), many at once (suite), and the formats' schemas."""
