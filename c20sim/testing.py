@@ -417,7 +417,7 @@ class DriveHandle:
         self._owner._op(ops.clear_generators, self.address, condition)
 
     def inject_fault(self, code: int, *, persistent: bool = False) -> None:
-        self._owner._op(ops.inject_fault, self.address, code, persistent)
+        self._owner._op(causes.request, self.address, {"code": code, "persistent": persistent})
 
     def clear_fault(self, *, reset: bool = True) -> bool:
         """Release an injected fault and (with ``reset``) press reset; True if the drive left the fault."""
@@ -425,7 +425,7 @@ class DriveHandle:
 
     def trip(self, cause: str) -> None:
         """Bring a fault's cause about (``undervoltage``, ``overheat``, ``eeprom``, ...); the drive trips by its model."""
-        self._owner._op(causes.trip, self.address, cause)
+        self._owner._op(causes.request, self.address, {"cause": cause})
 
     def release(self, cause: str) -> None:
         """End a fault's cause; the fault stays until reset."""

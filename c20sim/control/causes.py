@@ -27,7 +27,23 @@ from ..drive.terminals import Input
 from ..wire.registers import fcode_address
 from . import ops
 
-__all__ = ["CAUSES", "Cause", "active", "cause_names", "clear_all", "overheat_seconds", "release", "trip"]
+__all__ = [
+    "CAUSES",
+    "JSON",
+    "TOML",
+    "Cause",
+    "FaultRequest",
+    "Notation",
+    "active",
+    "cause_names",
+    "clear_all",
+    "fault",
+    "overheat_seconds",
+    "read_fault",
+    "release",
+    "request",
+    "trip",
+]
 
 Conditions = Mapping[str, object]
 
@@ -229,6 +245,80 @@ def release(sim: Simulator, address: int, cause: object) -> str:
         return f"drive {address}: {name} gone: {_words(change)} (reset to clear the fault)"
     ops.clear_fault(sim, address, reset=False)
     return f"drive {address}: {name} released (reset to clear the fault)"
+
+
+# --- The one fault request: every front end hands the user's value to read_fault, then fault().
+
+
+@dataclass(frozen=True)
+class FaultRequest:
+    """A device fault as a user asks for it: by its ``cause`` (brought about, the drive trips by its model), or
+    latched by ``code`` (``persistent``: resets fail until it is cleared)."""
+
+    cause: str | None = None
+    code: int | None = None
+    persistent: bool = False
+
+
+@dataclass(frozen=True)
+class Notation:
+    """How a front end writes a fault request, for the examples in its errors."""
+
+    word: str  #: what the front end calls a key of the request
+    cause: str  #: the request by cause
+    code: str  #: the request by code
+    strict: bool  #: a cause with other keys: unknown ``word`` (JSON bodies) or "give a cause alone" (TOML)
+
+
+JSON = Notation("field", '{"cause": "undervoltage"}', '{"code": 16}', strict=True)
+TOML = Notation("key", '{ cause = "undervoltage" }', "{ code = 16, persistent = true }", strict=False)
+
+
+def read_fault(value: object, notation: Notation = JSON, names: list[str] | None = None) -> FaultRequest:
+    """The fault request in ``value``: ``{cause}``, ``{code, persistent}`` or a bare code; ControlError says what
+    is wrong, in ``notation``. A cause is checked against ``names`` where given (a profile's :func:`cause_names`)."""
+    if isinstance(value, Mapping):
+        if "cause" in value:
+            extra = [k for k in value if k != "cause"]
+            if extra:
+                if notation.strict:
+                    raise ops.unknown(notation.word, str(extra[0]), ["cause"])
+                raise ops.ControlError(f"give a cause alone, such as {notation.cause}")
+            cause = value["cause"]
+            if not isinstance(cause, str):
+                raise ops.ControlError(f"cause: expected a name such as 'undervoltage', got {cause!r}")
+            if names is not None and cause not in names:
+                raise ops.unknown("cause", cause, names)
+            return FaultRequest(cause=cause)
+        extra = [k for k in value if k not in ("code", "persistent")]
+        if extra:
+            if notation.strict:
+                raise ops.unknown(notation.word, str(extra[0]), ["code", "persistent", "cause"])
+            raise ops.ControlError(f"unknown key {sorted(extra)[0]!r}; give {notation.cause} or {notation.code}")
+        if "code" not in value:
+            listed = f"; causes: {', '.join(names)}" if names is not None else ""
+            raise ops.ControlError(
+                f"give the fault by cause, such as {notation.cause}, or by code, such as {notation.code}{listed}"
+            )
+        code, persistent = ops.check_fault(value["code"], value.get("persistent", False))
+        return FaultRequest(code=code, persistent=persistent)
+    code, persistent = ops.check_fault(value, False)
+    return FaultRequest(code=code, persistent=persistent)
+
+
+def request(sim: Simulator, address: int, value: object, notation: Notation = JSON) -> str:
+    """Read the fault request ``value`` as the user gave it and do it (see :func:`read_fault`, :func:`fault`)."""
+    ops.drive(sim, address)
+    return fault(sim, address, read_fault(value, notation, names=cause_names(sim.profile)))
+
+
+def fault(sim: Simulator, address: int, request: FaultRequest) -> str:
+    """Do ``request`` on the drive at ``address`` now; returns what was done, in words ("" for a code)."""
+    if request.cause is not None:
+        return trip(sim, address, request.cause)
+    assert request.code is not None
+    ops.inject_fault(sim, address, request.code, request.persistent)
+    return ""
 
 
 def active(sim: Simulator, address: int) -> dict[str, bool]:

@@ -29,7 +29,7 @@ import math
 import secrets
 import sys
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,8 @@ from ..core.simulator import Simulator
 from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
-from . import causes, httpguard, ops, service
+from . import causes, httpguard, ops, routes
+from .openapi import document
 from .ops import ControlError, unknown
 
 log = logging.getLogger(__name__)
@@ -203,9 +204,10 @@ class ControlApi:
             self._runner = None
 
 
-def make_app(api: ControlApi) -> web.Application:
-    """The aiohttp application serving ``api``'s simulator."""
+def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Application:
+    """The aiohttp application serving ``api``'s simulator: every row of ``table`` (the control surface's)."""
     sim = api.sim
+    table = routes.table() if table is None else table
 
     def reply(data: object, status: int = 200) -> web.Response:
         return web.json_response(data, status=status)
@@ -281,11 +283,6 @@ def make_app(api: ControlApi) -> web.Application:
         ops.drive(sim, number)
         return number
 
-    def only(data: Mapping[str, Any], *allowed: str) -> None:
-        for key in data:
-            if key not in allowed:
-                raise unknown("field", key, list(allowed))
-
     async def index(request: web.Request) -> web.Response:
         sim.sync()
         return reply(
@@ -296,7 +293,7 @@ def make_app(api: ControlApi) -> web.Application:
                 "t": sim.now(),
                 "endpoints": api.endpoints(),
                 "stream_readers": api.readers,
-                "routes": ROUTES,
+                "routes": table.listing(),
             }
         )
 
@@ -356,130 +353,6 @@ def make_app(api: ControlApi) -> web.Application:
             api.streams.discard(client)
         return ws
 
-    async def get_time(request: web.Request) -> web.Response:
-        return reply({"t": sim.now(), "clock": "virtual" if sim.virtual else "realtime"})
-
-    async def post_advance(request: web.Request) -> web.Response:
-        data = await body(request)
-        only(data, "seconds")
-        if "seconds" not in data:
-            raise ControlError('give the time to advance by, such as {"seconds": 1.5}')
-        return reply({"t": ops.advance(sim, data["seconds"])})
-
-    async def list_drives(request: web.Request) -> web.Response:
-        return reply({"drives": [ops.drive_state(sim, a) for a in sim.drives]})
-
-    async def get_drive(request: web.Request) -> web.Response:
-        return reply(ops.drive_state(sim, address(request)))
-
-    async def get_register(request: web.Request) -> web.Response:
-        return reply(ops.read_register(sim, address(request), request.match_info["register"]))
-
-    async def register_write(request: web.Request) -> tuple[int, str, object]:
-        """(drive, register, value) of a register write's route and body ``{"value": N}``."""
-        where = address(request)
-        data = await body(request)
-        only(data, "value")
-        if "value" not in data:
-            raise ControlError('give the raw value, such as {"value": 1500}')
-        return where, request.match_info["register"], data["value"]
-
-    async def put_register(request: web.Request) -> web.Response:
-        return reply(ops.write_register(sim, *await register_write(request)))
-
-    async def put_panel(request: web.Request) -> web.Response:
-        return reply(ops.keypad_edit(sim, *await register_write(request)))
-
-    async def list_registers(request: web.Request) -> web.Response:
-        return reply({"registers": ops.registers(sim, address(request))})
-
-    async def get_counters(request: web.Request) -> web.Response:
-        return reply(ops.counters(sim, address(request)))
-
-    async def put_conditions(request: web.Request) -> web.Response:
-        where = address(request)
-        ops.set_conditions(sim, where, await body(request))
-        return reply(ops.drive_state(sim, where))
-
-    async def post_fault(request: web.Request) -> web.Response:
-        where = address(request)
-        data = await body(request)
-        only(data, "code", "persistent", "cause")
-        note = ""
-        if "cause" in data:
-            only(data, "cause")
-            note = causes.trip(sim, where, data["cause"])
-        elif "code" in data:
-            ops.inject_fault(sim, where, data["code"], data.get("persistent", False))
-        else:
-            raise ControlError(
-                'give the fault by cause, such as {"cause": "undervoltage"}, or by code, such as {"code": 16}; '
-                f"causes: {', '.join(causes.cause_names(sim.profile))}"
-            )
-        return reply({"note": note, **ops.drive_state(sim, where)})
-
-    async def delete_fault(request: web.Request) -> web.Response:
-        where = address(request)
-        data = await body(request)
-        only(data, "reset", "cause")
-        reset = data.get("reset", True)
-        note = ""
-        if "cause" in data:
-            note = causes.release(sim, where, data["cause"])
-            cleared = ops.clear_fault(sim, where, reset) if ops.flag("reset", reset) else False
-        else:
-            cleared = ops.clear_fault(sim, where, reset)
-        return reply({"reset": cleared, "note": note, **ops.drive_state(sim, where)})
-
-    async def get_causes(request: web.Request) -> web.Response:
-        return reply({"causes": causes.active(sim, address(request))})
-
-    async def delete_causes(request: web.Request) -> web.Response:
-        where = address(request)
-        causes.clear_all(sim, where)
-        return reply({"causes": causes.active(sim, where)})
-
-    async def post_run_channel(request: web.Request) -> web.Response:
-        where = address(request)
-        data = await body(request)
-        only(data, "channel")
-        if "channel" not in data:
-            raise ControlError('give the run channel, such as {"channel": "keypad"} or {"channel": 0}')
-        channel = ops.set_run_channel(sim, where, data["channel"])
-        return reply({"channel": int(channel), **ops.drive_state(sim, where)})
-
-    async def post_restore_defaults(request: web.Request) -> web.Response:
-        where = address(request)
-        ops.restore_defaults(sim, where)
-        return reply(ops.drive_state(sim, where))
-
-    async def post_keypad(request: web.Request) -> web.Response:
-        where = address(request)
-        data = await body(request)
-        only(data, "key")
-        if "key" not in data:
-            raise ControlError(f'give the key, such as {{"key": "reset"}}; keys: {", ".join(ops.KEYS)}')
-        accepted = ops.press_key(sim, where, data["key"])
-        return reply({"accepted": accepted, **ops.drive_state(sim, where)})
-
-    async def post_power_cycle(request: web.Request) -> web.Response:
-        where = address(request)
-        ops.power_cycle(sim, where)
-        return reply(ops.drive_state(sim, where))
-
-    def link_address(request: web.Request) -> int | None:
-        return address(request) if "address" in request.match_info else None
-
-    async def get_link(request: web.Request) -> web.Response:
-        return reply(ops.link_state(ops.links(sim, link_address(request))))
-
-    async def patch_link(request: web.Request) -> web.Response:
-        where = link_address(request)
-        return reply(ops.link_state(ops.set_link_faults(sim, where, await body(request))))
-
-    async def delete_link(request: web.Request) -> web.Response:
-        return reply(ops.link_state(ops.clear_link_faults(sim, link_address(request))))
-
     async def get_frames(request: web.Request) -> web.Response:
         query = request.query
 
@@ -512,40 +385,40 @@ def make_app(api: ControlApi) -> web.Application:
         sim.bus.records.clear()
         return reply({"frames": [], "next": api._seen})
 
+    async def health(request: web.Request) -> web.Response:
+        if not api.serving:
+            return reply({"status": "starting"}, 503)
+        return reply({"status": "serving", "profile": sim.profile.name, "drives": list(sim.drives), "t": sim.now()})
+
+    async def openapi(request: web.Request) -> web.Response:
+        return reply(document(table))
+
+    own: dict[str, Callable[[web.Request], Awaitable[web.StreamResponse]]] = {
+        "index": index,
+        "telemetry": get_telemetry,
+        "profile": get_profile,
+        "stream": stream,
+        "frames": get_frames,
+        "clear_frames": delete_frames,
+        "health": health,
+        "openapi": openapi,
+    }
+
+    def generic(row: routes.Route) -> Callable[[web.Request], Awaitable[web.StreamResponse]]:
+        async def handle(request: web.Request) -> web.StreamResponse:
+            parameters: dict[str, Any] = {
+                name: address(request) if name == "address" else request.match_info[name] for name in row.parameters
+            }
+            data = await body(request) if row.method != "GET" else {}
+            return reply(routes.invoke(sim, row, parameters, data, request.path))
+
+        return handle
+
     app = web.Application(middlewares=[*httpguard.middlewares(api.host), errors, token])
-    r = app.router
-    r.add_get("/", index)
-    r.add_get("/telemetry", get_telemetry)
-    r.add_get("/profile", get_profile)
-    r.add_get("/stream", stream)
-    r.add_get("/time", get_time)
-    r.add_post("/time/advance", post_advance)
-    r.add_get("/drives", list_drives)
-    r.add_get("/drives/{address}", get_drive)
-    r.add_get("/drives/{address}/registers", list_registers)
-    r.add_get("/drives/{address}/registers/{register}", get_register)
-    r.add_put("/drives/{address}/registers/{register}", put_register)
-    r.add_get("/drives/{address}/counters", get_counters)
-    r.add_put("/drives/{address}/panel/{register}", put_panel)
-    r.add_put("/drives/{address}/conditions", put_conditions)
-    r.add_patch("/drives/{address}/conditions", put_conditions)
-    r.add_post("/drives/{address}/fault", post_fault)
-    r.add_delete("/drives/{address}/fault", delete_fault)
-    r.add_get("/drives/{address}/causes", get_causes)
-    r.add_post("/drives/{address}/keypad", post_keypad)
-    r.add_post("/drives/{address}/power-cycle", post_power_cycle)
-    r.add_delete("/drives/{address}/causes", delete_causes)
-    r.add_post("/drives/{address}/run-channel", post_run_channel)
-    r.add_post("/drives/{address}/restore-defaults", post_restore_defaults)
-    r.add_get("/drives/{address}/link", get_link)
-    r.add_patch("/drives/{address}/link", patch_link)
-    r.add_delete("/drives/{address}/link", delete_link)
-    r.add_get("/link", get_link)
-    r.add_patch("/link", patch_link)
-    r.add_delete("/link", delete_link)
-    r.add_get("/frames", get_frames)
-    r.add_delete("/frames", delete_frames)
-    service.add_routes(app, api, body=body, address=address, only=only)
+    for row in table.values():
+        if row.call is None and row.name not in own:
+            raise ValueError(f"route {row.key} ({row.name}): no operation and no handler of the API's own")
+        app.router.add_route(row.method, row.path, own[row.name] if row.call is None else generic(row))
     return app
 
 
@@ -612,35 +485,5 @@ async def _send_frames(ws: web.WebSocketResponse, client: StreamClient) -> None:
     await ws.send_str(json.dumps({"type": "frames", "missed": max(0, missed), "frames": records}))
 
 
-#: The routes, for GET / and the docs: method path -> body.
-ROUTES: Mapping[str, str] = {
-    "GET /": "-",
-    "GET /telemetry": "- (every drive's telemetry, conditions, causes and link faults: one stream message)",
-    "GET /profile": "- (the served profile's TOML)",
-    "GET /stream": "WebSocket (query: hz=0.1-50, frame_hz=0.1-100, buffer=1-10000, frames=0|1): telemetry, frames",
-    "GET /time": "-",
-    "POST /time/advance": '{"seconds": 1.5} (virtual clock only; 409 otherwise)',
-    "GET /drives": "-",
-    "GET /drives/{address}": "-",
-    "GET /drives/{address}/registers": "- (every register and function code, grouped as the sheet groups them)",
-    "GET /drives/{address}/registers/{register}": "- (register: 2100H, 0x2100, F00.10 or status1)",
-    "PUT /drives/{address}/registers/{register}": '{"value": 1500} (a master\'s rules; a refusal is 409 with its exception)',
-    "PUT /drives/{address}/panel/{register}": "{\"value\": 3} (the drive's own panel: a master's rules but 200EH and the password)",
-    "GET /drives/{address}/counters": "- (requests, replies, exceptions by code, CRC errors, silences, injected)",
-    "PUT /drives/{address}/conditions": '{"supply_v": 30, "load_torque_nm": 2, ...} (PATCH too)',
-    "POST /drives/{address}/fault": '{"cause": "undervoltage"} or {"code": 16, "persistent": false}',
-    "DELETE /drives/{address}/fault": '{"reset": true, "cause": "undervoltage"} (both optional)',
-    "GET /drives/{address}/causes": "- (every fault cause of the profile: whether it is there now)",
-    "POST /drives/{address}/keypad": '{"key": "reset"} (forward, reverse, stop, free_stop, reset, ...)',
-    "POST /drives/{address}/power-cycle": "-",
-    "DELETE /drives/{address}/causes": "- (ends every fault cause; faults stay until reset)",
-    "POST /drives/{address}/run-channel": '{"channel": "keypad"} (F00.01 from the panel: a channel name or its number)',
-    "POST /drives/{address}/restore-defaults": "- (200FH = 1 from the panel; 409 while running)",
-    "GET /drives/{address}/link": "-",
-    "PATCH /drives/{address}/link": '{"offline": true, "drop_next": 2, "delay": 0.5, ...}',
-    "DELETE /drives/{address}/link": "- (clears every link fault of the drive)",
-    "GET /link": "- (the whole bus's link faults; PATCH and DELETE as for a drive)",
-    "GET /frames": "- (query: last=N (N >= 1), slave=N, since=SEQ); log_dropped: records --log-frames lost",
-    "DELETE /frames": "- (empties the frame log)",
-}
-ROUTES = {**ROUTES, **service.ROUTES}
+#: The control surface's rows by ``METHOD path`` (:mod:`c20sim.control.routes`), as this module serves them.
+ROUTES = routes.TABLE

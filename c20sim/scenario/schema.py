@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..control import causes, ops
-from ..control.openapi import conditions_schema, link_schema
+from ..control.schemas import conditions_schema, link_schema
 from ..drive.profile import (
     _FAULT_KEYS,
     _PARAM_KEYS,

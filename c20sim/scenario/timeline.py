@@ -118,8 +118,7 @@ class Step:
     set: Mapping[str, object] = field(default_factory=dict)
     link: Mapping[str, object] = field(default_factory=dict)
     clear_link: bool = False
-    fault: tuple[int, bool] | None = None  #: (code, persistent)
-    cause: str | None = None  #: a fault's cause to bring about (c20sim.control.causes)
+    fault: causes.FaultRequest | None = None  #: a fault by its cause, or latched by code
     clear_fault: bool = False
     release: str | None = None  #: a fault's cause to end, before clear_fault's reset
     power_cycle: bool = False
@@ -129,6 +128,11 @@ class Step:
     expect_exception: int | None = None  #: every write of the step must be refused with this code
     expect_silence: bool = False  #: no write (or a read of 2100H, with none) may be answered
     within: float | None = None  #: poll ``expect`` in model time for up to this long
+
+    @property
+    def cause(self) -> str | None:
+        """The fault's cause this step brings about, if it asks for one by cause."""
+        return self.fault.cause if self.fault is not None else None
 
     @property
     def label(self) -> str:
@@ -271,26 +275,9 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         checked("link", lambda: ops.check_link_faults(link))
 
     fault_value = raw.get("fault")
-    fault: tuple[int, bool] | None = None
-    cause: str | None = None
+    fault: causes.FaultRequest | None = None
     if fault_value is not None:
-        if isinstance(fault_value, dict) and "cause" in fault_value:
-            if set(fault_value) != {"cause"}:
-                raise fail("fault", 'give a cause alone, such as { cause = "undervoltage" }')
-            cause = _cause(fault_value["cause"], "fault", fail)
-        else:
-            if isinstance(fault_value, dict):
-                extra = set(fault_value) - {"code", "persistent"}
-                if extra:
-                    raise fail(
-                        "fault",
-                        f'unknown key {sorted(extra)[0]!r}; give {{ cause = "undervoltage" }} '
-                        "or { code = 16, persistent = true }",
-                    )
-                code, persistent = fault_value.get("code"), fault_value.get("persistent", False)
-            else:
-                code, persistent = fault_value, False
-            fault = checked("fault", lambda: ops.check_fault(code, persistent))
+        fault = checked("fault", lambda: causes.read_fault(fault_value, causes.TOML, names=list(CAUSE_NAMES)))
 
     clear_value = raw.get("clear_fault", False)
     release: str | None = None
@@ -366,7 +353,6 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         link=link,
         clear_link=flag("clear_link"),
         fault=fault,
-        cause=cause,
         clear_fault=clear_value,
         release=release,
         power_cycle=flag("power_cycle"),
@@ -435,7 +421,8 @@ def check(scenario: Scenario, sim: Simulator) -> None:
     registers = sim.profile.registers
     names = causes.cause_names(sim.profile)
     for step in scenario.steps:
-        for key, name in (("fault", step.cause), ("clear_fault", step.release)):
+        cause = step.fault.cause if step.fault is not None else None
+        for key, name in (("fault", cause), ("clear_fault", step.release)):
             if name is not None and name not in names:
                 raise ScenarioError(
                     scenario.path, f"{step.label}, key {key!r}", f"the profile {sim.profile.name} has no cause {name!r}"
@@ -473,9 +460,7 @@ def _act(step: Step, sim: Simulator, address: int) -> None:
     if step.clear_link:
         ops.clear_link_faults(sim, address)
     if step.fault is not None:
-        ops.inject_fault(sim, address, step.fault[0], step.fault[1])
-    if step.cause is not None:
-        causes.trip(sim, address, step.cause)
+        causes.fault(sim, address, step.fault)
     if step.release is not None:
         causes.release(sim, address, step.release)
     if step.clear_fault:
