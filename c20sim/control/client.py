@@ -7,7 +7,8 @@ with the server's own sentence and status, and a server that cannot be
 reached becomes one too (status 503), so a front end has one error to show.
 
 :class:`RemoteOps` is the dashboard's bench over that client: every action is
-one API call, and what the dashboard reads comes from the latest telemetry
+one API call, made from its row of the route table (:meth:`RemoteOps.call`),
+and what the dashboard reads comes from the latest telemetry
 snapshot (``GET /telemetry``, or a ``/stream`` message handed to
 :meth:`RemoteOps.update`), so a redraw asks the server nothing. After an
 action the snapshot is fetched again, so what is shown is what was done.
@@ -31,7 +32,8 @@ from urllib.parse import urlsplit
 from ..drive.model import Telemetry
 from ..drive.profile import Profile, load_profile
 from ..wire.errors import C20SimError
-from ..wire.registers import Command, Reg
+from ..wire.registers import Reg
+from . import routes
 from .ops import ControlError
 
 __all__ = ["ControlClient", "RemoteOps", "attach_target"]
@@ -135,7 +137,7 @@ class RemoteOps:
 
     def __init__(self, client: ControlClient) -> None:
         self.client = client
-        index = client.call("GET", "/")
+        index = self.call("index")
         self.index: dict[str, Any] = index
         self.addresses: tuple[int, ...] = tuple(index["drives"])
         self.virtual: bool = index["clock"] == "virtual"
@@ -146,7 +148,7 @@ class RemoteOps:
 
     def _load_profile(self, name: str) -> Profile:
         """The served profile, from its TOML as the server has it (the two machines may differ)."""
-        text = self.client.text("/profile")
+        text = self.client.text(routes.table().named("profile").path)
         with tempfile.TemporaryDirectory(prefix="c20sim-") as tmp:
             path = Path(tmp) / f"{name}.toml"
             path.write_text(text, encoding="utf-8")
@@ -162,7 +164,7 @@ class RemoteOps:
         return True
 
     def refresh(self) -> None:
-        self.update(self.client.call("GET", "/telemetry"))
+        self.update(self.call("telemetry"))
 
     def _drive(self, address: int) -> dict[str, Any]:
         try:
@@ -197,28 +199,7 @@ class RemoteOps:
     def register(self, address: int, register: int) -> int:
         if register in _SNAPSHOT_REGISTERS:
             return int(self._drive(address)["registers"][_SNAPSHOT_REGISTERS[Reg(register)]])
-        return int(self.client.call("GET", f"/drives/{address}/registers/{int(register):04X}H")["raw"])
-
-    def registers(self, address: int) -> list[dict[str, Any]]:
-        return list(self.client.call("GET", f"/drives/{address}/registers")["registers"])
-
-    def counters(self, address: int) -> dict[str, object]:
-        return dict(self.client.call("GET", f"/drives/{address}/counters"))
-
-    def clock(self) -> dict[str, Any]:
-        return dict(self.client.call("GET", "/clock"))
-
-    def pause(self) -> dict[str, Any]:
-        return dict(self._act("POST", "/clock/pause"))
-
-    def resume(self) -> dict[str, Any]:
-        return dict(self._act("POST", "/clock/resume"))
-
-    def set_speed(self, factor: float) -> dict[str, Any]:
-        return dict(self._act("PUT", "/clock/speed", {"speed": factor}))
-
-    def reset(self) -> dict[str, Any]:
-        return dict(self._act("POST", "/reset", {"setup": "defaults"}))
+        return int(self.call("read_register", address=address, register=int(register))["raw"])
 
     def causes(self, address: int) -> dict[str, bool]:
         return dict(self._drive(address)["causes"])
@@ -226,46 +207,14 @@ class RemoteOps:
     def link(self, scope: int | None) -> dict[str, Any]:
         return dict(self.latest["link"] if scope is None else self._drive(scope)["link_faults"])
 
-    # --- acting: one call each
+    # --- every operation of the route table: one call each
 
-    def advance(self, seconds: float) -> float:
-        return float(self._act("POST", "/time/advance", {"seconds": seconds})["t"])
-
-    def press_key(self, address: int, command: Command) -> bool:
-        return bool(self._act("POST", f"/drives/{address}/keypad", {"key": int(command)})["accepted"])
-
-    def set_run_channel(self, address: int, channel: int) -> int:
-        return int(self._act("POST", f"/drives/{address}/run-channel", {"channel": channel})["channel"])
-
-    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]:
-        return dict(self._act("PUT", f"/drives/{address}/panel/{int(register):04X}H", {"value": value}))
-
-    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]:
-        return dict(self._act("PUT", f"/drives/{address}/registers/{register}", {"value": value}))
-
-    def power_cycle(self, address: int) -> None:
-        self._act("POST", f"/drives/{address}/power-cycle")
-
-    def restore_defaults(self, address: int) -> None:
-        self._act("POST", f"/drives/{address}/restore-defaults")
-
-    def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
-        self._act("PATCH", f"/drives/{address}/conditions", dict(values))
-
-    def trip(self, address: int, cause: str) -> str:
-        return str(self._act("POST", f"/drives/{address}/fault", {"cause": cause})["note"])
-
-    def release(self, address: int, cause: str) -> str:
-        return str(self._act("DELETE", f"/drives/{address}/fault", {"cause": cause, "reset": False})["note"])
-
-    def clear_causes(self, address: int) -> None:
-        self._act("DELETE", f"/drives/{address}/causes")
-
-    def _link_path(self, scope: int | None) -> str:
-        return "/link" if scope is None else f"/drives/{scope}/link"
-
-    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None:
-        self._act("PATCH", self._link_path(scope), dict(values))
-
-    def clear_link_faults(self, scope: int | None) -> None:
-        self._act("DELETE", self._link_path(scope))
+    def call(self, name: str, /, **arguments: Any) -> Any:
+        """The operation ``name`` of the route table (:mod:`c20sim.control.routes`) with its path parameters and
+        fields as keywords; its JSON answer. After one that changes state, the snapshot is fetched again."""
+        row = routes.table().named(name)
+        path = row.url(**{p: arguments.pop(p) for p in row.parameters})
+        body: object = dict(arguments[row.whole]) if row.whole is not None else arguments
+        if row.changes:
+            return self._act(row.method, path, body)
+        return self.client.call(row.method, path, body if row.method != "GET" else None)

@@ -1,6 +1,7 @@
 """``c20sim ctl``: the control API from a shell, with the standard library only.
 
-Every action is one route of :mod:`c20sim.control.http`; an error answer is
+Every action is an operation of the route table (:mod:`c20sim.control.routes`),
+its arguments made from the row's fields; an error answer is
 one line on stderr and exit 2, as for every other command. An action the
 drive refuses (a key press, a reset while the cause persists) prints the
 answer, one line on stderr saying so, and exits 1. ``--format json`` prints
@@ -17,12 +18,12 @@ import http.client
 import json
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from ..wire.errors import C20SimError
-from .ops import CONDITIONS, KEYS
+from . import routes
 
 __all__ = ["add_ctl_command", "call", "render", "rounded"]
 
@@ -141,28 +142,6 @@ def _at_least_one(text: str) -> int:
     return value
 
 
-#: Actions on the whole simulator (no drive): the service routes (c20sim.control.service).
-GLOBAL_ACTIONS = ("health", "clock", "pause", "resume", "speed", "reset")
-
-
-def _service(api: Callable[..., Any], args: argparse.Namespace, at: str) -> Any:
-    action: str = args.action
-    if action == "health":
-        return api("GET", "/health")
-    if action == "clock":
-        return api("GET", "/clock")
-    if action in ("pause", "resume"):
-        return api("POST", f"/clock/{action}")
-    if action == "speed":
-        return api("PUT", "/clock/speed", {"speed": args.factor})
-    if action == "reset":
-        setup = args.setup if args.setup == "defaults" else str(Path(args.setup).resolve())  # the server's cwd differs
-        return api("POST", "/reset", {"setup": setup})
-    if args.clear is not None:  # generators --clear [CONDITION]
-        return api("DELETE", f"{at}/generators", {"condition": args.clear} if args.clear else {})
-    return api("GET", f"{at}/generators")
-
-
 def rounded(value: Any, key: str = "") -> Any:
     """``value`` with its floats rounded: 3 decimals, 6 for times (:data:`TIME_KEYS`)."""
     if isinstance(value, float):
@@ -245,70 +224,175 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
     return None
 
 
-def cmd_ctl(args: argparse.Namespace) -> int:
-    url, token = _ctl_target(args)
-    api = functools.partial(call, url, token=token)
-    action: str = args.action
-    drive = args.drive
-    if drive is None and action not in ("time", "advance", "frames", "info", "link", *GLOBAL_ACTIONS):
-        drive = api("GET", "/")["drives"][0]
-    at = f"/drives/{drive}"
-    result: Any
-    if action == "info":
-        result = api("GET", "/")
-    elif action == "state":
-        result = api("GET", at if args.drive is not None else "/drives")
-    elif action == "read":
-        result = api("GET", f"{at}/registers/{args.register}")
-    elif action == "write":
-        result = api("PUT", f"{at}/registers/{args.register}", {"value": args.value})
-    elif action == "registers":
-        result = api("GET", f"{at}/registers")
-    elif action == "counters":
-        result = api("GET", f"{at}/counters")
-    elif action == "set":
-        result = api("PUT", f"{at}/conditions", _pairs(args.values))
-    elif action == "fault":
+# --- The actions: one per operation of the route table (c20sim.control.routes), a few shaped by hand.
+
+#: Actions whose arguments are written here, not derived from their rows: what they send is not one row's
+#: fields (a fault by code or cause; clear ends the causes first; frames is a query; reset takes a local path).
+SHAPED = ("fault", "clear", "frames", "reset")
+
+
+def _actions() -> dict[str, list[routes.Route]]:
+    """ctl's actions: each row of the route table that has one, grouped (state, link: by scope and verb)."""
+    out: dict[str, list[routes.Route]] = {}
+    for row in routes.table().values():
+        if row.action is not None:
+            out.setdefault(row.action, []).append(row)
+    return out
+
+
+def _kind(schema: Mapping[str, Any]) -> str:
+    if schema.get("type") == "integer":
+        return "integer"
+    if schema.get("type") == "number":
+        return "number"
+    if schema.get("type") == "boolean":
+        return "boolean"
+    if "oneOf" in schema and any(s.get("type") == "integer" for s in schema["oneOf"]):
+        return "name-or-number"
+    return "text"
+
+
+def _typed(schema: Mapping[str, Any]) -> Callable[[str], object]:
+    """How a command-line word becomes the field's JSON value."""
+    kind = _kind(schema)
+    if kind == "integer":
+        return _raw
+    if kind == "number":
+        return float
+    if kind == "name-or-number":
+        return lambda text: int(text) if text.isdigit() else text
+    return str
+
+
+def _help(rows: list[routes.Route]) -> str:
+    first = next((r for r in rows if r.method == "GET"), rows[0])
+    return _said(first)
+
+
+def _said(row: routes.Route) -> str:
+    """A row's help line: its own, or its doc without the "- (...)" of a route that takes no body."""
+    if row.help:
+        return row.help
+    return row.doc.removeprefix("- (").removesuffix(")") if row.doc.startswith("- (") else row.doc
+
+
+def _add_derived(parser: argparse.ArgumentParser, rows: list[routes.Route]) -> None:
+    """The arguments of an action made from its rows: path parameters and required fields as positionals,
+    optional fields as options, a whole body as KEY=VALUE words, a DELETE beside other verbs as --clear."""
+    seen: set[str] = set()
+    verbs = {r.method for r in rows}
+    for row in rows:
+        for name in row.parameters:
+            if name != "address" and name not in seen:
+                parser.add_argument(name)
+                seen.add(name)
+        if row.whole is not None and "values" not in seen:
+            parser.add_argument("values", nargs="*" if len(verbs) > 1 else "+", metavar="KEY=VALUE")
+            seen.add("values")
+        if row.method == "DELETE" and len(verbs) > 1:
+            if "clear" in seen:
+                continue
+            if len(row.fields) == 1 and not row.fields[0].required:
+                metavar = row.fields[0].name.upper()
+                parser.add_argument("--clear", nargs="?", const="", metavar=metavar, help=_said(row))
+            else:
+                parser.add_argument("--clear", action="store_true", help=_said(row))
+            seen.add("clear")
+            continue
+        for f in row.fields:
+            if f.name in seen:
+                continue
+            seen.add(f.name)
+            if f.required:
+                parser.add_argument(f.name, type=_typed(f.schema), help=f.doc or None)
+            elif _kind(f.schema) == "boolean":
+                parser.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, action="store_true")
+            else:
+                parser.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, type=_typed(f.schema))
+
+
+def _choose(rows: list[routes.Route], args: argparse.Namespace) -> routes.Route:
+    """The row an action's arguments ask for: by scope (--drive, where a row without a drive exists), then by
+    verb (--clear: DELETE; KEY=VALUE words: the row that takes them; else GET)."""
+    scoped = [r for r in rows if ("address" in r.parameters) == (args.drive is not None)]
+    if scoped and len(scoped) < len(rows):
+        rows = scoped
+    if getattr(args, "clear", None) not in (None, False):
+        return next(r for r in rows if r.method == "DELETE")
+    if getattr(args, "values", None):
+        return next(r for r in rows if r.whole is not None)
+    return next((r for r in rows if r.method == "GET"), rows[0])
+
+
+def _first_drive(api: Callable[..., Any]) -> int:
+    """The first drive's address, from the API's index (``GET /``): the drive an action means without --drive."""
+    index = routes.table().named("index")
+    return int(api(index.method, index.path)["drives"][0])
+
+
+def _derived_call(api: Callable[..., Any], row: routes.Route, args: argparse.Namespace) -> Any:
+    parameters: dict[str, object] = {}
+    for name in row.parameters:
+        if name == "address":
+            parameters[name] = args.drive if args.drive is not None else _first_drive(api)
+        else:
+            parameters[name] = getattr(args, name)
+    data: dict[str, object] = {}
+    if row.whole is not None:
+        data = _pairs(args.values)
+    elif row.method == "DELETE" and isinstance(getattr(args, "clear", None), str):
+        if args.clear:
+            data = {row.fields[0].name: args.clear}
+    else:
+        for f in row.fields:
+            value = getattr(args, f.name, None)
+            if value is not None and value is not False:
+                data[f.name] = value
+    return api(row.method, row.url(**parameters), data if row.method != "GET" else None)
+
+
+def _shaped_call(api: Callable[..., Any], action: str, args: argparse.Namespace) -> Any:
+    table = routes.table()
+
+    def at(name: str, **parameters: object) -> tuple[str, str]:
+        row = table.named(name)
+        if "address" in row.parameters:
+            parameters["address"] = args.drive if args.drive is not None else _first_drive(api)
+        return row.method, row.url(**parameters)
+
+    if action == "fault":
         if (args.code is None) == (args.cause is None):
             raise C20SimError("ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)")
-        if args.cause is not None:
-            result = api("POST", f"{at}/fault", {"cause": args.cause})
-        else:
-            result = api("POST", f"{at}/fault", {"code": args.code, "persistent": args.persistent})
-    elif action == "clear":
+        request = (
+            {"cause": args.cause} if args.cause is not None else {"code": args.code, "persistent": args.persistent}
+        )
+        return api(*at("fault"), request)
+    if action == "clear":
         body: dict[str, object] = {"reset": not args.no_reset}
         if args.cause is not None:
             body["cause"] = args.cause
         else:
-            api("DELETE", f"{at}/causes")  # every cause ended (the supply back, the load off, ...), then reset
-        result = api("DELETE", f"{at}/fault", body)
-    elif action == "causes":
-        result = api("GET", f"{at}/causes")
-    elif action == "key":
-        key: object = int(args.key) if args.key.isdigit() else args.key
-        result = api("POST", f"{at}/keypad", {"key": key})
-    elif action == "power-cycle":
-        result = api("POST", f"{at}/power-cycle")
-    elif action == "link":
-        where = f"/drives/{drive}/link" if drive is not None else "/link"
-        if args.clear:
-            result = api("DELETE", where)
-        elif args.values:
-            result = api("PATCH", where, _pairs(args.values))
-        else:
-            result = api("GET", where)
-    elif action == "advance":
-        result = api("POST", "/time/advance", {"seconds": args.seconds})
-    elif action in GLOBAL_ACTIONS or action == "generators":
-        result = _service(api, args, at)
-    elif action == "time":
-        result = api("GET", "/time")
-    else:  # frames
-        query = "&".join(f"{k}={v}" for k, v in (("last", args.last), ("slave", args.slave)) if v is not None)
-        result = api("GET", "/frames" + (f"?{query}" if query else ""))
-        if args.format != "json" and not args.json:
-            _write(_frame_lines(result["frames"]))
-            return 0
+            api(*at("clear_causes"))  # every cause ended (the supply back, the load off, ...), then reset
+        return api(*at("clear_fault"), body)
+    if action == "reset":
+        setup = args.setup if args.setup == "defaults" else str(Path(args.setup).resolve())  # the server's cwd differs
+        return api(*at("reset"), {"setup": setup})
+    query = "&".join(f"{k}={v}" for k, v in (("last", args.last), ("slave", args.slave)) if v is not None)
+    method, path = at("frames")
+    return api(method, path + (f"?{query}" if query else ""))
+
+
+def cmd_ctl(args: argparse.Namespace) -> int:
+    url, token = _ctl_target(args)
+    api = functools.partial(call, url, token=token)
+    action: str = args.action
+    if action in SHAPED:
+        result = _shaped_call(api, action, args)
+    else:
+        result = _derived_call(api, _choose(_actions()[action], args), args)
+    if action == "frames" and args.format != "json" and not args.json:
+        _write(_frame_lines(result["frames"]))
+        return 0
     _write(render(result, args.format or "json"))
     why = _refused(action, args, result)
     if why is not None:
@@ -318,7 +402,7 @@ def cmd_ctl(args: argparse.Namespace) -> int:
 
 
 def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """``c20sim ctl``: the subcommand and its actions."""
+    """``c20sim ctl``: the subcommand and its actions, one per operation of the route table."""
     ctl = sub.add_parser(
         "ctl",
         help="call a running server's control API (serve --control)",
@@ -345,45 +429,21 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     def action(name: str, help: str) -> argparse.ArgumentParser:
         return actions.add_parser(name, help=help, parents=[common])
 
-    action("info", help="profile, drives, clock and the API's routes")
-    action("state", help="a drive's telemetry (every drive without --drive)")
-    read = action("read", help="read a register: 2100H, 0x2100, F00.10 or status1")
-    read.add_argument("register")
-    write = action("write", help="write a register by a master's rules (a refusal names its exception code)")
-    write.add_argument("register")
-    write.add_argument("value", type=_raw, help="the raw value: 1500, 0x5DC")
-    action("registers", help="every register and function code with its value, access and group")
-    action("counters", help="the drive's traffic: requests, replies, exceptions by code, CRC errors, silences")
-    conditions = action("set", help=f"set conditions: {', '.join(CONDITIONS)}")
-    conditions.add_argument("values", nargs="+", metavar="KEY=VALUE")
-    fault = action("fault", help="bring about a fault's cause (--cause undervoltage), or latch a fault by code")
+    for name, rows in _actions().items():
+        parser = action(name, _help(rows))
+        if name not in SHAPED:
+            _add_derived(parser, rows)
+    shaped = actions.choices
+    fault = shaped["fault"]
     fault.add_argument("code", type=int, nargs="?", help="a fault code to latch, such as 16")
     fault.add_argument("--cause", metavar="NAME", help="a cause, such as undervoltage (see: ctl causes)")
     fault.add_argument("--persistent", action="store_true", help="a reset fails until the fault is cleared")
-    clear = action("clear", help="end a fault's cause (--cause NAME; default: every cause) and press reset")
+    clear = shaped["clear"]
     clear.add_argument("--cause", metavar="NAME", help="the cause to end, such as undervoltage")
     clear.add_argument("--no-reset", action="store_true", help="release the cause only")
-    action("causes", help="every fault cause of the profile, and whether it is there now")
-    key = action("key", help=f"press a keypad key: {', '.join(KEYS)}")
-    key.add_argument("key")
-    action("power-cycle", help="switch the drive off and on")
-    link = action("link", help="show, set (KEY=VALUE) or --clear link faults (the bus without --drive)")
-    link.add_argument("values", nargs="*", metavar="KEY=VALUE")
-    link.add_argument("--clear", action="store_true")
-    advance = action("advance", help="advance virtual time (serve --clock virtual)")
-    advance.add_argument("seconds", type=float)
-    action("time", help="the model's time")
-    action("health", help="whether the server is serving")
-    action("clock", help="the clock: virtual or realtime, t, paused, speed")
-    action("pause", help="stop the model's time (realtime clock)")
-    action("resume", help="let the model's time run on (realtime clock)")
-    speed = action("speed", help="set the realtime clock's speed factor, such as 10")
-    speed.add_argument("factor", type=float)
-    reset = action("reset", help="every drive anew, no restart: defaults, or a state file's function codes")
+    reset = shaped["reset"]
     reset.add_argument("setup", nargs="?", default="defaults", help='"defaults" (the default) or a state file path')
-    generators = action("generators", help="the generators on a drive's conditions; --clear [CONDITION] stops them")
-    generators.add_argument("--clear", nargs="?", const="", metavar="CONDITION", help="stop one generator, or all")
-    log = action("frames", help="the frame log")
+    log = shaped["frames"]
     log.add_argument("--last", type=_at_least_one, metavar="N", help="only the newest N frames (N >= 1)")
     log.add_argument("--slave", type=int, metavar="N")
     log.add_argument("--json", action="store_true", help="print JSON, not one line per frame (as --format json)")

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
+from importlib import metadata
 from typing import Any
 
-from .. import __version__
 from .routes import Route
 
 __all__ = ["document"]
@@ -38,6 +38,14 @@ def _parameter(name: str) -> dict[str, Any]:
         "register": "2100H, 0x2100, F00.10 or a name such as status1",
     }.get(name, name)
     return {"name": name, "in": "path", "required": True, "schema": schema, "description": text}
+
+
+def _version() -> str:
+    """The installed c20sim's version (the package's own, without importing the package from this layer)."""
+    try:
+        return metadata.version("c20sim")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
 
 
 def document(routes: Mapping[str, Route]) -> dict[str, Any]:
@@ -78,7 +86,7 @@ def document(routes: Mapping[str, Route]) -> dict[str, Any]:
         "openapi": "3.1.0",
         "info": {
             "title": "c20sim control API",
-            "version": __version__,
+            "version": _version(),
             "description": "A running c20sim: its clock, drives, conditions, faults, link faults and frame log. "
             'Errors are JSON {"error": sentence}.',
         },

@@ -66,6 +66,8 @@ class Route:
     cli: str | None = ""
     #: shown in ``GET /``'s list; False for a second method described by another row ("PATCH too")
     listed: bool = True
+    #: what it does, in one line (ctl's help); the doc where empty
+    help: str = ""
 
     @property
     def key(self) -> str:
@@ -298,12 +300,13 @@ _D = "/drives/{address}"
 #: The control surface. ``listed=False`` rows are second methods of a listed row (its doc says so).
 TABLE = Table(
     [
-        Route("GET", "/", "index", "-", cli="info"),
+        Route("GET", "/", "index", "-", cli="info", help="profile, drives, clock and the API's routes"),
         Route(
             "GET",
             "/telemetry",
             "telemetry",
             "- (every drive's telemetry, conditions, causes and link faults: one stream message)",
+            help="every drive's state at once, as one stream message",
         ),
         Route("GET", "/profile", "profile", "- (the served profile's TOML)", cli=None),
         Route(
@@ -313,7 +316,7 @@ TABLE = Table(
             "WebSocket (query: hz=0.1-50, frame_hz=0.1-100, buffer=1-10000, frames=0|1): telemetry, frames",
             cli=None,
         ),
-        Route("GET", "/time", "time", "-", _time),
+        Route("GET", "/time", "time", "-", _time, help="the model's time"),
         Route(
             "POST",
             "/time/advance",
@@ -323,8 +326,17 @@ TABLE = Table(
             (Field("seconds", {"type": "number", "minimum": 0, "maximum": ops.MAX_ADVANCE}, True),),
             missing='give the time to advance by, such as {"seconds": 1.5}',
             changes=True,
+            help="advance virtual time (serve --clock virtual)",
         ),
-        Route("GET", "/drives", "drives", "-", _drives, cli="state"),
+        Route(
+            "GET",
+            "/drives",
+            "drives",
+            "-",
+            _drives,
+            cli="state",
+            help="a drive's telemetry (every drive without --drive)",
+        ),
         Route("GET", _D, "drive", "-", _state, cli="state"),
         Route(
             "GET",
@@ -332,6 +344,7 @@ TABLE = Table(
             "registers",
             "- (every register and function code, grouped as the sheet groups them)",
             _registers,
+            help="every register and function code with its value, access and group",
         ),
         Route(
             "GET",
@@ -340,6 +353,7 @@ TABLE = Table(
             "- (register: 2100H, 0x2100, F00.10 or status1)",
             ops.read_register,
             cli="read",
+            help="read a register: 2100H, 0x2100, F00.10 or status1",
         ),
         Route(
             "PUT",
@@ -351,6 +365,7 @@ TABLE = Table(
             missing='give the raw value, such as {"value": 1500}',
             changes=True,
             cli="write",
+            help="write a register by a master's rules (a refusal names its exception code)",
         ),
         Route(
             "GET",
@@ -358,6 +373,7 @@ TABLE = Table(
             "counters",
             "- (requests, replies, exceptions by code, CRC errors, silences, injected)",
             ops.counters,
+            help="the drive's traffic: requests, replies, exceptions by code, CRC errors, silences",
         ),
         Route(
             "PUT",
@@ -369,6 +385,7 @@ TABLE = Table(
             missing='give the raw value, such as {"value": 1500}',
             changes=True,
             cli="panel",
+            help="edit a register from the drive's own panel (200EH allowed, no password)",
         ),
         Route(
             "PUT",
@@ -380,6 +397,7 @@ TABLE = Table(
             body_schema=_conditions_body,
             changes=True,
             cli="set",
+            help=f"set conditions: {', '.join(ops.CONDITIONS)}",
         ),
         Route(
             "PATCH",
@@ -402,6 +420,7 @@ TABLE = Table(
             whole="request",
             body_schema=_fault_schema,
             changes=True,
+            help="bring about a fault's cause (--cause undervoltage), or latch a fault by code",
         ),
         Route(
             "DELETE",
@@ -412,6 +431,7 @@ TABLE = Table(
             (Field("reset", {"type": "boolean"}), Field("cause", {"type": "string"})),
             changes=True,
             cli="clear",
+            help="end a fault's cause (--cause NAME; default: every cause) and press reset",
         ),
         Route(
             "GET",
@@ -419,6 +439,7 @@ TABLE = Table(
             "causes",
             "- (every fault cause of the profile: whether it is there now)",
             _causes,
+            help="every fault cause of the profile, and whether it is there now",
         ),
         Route(
             "POST",
@@ -430,8 +451,17 @@ TABLE = Table(
             missing=f'give the key, such as {{"key": "reset"}}; keys: {", ".join(ops.KEYS)}',
             changes=True,
             cli="key",
+            help=f"press a keypad key: {', '.join(ops.KEYS)}",
         ),
-        Route("POST", f"{_D}/power-cycle", "power_cycle", "-", _power_cycle, changes=True),
+        Route(
+            "POST",
+            f"{_D}/power-cycle",
+            "power_cycle",
+            "-",
+            _power_cycle,
+            changes=True,
+            help="switch the drive off and on",
+        ),
         Route(
             "DELETE",
             f"{_D}/causes",
@@ -439,6 +469,7 @@ TABLE = Table(
             "- (ends every fault cause; faults stay until reset)",
             _clear_causes,
             changes=True,
+            help="end every fault cause (the faults stay until reset)",
         ),
         Route(
             "POST",
@@ -450,6 +481,7 @@ TABLE = Table(
             missing='give the run channel, such as {"channel": "keypad"} or {"channel": 0}',
             changes=True,
             cli="run-channel",
+            help="set F00.01 from the panel: keypad, terminals or communication",
         ),
         Route(
             "POST",
@@ -458,8 +490,17 @@ TABLE = Table(
             "- (200FH = 1 from the panel; 409 while running)",
             _restore_defaults,
             changes=True,
+            help="restore the function codes' defaults from the panel (only while stopped)",
         ),
-        Route("GET", f"{_D}/link", "drive_link", "-", _link, cli="link"),
+        Route(
+            "GET",
+            f"{_D}/link",
+            "drive_link",
+            "-",
+            _link,
+            cli="link",
+            help="show, set (KEY=VALUE) or --clear link faults (the bus without --drive)",
+        ),
         Route(
             "PATCH",
             f"{_D}/link",
@@ -508,12 +549,28 @@ TABLE = Table(
             "/frames",
             "frames",
             "- (query: last=N (N >= 1), slave=N, since=SEQ); log_dropped: records --log-frames lost",
+            help="the frame log",
         ),
-        Route("DELETE", "/frames", "clear_frames", "- (empties the frame log)", changes=True),
+        Route(
+            "DELETE", "/frames", "clear_frames", "- (empties the frame log)", changes=True, help="empty the frame log"
+        ),
         # the service routes: health, the document, the clock, set-ups, generators
-        Route("GET", "/health", "health", "- (200 once serving, 503 before; for orchestrators)"),
+        Route(
+            "GET",
+            "/health",
+            "health",
+            "- (200 once serving, 503 before; for orchestrators)",
+            help="whether the server is serving",
+        ),
         Route("GET", "/openapi.json", "openapi", "- (this API as OpenAPI 3.1)", cli=None),
-        Route("GET", "/clock", "clock", "- (clock, t, paused, speed)", ops.clock_state),
+        Route(
+            "GET",
+            "/clock",
+            "clock",
+            "- (clock, t, paused, speed)",
+            ops.clock_state,
+            help="the clock: virtual or realtime, t, paused, speed",
+        ),
         Route(
             "POST",
             "/clock/pause",
@@ -521,8 +578,17 @@ TABLE = Table(
             "- (realtime clock: model time stops; 409 for a virtual clock)",
             ops.pause,
             changes=True,
+            help="stop the model's time (realtime clock)",
         ),
-        Route("POST", "/clock/resume", "resume", "- (realtime clock: model time runs on)", ops.resume, changes=True),
+        Route(
+            "POST",
+            "/clock/resume",
+            "resume",
+            "- (realtime clock: model time runs on)",
+            ops.resume,
+            changes=True,
+            help="let the model's time run on (realtime clock)",
+        ),
         Route(
             "PUT",
             "/clock/speed",
@@ -533,6 +599,7 @@ TABLE = Table(
             missing='give the speed factor, such as {"speed": 10}',
             changes=True,
             cli="speed",
+            help="set the realtime clock's speed factor, such as 10",
         ),
         Route(
             "POST",
@@ -542,6 +609,7 @@ TABLE = Table(
             ops.reset,
             (Field("setup", {"type": "string", "description": '"defaults", or the path of a state file (--state)'}),),
             changes=True,
+            help="every drive anew, no restart: defaults, or a state file's function codes",
         ),
         Route(
             "GET",
@@ -549,6 +617,7 @@ TABLE = Table(
             "generators",
             "- (the generators running on the drive's conditions)",
             _generators,
+            help="the generators on a drive's conditions; --clear [CONDITION] stops them",
         ),
         Route(
             "DELETE",

@@ -34,6 +34,7 @@ from textual.screen import ModalScreen, Screen
 from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
+from ..control import routes
 from ..control.client import RemoteOps
 from ..control.ops import ControlError
 from ..wire.errors import C20SimError
@@ -263,7 +264,7 @@ class Dashboard(App[int]):
         import aiohttp  # the API's own WebSocket client
 
         client = self.remote.client
-        url = f"{client.url}/stream?hz={self.refresh_hz:g}&frame_hz={FRAME_HZ}&buffer={STREAM_BUFFER}"
+        url = f"{client.url}{routes.table().named('stream').path}?hz={self.refresh_hz:g}&frame_hz={FRAME_HZ}&buffer={STREAM_BUFFER}"
         lost = False
         async with aiohttp.ClientSession(headers=client.headers()) as session:
             while True:
@@ -530,19 +531,19 @@ class Dashboard(App[int]):
     def action_pause(self) -> None:
         """The realtime clock: pause it, or resume it (the model stands still meanwhile; the wire still answers)."""
         paused = bool(self.remote.latest.get("paused"))
-        state = self._call(self.bench.ops.resume if paused else self.bench.ops.pause)
+        state = self._call(lambda: self.bench.ops.call("resume" if paused else "pause"))
         if state is not None:
             self.notify("clock " + ("paused: the model stands still" if state["paused"] else "running"), timeout=3)
 
     def action_clock_speed(self, factor: float) -> None:
         speed = float(self.remote.latest.get("speed") or 1.0) * float(factor)
-        state = self._call(lambda: self.bench.ops.set_speed(speed))
+        state = self._call(lambda: self.bench.ops.call("set_speed", speed=speed))
         if state is not None:
             self.notify(f"clock ×{float(state['speed']):g}", timeout=2)
 
     def action_reset_setup(self) -> None:
         """Every drive back to the profile's defaults, as at start (the server keeps running)."""
-        if self._call(self.bench.ops.reset) is not None:
+        if self._call(lambda: self.bench.ops.call("reset")) is not None:
             self.notify("every drive reset to the profile's defaults", timeout=3)
         self.refresh_views()
 

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
-from ..control import causes, ops
+from ..control import causes, ops, routes
 from ..core.linkfaults import KNOBS
 from ..core.simulator import Simulator
 from ..drive.model import HallFault, Telemetry
@@ -162,7 +162,8 @@ class History:
 
 
 class BenchOps(Protocol):
-    """The operations the bench uses, on the drives of one simulator, wherever it runs."""
+    """The operations the bench uses, on the drives of one simulator, wherever it runs: what it reads, and
+    :meth:`call`, every operation of the route table (:mod:`c20sim.control.routes`) by its name."""
 
     profile: Profile
     addresses: tuple[int, ...]
@@ -173,32 +174,13 @@ class BenchOps(Protocol):
     def conditions(self, address: int) -> dict[str, object]: ...
     def held_fault(self, address: int) -> int | None: ...
     def register(self, address: int, register: int) -> int: ...
-    def registers(self, address: int) -> list[dict[str, Any]]: ...
-    def counters(self, address: int) -> dict[str, object]: ...
-    def clock(self) -> dict[str, Any]: ...
-    def pause(self) -> dict[str, Any]: ...
-    def resume(self) -> dict[str, Any]: ...
-    def set_speed(self, factor: float) -> dict[str, Any]: ...
-    def reset(self) -> dict[str, Any]: ...
     def causes(self, address: int) -> dict[str, bool]: ...
     def link(self, scope: int | None) -> dict[str, Any]: ...
-    def advance(self, seconds: float) -> float: ...
-    def press_key(self, address: int, command: Command) -> bool: ...
-    def set_run_channel(self, address: int, channel: int) -> int: ...
-    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]: ...
-    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]: ...
-    def power_cycle(self, address: int) -> None: ...
-    def restore_defaults(self, address: int) -> None: ...
-    def set_conditions(self, address: int, values: Mapping[str, object]) -> None: ...
-    def trip(self, address: int, cause: str) -> str: ...
-    def release(self, address: int, cause: str) -> str: ...
-    def clear_causes(self, address: int) -> None: ...
-    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None: ...
-    def clear_link_faults(self, scope: int | None) -> None: ...
+    def call(self, name: str, /, **arguments: Any) -> Any: ...
 
 
 class LocalOps:
-    """:class:`BenchOps` on a simulator in this process, straight through :mod:`c20sim.control`."""
+    """:class:`BenchOps` on a simulator in this process, straight through the route table's operations."""
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
@@ -222,71 +204,17 @@ class LocalOps:
         raw: int = ops.read_register(self.sim, address, register)["raw"]
         return raw
 
-    def registers(self, address: int) -> list[dict[str, Any]]:
-        return ops.registers(self.sim, address)
-
-    def counters(self, address: int) -> dict[str, object]:
-        return ops.counters(self.sim, address)
-
-    def clock(self) -> dict[str, Any]:
-        return ops.clock_state(self.sim)
-
-    def pause(self) -> dict[str, Any]:
-        return ops.pause(self.sim)
-
-    def resume(self) -> dict[str, Any]:
-        return ops.resume(self.sim)
-
-    def set_speed(self, factor: float) -> dict[str, Any]:
-        return ops.set_speed(self.sim, factor)
-
-    def reset(self) -> dict[str, Any]:
-        return ops.reset(self.sim)
-
     def causes(self, address: int) -> dict[str, bool]:
         return causes.active(self.sim, address)
 
     def link(self, scope: int | None) -> dict[str, Any]:
         return ops.link_state(ops.links(self.sim, scope))
 
-    def advance(self, seconds: float) -> float:
-        return ops.advance(self.sim, seconds)
-
-    def press_key(self, address: int, command: Command) -> bool:
-        return ops.press_key(self.sim, address, command)
-
-    def set_run_channel(self, address: int, channel: int) -> int:
-        return int(ops.set_run_channel(self.sim, address, channel))
-
-    def keypad_edit(self, address: int, register: int, value: int) -> dict[str, Any]:
-        return ops.keypad_edit(self.sim, address, register, value)
-
-    def write_register(self, address: int, register: str, value: int) -> dict[str, Any]:
-        return ops.write_register(self.sim, address, register, value)
-
-    def power_cycle(self, address: int) -> None:
-        ops.power_cycle(self.sim, address)
-
-    def restore_defaults(self, address: int) -> None:
-        ops.restore_defaults(self.sim, address)
-
-    def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
-        ops.set_conditions(self.sim, address, values)
-
-    def trip(self, address: int, cause: str) -> str:
-        return causes.trip(self.sim, address, cause)
-
-    def release(self, address: int, cause: str) -> str:
-        return causes.release(self.sim, address, cause)
-
-    def clear_causes(self, address: int) -> None:
-        causes.clear_all(self.sim, address)
-
-    def set_link_faults(self, scope: int | None, values: Mapping[str, object]) -> None:
-        ops.set_link_faults(self.sim, scope, values)
-
-    def clear_link_faults(self, scope: int | None) -> None:
-        ops.clear_link_faults(self.sim, scope)
+    def call(self, name: str, /, **arguments: Any) -> Any:
+        row = routes.table().named(name)
+        parameters = {p: arguments.pop(p) for p in row.parameters}
+        data = arguments[row.whole] if row.whole is not None else arguments
+        return routes.invoke(self.sim, row, parameters, data)
 
 
 class Workbench:
@@ -355,7 +283,7 @@ class Workbench:
         now = self.ops.now()
         end = now + seconds
         while now < end - 1e-12:
-            now = self.ops.advance(min(every, end - now))
+            now = float(self.ops.call("advance", seconds=min(every, end - now))["t"])
             for address in self.addresses:
                 self.history[address].add(self.ops.telemetry(address))
 
@@ -368,7 +296,7 @@ class Workbench:
         state = tel.state
         if key in ("jog", "jogrev") and state.startswith("jog"):
             command = Command.JOG_STOP  # a jog key pressed while jogging is released
-        if self.ops.press_key(address, command):
+        if self.ops.call("press_key", address=address, key=command)["accepted"]:
             return None
         if key == "reset":
             if state != "fault":
@@ -383,7 +311,8 @@ class Workbench:
     def cycle_channel(self, address: int) -> int:
         """The keypad's own parameter edit: F00.01 keypad -> terminals -> communication -> keypad."""
         now = self.telemetry(address).run_channel
-        return self.ops.set_run_channel(address, (now + 1) % (RunChannel.COMMUNICATION + 1))
+        channel = (now + 1) % (RunChannel.COMMUNICATION + 1)
+        return int(self.ops.call("set_run_channel", address=address, channel=channel)["channel"])
 
     def cycle_speed_source(self, address: int) -> str:
         """The keypad's edit of F00.02: the next speed source this model takes; returns it in words."""
@@ -393,7 +322,7 @@ class Workbench:
         for step in range(1, span):
             value = spec.minimum + (now - spec.minimum + step) % span
             try:
-                return str(self.ops.keypad_edit(address, Reg.SPEED_SOURCE, value)["text"])
+                return str(self._panel(address, Reg.SPEED_SOURCE, value)["text"])
             except ops.ControlError:
                 continue  # a source this model lacks (simple PLC): the panel skips it
         raise ops.ControlError("no other speed source is allowed here", status=409)
@@ -403,40 +332,44 @@ class Workbench:
         cell = fcode_address(0, 10)
         spec = self.profile.registers[cell]
         value = min(max(self.register(address, cell) + steps * 100, spec.minimum), spec.maximum)
-        return str(self.ops.keypad_edit(address, cell, value)["text"])
+        return str(self._panel(address, cell, value)["text"])
 
     def registers(self, address: int) -> list[dict[str, object]]:
         """Every register and function code, grouped as the sheet groups them, with its value now."""
-        return self.ops.registers(address)
+        return list(self.ops.call("registers", address=address)["registers"])
 
     def write_register(self, address: int, register: str, value: int) -> str | None:
         """Write as a master would (the same checks); None if taken, else the refusal with its exception code."""
         try:
-            self.ops.write_register(address, register, value)
+            self.ops.call("write_register", address=address, register=register, value=value)
         except ops.ControlError as exc:
             return str(exc)
         return None
 
     def counters(self, address: int) -> dict[str, object]:
         """The drive's traffic: requests, replies, exceptions by code, CRC errors, silences, injected."""
-        return self.ops.counters(address)
+        return dict(self.ops.call("counters", address=address))
 
     def power_cycle(self, address: int) -> None:
-        self.ops.power_cycle(address)
+        self.ops.call("power_cycle", address=address)
 
     def restore_defaults(self, address: int) -> str | None:
         """200FH = 1, as the keypad does it: only while stopped. Keeps the bus address given on the command line."""
         try:
-            self.ops.restore_defaults(address)
+            self.ops.call("restore_defaults", address=address)
         except ops.ControlError as exc:
             return str(exc)
         return None
+
+    def _panel(self, address: int, register: int, value: int) -> dict[str, Any]:
+        answer: dict[str, Any] = self.ops.call("keypad_edit", address=address, register=register, value=value)
+        return answer
 
     # --- physical conditions, checked by the operations (ControlError if refused)
 
     def set_conditions(self, address: int, values: Mapping[str, object]) -> None:
         """Set conditions by their :data:`c20sim.control.ops.CONDITIONS` names; none is set if one is refused."""
-        self.ops.set_conditions(address, values)
+        self.ops.call("set_conditions", address=address, values=dict(values))
 
     def set_supply(self, address: int, volts: float) -> None:
         self.set_conditions(address, {"supply_v": volts})
@@ -482,7 +415,7 @@ class Workbench:
     def toggle_device_fault(self, address: int, key: str) -> str:
         """Switch a device fault's cause on or off; returns what was done, in words."""
         if key == "z":
-            self.ops.clear_causes(address)
+            self.ops.call("clear_causes", address=address)
             return f"drive {address}: every fault cause cleared"
         if key == "h":  # the Hall sensor cycles through its faults
             now = self.conditions(address).hall
@@ -491,8 +424,8 @@ class Workbench:
             return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
         cause = self._cause(key)
         if self.device_fault_active(address, key):
-            return self.ops.release(address, cause)
-        note = self.ops.trip(address, cause)
+            return str(self.ops.call("clear_fault", address=address, cause=cause, reset=False)["note"])
+        note = str(self.ops.call("fault", address=address, request={"cause": cause})["note"])
         if cause == "overheat":
             seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
             note += " (never trips)" if math.isinf(seconds) else f" (trips in about {seconds:.0f} s)"
@@ -516,7 +449,7 @@ class Workbench:
         """Press a link fault's switch: on, off, or (a count, an exception) the next step; returns it in words."""
         where = "bus" if scope is None else f"drive {scope} link"
         if key == "z":
-            self.ops.clear_link_faults(scope)
+            self._link_op("clear", scope)
             return f"{where}: every link fault cleared"
         name = LINK_OF_KEY[key]
         knob = KNOBS[name]
@@ -537,8 +470,15 @@ class Workbench:
             value = knob.on.hex(" ")
         else:
             value = knob.on
-        self.ops.set_link_faults(scope, {name: value})
+        self._link_op("set", scope, values={name: value})
         return f"{where}: {knob.label} {self._words(name, self.link(scope)[name])}"
+
+    def _link_op(self, verb: str, scope: int | None, **arguments: Any) -> None:
+        """Set or clear link faults of one drive, or of the bus (None): the route table's link rows."""
+        if scope is None:
+            self.ops.call(f"{verb}_link", **arguments)
+        else:
+            self.ops.call(f"{verb}_drive_link", address=scope, **arguments)
 
     @staticmethod
     def _words(name: str, value: object) -> str:

@@ -73,7 +73,7 @@ def test_beyond_loopback_a_token_is_generated_and_asked_for(beyond_loopback: tup
         RemoteOps(ControlClient(url))
     assert refused.value.status == 401
     remote = RemoteOps(ControlClient(url, token))
-    remote.set_conditions(1, {"supply_v": 30})
+    remote.call("set_conditions", address=1, values={"supply_v": 30})
     assert remote.conditions(1)["supply_v"] == 30.0
 
 

@@ -1,0 +1,121 @@
+"""The route table: an operation is its function plus one row, and every front end finds it with no other edit.
+
+A throwaway operation is added to the table in the test: the HTTP API serves it (fields checked, errors in
+words), ``GET /`` lists it, the OpenAPI document describes it, the dashboard's operations call it in this
+process and over the API, and ``c20sim ctl`` has it as an action with its field as an argument.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from c20sim import cli
+from c20sim.control import ops, routes
+from c20sim.control.client import ControlClient, RemoteOps
+from c20sim.control.openapi import document
+from c20sim.control.ops import ControlError
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.tui.workbench import LocalOps
+from tests.tui.conftest import serving
+
+
+def spin(sim: Simulator, address: int, turns: object) -> dict[str, Any]:
+    """The throwaway operation: check its field as ops do, and answer with what it was given."""
+    count = ops.integer("turns", turns, 1, 10)
+    return {"address": address, "turns": count, "t": sim.now()}
+
+
+ROW = routes.Route(
+    "POST",
+    "/drives/{address}/spin",
+    "spin",
+    '{"turns": 3} (a test\'s throwaway operation)',
+    spin,
+    (routes.Field("turns", {"type": "integer", "minimum": 1, "maximum": 10}, True, "how many turns"),),
+    missing='give the turns, such as {"turns": 3}',
+    changes=True,
+    help="spin the drive's test operation",
+)
+
+
+@pytest.fixture
+def with_spin() -> Iterator[routes.Table]:
+    table = routes.table()
+    table.add(ROW)
+    try:
+        yield table
+    finally:
+        table.remove("spin")
+
+
+def test_a_new_operation_reaches_every_front_end(with_spin: routes.Table, capsys: pytest.CaptureFixture[str]) -> None:
+    # the OpenAPI document
+    operation = document(with_spin)["paths"]["/drives/{address}/spin"]["post"]
+    assert operation["requestBody"]["content"]["application/json"]["schema"] == {
+        "type": "object",
+        "properties": {"turns": {"type": "integer", "minimum": 1, "maximum": 10}},
+        "additionalProperties": False,
+        "required": ["turns"],
+    }
+    assert [p["name"] for p in operation["parameters"]] == ["address"]
+    # the dashboard's operations in this process
+    local = LocalOps(Simulator(load_profile(), (1,), clock=VirtualClock()))
+    assert local.call("spin", address=1, turns=2) == {"address": 1, "turns": 2, "t": 0.0}
+    with serving() as served:
+        client = ControlClient(served.url)
+        # the HTTP API, and GET /'s list
+        assert client.call("POST", "/drives/1/spin", {"turns": 3}) == {"address": 1, "turns": 3, "t": 0.0}
+        assert client.call("GET", "/")["routes"]["POST /drives/{address}/spin"] == ROW.doc
+        with pytest.raises(ControlError, match=r'^give the turns, such as \{"turns": 3\}$'):
+            client.call("POST", "/drives/1/spin", {})
+        with pytest.raises(ControlError, match=r"^unknown field 'turn'; did you mean 'turns'\? \(known: turns\)$"):
+            client.call("POST", "/drives/1/spin", {"turn": 3})
+        with pytest.raises(ControlError, match=r"^turns: 11 is outside 1-10$"):
+            client.call("POST", "/drives/1/spin", {"turns": 11})
+        with pytest.raises(ControlError, match=r"^no drive at address 9; drives: 1$"):
+            client.call("POST", "/drives/9/spin", {"turns": 1})
+        # the dashboard's operations over the API
+        assert RemoteOps(client).call("spin", address=1, turns=4) == {"address": 1, "turns": 4, "t": 0.0}
+        # c20sim ctl: an action, its required field a positional argument, --drive for the address
+        assert cli.main(["ctl", "--url", served.url, "spin", "5", "--drive", "1"]) == 0
+        assert json.loads(capsys.readouterr().out) == {"address": 1, "turns": 5, "t": 0.0}
+        assert cli.main(["ctl", "--url", served.url, "--format", "text", "spin", "6"]) == 0
+        assert capsys.readouterr().out == "address: 1\nturns: 6\nt: 0.0\n"
+    with pytest.raises(SystemExit) as done:
+        cli.main(["ctl", "spin", "--help"])
+    assert done.value.code == 0
+    assert ["turns", "how", "many", "turns"] in [line.split() for line in capsys.readouterr().out.splitlines()]
+
+
+def test_ctl_help_lists_a_new_operation(with_spin: routes.Table, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as done:
+        cli.main(["ctl", "--help"])
+    assert done.value.code == 0
+    lines = [line.split() for line in capsys.readouterr().out.splitlines()]
+    assert ["spin", "spin", "the", "drive's", "test", "operation"] in lines
+
+
+def test_without_the_row_no_front_end_has_it() -> None:
+    assert "POST /drives/{address}/spin" not in routes.table()
+    with pytest.raises(ControlError, match=r"^unknown operation 'spin'"):
+        routes.table().named("spin")
+    assert "/drives/{address}/spin" not in document(routes.table())["paths"]
+
+
+def test_a_row_declared_twice_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"^route GET /time \(time\): declared twice$"):
+        routes.table().add(routes.Route("GET", "/time", "time", "-", lambda sim: {}))
+
+
+def test_every_row_is_served_and_every_served_route_is_a_row() -> None:
+    from c20sim.control.http import ControlApi, make_app
+
+    app = make_app(ControlApi(Simulator(load_profile(), (1,), clock=VirtualClock())))
+    served = {f"{r.method} {r.resource.canonical}" for r in app.router.routes() if r.method != "HEAD" and r.resource}
+    assert served == set(routes.table())
