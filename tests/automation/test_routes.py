@@ -119,3 +119,64 @@ def test_every_row_is_served_and_every_served_route_is_a_row() -> None:
     app = make_app(ControlApi(Simulator(load_profile(), (1,), clock=VirtualClock())))
     served = {f"{r.method} {r.resource.canonical}" for r in app.router.routes() if r.method != "HEAD" and r.resource}
     assert served == set(routes.table())
+
+
+NEW_CAUSE = """
+import json
+from c20sim.control import causes
+from c20sim.drive.profile import FaultCause
+
+# the one row: a supply that sags below the undervoltage trip, and comes back
+causes.CAUSES = {
+    **causes.CAUSES,
+    "brownout": causes.Cause(
+        "brownout",
+        "b",
+        "brown-out",
+        "the supply sags to 90 % of the undervoltage trip level",
+        (FaultCause.UNDERVOLTAGE,),
+        lambda p, c: {"supply_v": round(p.supply.undervoltage_v * 0.9, 1)},
+        lambda p, c: {"supply_v": p.supply.voltage_v},
+        lambda p, c: float(c["supply_v"]) < p.supply.undervoltage_v,
+    ),
+}
+
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.scenario.timeline import parse_scenario
+from c20sim.tui.workbench import DEVICE_SWITCHES, Workbench
+
+sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+note = causes.request(sim, 1, {"cause": "brownout"})
+step = parse_scenario({"step": [{"at": 0, "fault": {"cause": "brownout"}}]}, "s.toml").steps[0]
+bench = Workbench(sim)
+print(json.dumps({
+    "note": note,
+    "active": causes.active(sim, 1)["brownout"],
+    "switch": [s.label for s in DEVICE_SWITCHES if s.key == "b"],
+    "scenario": step.cause,
+    "dashboard": bench.device_fault_active(1, "b"),
+    "released": bench.toggle_device_fault(1, "b"),
+    "after": causes.active(sim, 1)["brownout"],
+}))
+"""
+
+
+def test_a_new_fault_cause_is_one_row() -> None:
+    """A row added to causes.CAUSES (before the front ends are imported) is a cause of the API's fault request,
+    of the scenarios, and a switch of the dashboard, with no other edit."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", NEW_CAUSE], capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == {
+        "note": "drive 1: brownout: supply_v 18",
+        "active": True,
+        "switch": ["brown-out"],
+        "scenario": "brownout",
+        "dashboard": True,
+        "released": "drive 1: brownout gone: supply_v 48 (reset to clear the fault)",
+        "after": False,
+    }
