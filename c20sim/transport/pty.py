@@ -24,6 +24,7 @@ import os
 from pathlib import Path
 
 from ..wire.errors import C20SimError
+from .device import check_link, open_pty, remove_link
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 from .ptywatch import PtyOpeners
@@ -48,28 +49,15 @@ class PtyPort:
         self._openers: PtyOpeners | None = None
 
     async def start(self) -> None:
-        import tty  # POSIX only, so imported here: importing this module works everywhere
-
-        if self.link is not None and self.link.exists() and not self.link.is_symlink():
-            raise C20SimError(
-                f"--link {self.link}: a file that is not a symlink is in the way; remove it or choose another path"
-            )
+        check_link(self.link, "--link")  # before the lock: a refused link leaves no lock file beside it
         if self.link is not None:
             self._take_link_lock(self.link)
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
+        try:
+            self._master, self._slave, self.path = open_pty(self.link, "--link")
+        except C20SimError:
+            self.close()
+            raise
         os.set_blocking(self._master, False)
-        self.path = os.ttyname(self._slave)
-        if self.link is not None:
-            try:
-                if self.link.is_symlink():
-                    self.link.unlink()
-                self.link.symlink_to(self.path)
-            except OSError as exc:
-                self.close()
-                raise C20SimError(
-                    f"--link {self.link}: cannot create the symlink: {exc.strerror}; choose a writable path"
-                ) from None
         self._openers = PtyOpeners(self.path, self._master_gone)
         if not self._openers.start():
             self._openers = None
@@ -203,8 +191,7 @@ class PtyPort:
         if self._slave >= 0:
             os.close(self._slave)
             self._slave = -1
-        if self.link is not None and self.link.is_symlink() and os.readlink(self.link) == self.path:
-            self.link.unlink()
+        remove_link(self.link, self.path)
         if self._lock >= 0:
             # The lock file stays (unlinking it would let a third c20sim lock a fresh file while a
             # second holds the old one); emptied, it names no holder.

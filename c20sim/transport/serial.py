@@ -26,6 +26,7 @@ import serial
 
 from ..wire.errors import C20SimError
 from ..wire.protocol import char_bits
+from .device import open_serial
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 from .timed import TimedEndpoint
@@ -33,8 +34,6 @@ from .timed import TimedEndpoint
 log = logging.getLogger(__name__)
 
 __all__ = ["SerialPort"]
-
-PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
 #: Seconds between attempts to open a port that went away.
 REOPEN_EVERY = 1.0
@@ -79,15 +78,7 @@ class SerialPort:
 
     def _open(self) -> None:
         """Open the port and serve it; raises SerialException."""
-        self._port = serial.Serial(
-            self.device,
-            self.baud,
-            bytesize=serial.EIGHTBITS,
-            parity=PARITIES[self.parity],
-            stopbits=serial.STOPBITS_TWO if self.stopbits == 2 else serial.STOPBITS_ONE,
-            timeout=0,
-            exclusive=True,
-        )
+        self._port = open_serial(self.device, self.baud, self.parity, self.stopbits)
         framer = stream_framer(self.baud, line_timing=self.line_timing, bits=char_bits(8, self.parity, self.stopbits))
         if self.line_timing:
             port = self._port
