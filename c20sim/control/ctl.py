@@ -2,10 +2,12 @@
 
 Every action is an operation of the route table (:mod:`c20sim.control.routes`),
 its arguments made from the row's fields; an error answer is
-one line on stderr and exit 2, as for every other command. An action the
+one line on stderr and exit 2, as for every other command. An action that
+changes something (set, fault, clear, key, advance, ...) prints one line in
+words of what it did; a reading prints its JSON answer. An action the
 drive refuses (a key press, a reset while the cause persists) prints the
 answer, one line on stderr saying so, and exits 1. ``--format json`` prints
-the answer as JSON, ``--format text`` as ``key: value`` lines (the frame log:
+any answer as JSON, ``--format text`` as ``key: value`` lines (the frame log:
 one line per frame); floats are rounded to 3 decimals (times to 6). A reader
 that closes the pipe early (``ctl frames | head -1``) ends the output quietly.
 """
@@ -382,6 +384,67 @@ def _shaped_call(api: Callable[..., Any], action: str, args: argparse.Namespace)
     return api(method, path + (f"?{query}" if query else ""))
 
 
+def _drive_words(state: Mapping[str, Any]) -> str:
+    fault = "no fault" if not state.get("fault_code") else f"fault {state['fault_code']} {state.get('fault_name', '')}"
+    return (
+        f"drive {state['address']}: {state['state']}, {state['speed_rpm']:.0f} rpm, bus {state['bus_v']:.1f} V, "
+        f"{fault.strip()}"
+    )
+
+
+def summary(action: str, result: Any) -> str:
+    """One line in words of what an action did, read from its answer (``--format json`` prints the answer)."""
+    if not isinstance(result, dict):
+        return json.dumps(result)
+    said: list[str] = []
+    if result.get("note"):
+        said.append(str(result["note"]))
+    if "accepted" in result:
+        said.append("accepted" if result["accepted"] else "refused")
+    if action == "clear" and "reset" in result:
+        said.append("reset done" if result["reset"] else "no reset")
+    if "state" in result and "address" in result:
+        said.append(_drive_words(result))
+    elif "register" in result and "text" in result:
+        said.append(f"{result['register']} = {result['text']}")
+    elif "active" in result:
+        said.append("link faults: " + (", ".join(result["active"]) or "none"))
+    elif "setup" in result:
+        said.append(f"every drive anew from {result['setup']}: " + "; ".join(_drive_words(d) for d in result["drives"]))
+    elif "clock" in result and "paused" in result:
+        speed = f", x{result['speed']:g}" if result.get("speed") is not None else ""
+        said.append(
+            f"{result['clock']} clock at t = {result['t']:.6g} s, {'paused' if result['paused'] else 'running'}{speed}"
+        )
+    elif "generators" in result:
+        said.append("generators: " + (", ".join(result["generators"]) or "none running"))
+    elif "causes" in result:
+        said.append("causes now: " + (", ".join(k for k, v in result["causes"].items() if v) or "none"))
+    elif "frames" in result:
+        said.append("frame log emptied")
+    elif set(result) == {"t"}:
+        said.append(f"t = {result['t']:.6g} s")
+    return "; ".join(said) if said else json.dumps(rounded(result))
+
+
+def _asked(action: str, args: argparse.Namespace) -> str:
+    """The action as the user asked for it, in the words they typed: ``set supply_v=30``, ``key reset``."""
+    words = [action]
+    for name in ("register", "key", "value", "seconds", "factor", "speed", "channel", "code", "cause", "setup"):
+        value = getattr(args, name, None)
+        if value is not None and value != "defaults":
+            words.append(str(value))
+    words += list(getattr(args, "values", None) or [])
+    if getattr(args, "persistent", False):
+        words.append("persistent")
+    return " ".join(words)
+
+
+def _changes(action: str) -> bool:
+    """Whether ``action`` changes the drives, the clock or the log (its default output is then one line)."""
+    return action in ("fault", "clear", "reset") or any(r.changes for r in _actions().get(action, []))
+
+
 def cmd_ctl(args: argparse.Namespace) -> int:
     url, token = _ctl_target(args)
     api = functools.partial(call, url, token=token)
@@ -393,7 +456,10 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     if action == "frames" and args.format != "json" and not args.json:
         _write(_frame_lines(result["frames"]))
         return 0
-    _write(render(result, args.format or "json"))
+    if args.format is None and _changes(action):
+        _write(f"{_asked(action, args)}: {summary(action, result)}\n")
+    else:
+        _write(render(result, args.format or "json"))
     why = _refused(action, args, result)
     if why is not None:
         print(f"c20sim: {why}", file=sys.stderr)
@@ -418,7 +484,8 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     ctl.add_argument(
         "--format",
         choices=["text", "json"],
-        help="print the answer as JSON or as key: value lines (default: json; text for frames)",
+        help="print the answer as JSON or as key: value lines (default: one line in words for an action that "
+        "changes something, JSON for a reading, one line per frame for frames)",
     )
     # --drive is taken before or after the action; after, it must not reset the value given before
     common = argparse.ArgumentParser(add_help=False)

@@ -121,12 +121,12 @@ def ctl(ready: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     _, ready = served
-    result = ctl(ready, "fault", "16", "--persistent")
+    result = ctl(ready, "fault", "16", "--persistent", "--format", "json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["fault_name"].startswith("OH2")
     result = ctl(ready, "read", "fault_code")
     assert json.loads(result.stdout)["raw"] == 16
-    result = ctl(ready, "advance", "1.5")
+    result = ctl(ready, "advance", "1.5", "--format", "json")
     assert json.loads(result.stdout) == {"t": 1.5}
     result = ctl(ready, "set", "hall_fault=stuck9", "--drive", "1")
     assert result.returncode == 2
@@ -148,7 +148,7 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
         write(client, 0x2001, 1500)
         write(client, 0x2000, 1)
         assert ctl(ready, "advance", "2").returncode == 0
-        result = ctl(ready, "fault", "--cause", "undervoltage")
+        result = ctl(ready, "fault", "--cause", "undervoltage", "--format", "json")
         assert result.returncode == 0, result.stderr
         assert json.loads(result.stdout)["conditions"]["supply_v"] == 10.0  # half the 20 V trip level
         assert read(client, 0x2102) == 0  # not yet: the bus takes its time to fall
@@ -156,10 +156,10 @@ def test_ctl_fault_by_cause(served: tuple[dict[str, str], Path]) -> None:
         assert read(client, 0x2102) == 0x0A
         causes = json.loads(ctl(ready, "causes").stdout)["causes"]
         assert (causes["undervoltage"], causes["overheat"]) == (True, False)
-        result = ctl(ready, "clear", "--cause", "undervoltage", "--no-reset")
+        result = ctl(ready, "clear", "--cause", "undervoltage", "--no-reset", "--format", "json")
         assert json.loads(result.stdout)["conditions"]["supply_v"] == 48.0
         ctl(ready, "advance", "1")
-        assert json.loads(ctl(ready, "key", "reset").stdout)["accepted"] is True
+        assert json.loads(ctl(ready, "key", "reset", "--format", "json").stdout)["accepted"] is True
         assert read(client, 0x2102) == 0
     result = ctl(ready, "fault", "--cause", "undervoltag")
     assert (result.returncode, result.stdout) == (2, "")

@@ -68,9 +68,9 @@ def test_a_refused_key_exits_1_with_a_line_saying_so(served: tuple[dict[str, str
     _, ready = served
     result = ctl(ready, "key", "forward")  # the run channel is communication: the panel's forward is refused
     assert result.returncode == 1
-    assert json.loads(result.stdout)["accepted"] is False
+    assert result.stdout == "key forward: refused; drive 1: stopped, 0 rpm, bus 48.0 V, no fault\n"
     assert result.stderr == "c20sim: key forward: refused by the drive (stopped, run channel 2)\n"
-    result = ctl(ready, "key", "stop")
+    result = ctl(ready, "key", "stop", "--format", "json")
     assert (result.returncode, result.stderr) == (0, "")
     assert json.loads(result.stdout)["accepted"] is True
 
@@ -86,7 +86,8 @@ def test_a_refused_reset_exits_1(served: tuple[dict[str, str], Path]) -> None:
     assert ctl(ready, "fault", "16", "--persistent").returncode == 0
     result = ctl(ready, "clear")
     assert (result.returncode, result.stderr) == (0, "")
-    assert json.loads(result.stdout)["reset"] is True
+    said, _, state = result.stdout.partition("; drive 1: ")
+    assert (said, state.endswith(", 0 rpm, bus 48.0 V, no fault\n")) == ("clear: reset done", True)
 
 
 def test_format_text_and_json_with_rounded_floats(served: tuple[dict[str, str], Path]) -> None:
@@ -120,3 +121,22 @@ def test_rounding_and_text_rendering() -> None:
         "a.b: 1.0\na.c: 1, 2\nd[0].e: yes\nf: (none)\n"
     )
     assert render({"a": 0.1 + 0.2}, "json") == '{\n  "a": 0.3\n}\n'
+
+
+def test_an_action_prints_one_line_of_what_it_did_and_json_when_asked(served: tuple[dict[str, str], Path]) -> None:
+    """ctl's actions answer in one line of words (what was asked, then what the drive is now); a reading
+    prints its JSON answer; --format json prints any answer whole."""
+    _, ready = served
+    result = ctl(ready, "set", "supply_v=30")
+    assert (result.returncode, result.stderr) == (0, "")
+    assert result.stdout.startswith("set supply_v=30: drive 1: stopped, 0 rpm, bus ")
+    assert result.stdout.endswith(" V, no fault\n") and result.stdout.count("\n") == 1
+    result = ctl(ready, "link", "offline=true")
+    assert result.stdout == "link offline=true: link faults: offline\n"
+    assert ctl(ready, "link", "--clear").stdout == "link: link faults: none\n"
+    result = ctl(ready, "fault", "16", "--persistent")
+    assert result.stdout.startswith("fault 16 persistent: drive 1: fault, 0 rpm, bus ")
+    assert result.stdout.endswith(" V, fault 16 OH2: power module overheat\n")
+    as_json = json.loads(ctl(ready, "set", "supply_v=48", "--format", "json").stdout)
+    assert (as_json["address"], as_json["conditions"]["supply_v"]) == (1, 48.0)
+    assert json.loads(ctl(ready, "causes").stdout)["causes"]["undervoltage"] is False  # a reading: JSON

@@ -36,7 +36,7 @@ def ready(tmp_path: Path) -> Iterator[Path]:
 
 def ctl(ready: Path, *args: str) -> tuple[int, Any, str]:
     done = subprocess.run(
-        [sys.executable, "-m", "c20sim", "ctl", "--ready-file", str(ready), *args],
+        [sys.executable, "-m", "c20sim", "ctl", "--ready-file", str(ready), "--format", "json", *args],
         capture_output=True,
         text=True,
         timeout=30,
