@@ -4,9 +4,14 @@
 temperature, the two I^2 t budgets, the counters of stalled and braking
 steps) and advances it by :data:`~c20sim.drive.physics.STEP` for a drive in a
 given state: a speed loop of finite bandwidth (the ramp's torque fed forward,
-a PI on the rest) drives a current clamped at the current limit;
-overvoltage stall prevention holds the ramp while braking would lift the bus
-above its level. When every input is constant and the drive has settled it
+a PI on the rest) drives a current clamped at the current limit, and the
+protection trips overcurrent on the current the loop asks before the limit
+acts (a too-short ramp of a heavy load); overvoltage stall prevention
+(F11.03/F11.04) holds the ramp while braking would lift the bus above its
+level; the motor and the drive each have an inverse-time overload curve with
+thermal memory (F02.27 scales the motor's); inverter losses and so heating
+come from the current; loads can be passive (opposing motion) or active
+(signed, such as a hoist's weight). When every input is constant and the drive has settled it
 enters a :class:`~c20sim.drive.physics.Segment`, whose closed forms give the
 state at any later step directly, bit for bit as if it had stepped; a
 segment ends at the first step a protection would trip on.

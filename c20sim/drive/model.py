@@ -2,23 +2,13 @@
 
 The model never reads a clock. :meth:`Drive.advance_to` integrates in fixed
 steps of :data:`STEP` from the last step to ``t``, so the state at a time does
-not depend on how often anyone looks; reads never change it. When every input
-is constant and the drive has settled (stopped, or running at its set speed
-without the current limit), it enters a :class:`~c20sim.drive.physics.Segment`
-whose closed forms give the state at any later step directly: an idle or
-steady drive skips ahead at no cost, and bit for bit as if it had stepped.
+not depend on how often anyone looks; reads never change it. A settled drive
+skips ahead in closed form, bit for bit as if it had stepped.
 
-The drive behaves as an INVT-family drive does where it matters for trips:
-a speed loop of finite bandwidth (the ramp's torque fed forward, a PI on the
-rest) drives a current clamped at the current limit; overcurrent trips on the
-current the loop asks before the limit acts (a too-short ramp of a heavy
-load), not on load torque; overvoltage stall prevention (F11.03/F11.04) holds
-the ramp while braking would lift the bus above its level; the motor and the
-drive each have an inverse-time overload curve with thermal memory (F02.27
-scales the motor's); inverter losses and so heating come from the current;
-the bus has an undervoltage recover level; loads can be passive (opposing
-motion) or active (signed, such as a hoist's weight); 3006H is measured from
-the Hall edges and 3009H from the rotor's angle at the moment it is read.
+The drive behaves as an INVT-family drive does where it matters for trips
+(see the integrator): overcurrent trips on the current the speed loop asks,
+overvoltage stall prevention holds the ramp, overload curves have thermal
+memory, 3006H is measured from the Hall edges.
 
 Faults are causes: each protection watches a physical condition, trips by a
 transition of the state table with the profile's code, and the latch is
@@ -54,7 +44,7 @@ from .config import (
 from .integrator import Integrator
 from .params import ParameterStore
 from .physics import STEP
-from .profile import Profile
+from .profile import FaultCause, Profile
 from .protection import Machine
 from .sensors import Hall, HallFault
 from .statemachine import DRIVEN, RUN_COMMANDS, Event, State
@@ -75,10 +65,8 @@ __all__ = [
 class Drive:
     """A ZBLD.C20 brushless drive in virtual time; a :class:`~c20sim.drive.base.DrivePort`.
 
-    Its parts: :attr:`bench` (the conditions as set), :attr:`hall` (the Hall sensors), :attr:`motion` (the
-    integrator and the settings it steps with), :attr:`machine` (the state, the fault latch, the protections
-    and guards) and :attr:`ram` (the RAM registers); :mod:`~c20sim.drive.face` reads and writes them as
-    registers.
+    Its parts: ``bench`` (the conditions as set), ``hall``, ``motion`` (the integrator and its config),
+    ``machine`` (state, fault latch, protections, guards) and ``ram``, which the face reads as registers.
     """
 
     profile: Profile
@@ -181,6 +169,11 @@ class Drive:
         if channel not in (1, 2, 3):
             raise ValueError(f"analog input must be 1, 2 or 3, not {channel}")
         return self.bench.ai[channel - 1]
+
+    def cause_present(self, cause: FaultCause) -> bool:
+        """Whether the condition that trips ``cause`` is there now, whoever set it; the reset may still be
+        refused while the fault outlasts it (a hot module, a bus still low)."""
+        return self.machine.present(cause)
 
     @property
     def held_fault(self) -> int | None:

@@ -9,6 +9,12 @@ table with the profile's code, in a fixed order; the bus comes and goes with
 an undervoltage recover level; the automatic events (at zero, hold done) and
 the terminals' run and reset inputs become events; and a latched fault is
 released by a reset only once its cause is gone (:meth:`Machine.cause_persists`).
+
+"Is this cause present" is decided here and nowhere else: :meth:`Machine.present`
+answers it for every :class:`~c20sim.drive.profile.FaultCause` from the
+conditions the drive is in, whoever set them; the control layer's causes
+(:mod:`c20sim.control.causes`) ask it through :meth:`Drive.cause_present
+<c20sim.drive.model.Drive.cause_present>`.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
-from .physics import ACCEL, CONSTANT, DECEL, STEP
+from .physics import ACCEL, CONSTANT, DECEL, RPM, STEP
 from .profile import FaultCause, Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, RUNNING, Event, State, next_state
@@ -128,6 +134,8 @@ class Machine:
         return True
 
     def cause_persists(self) -> bool:
+        """The reset guard: whether the latched fault's cause still holds it (the fault may outlast the
+        condition that tripped it: a bus still below its recover level, a hot module, a spent budget)."""
         cause, s, p, motion = self.cause, self.profile.supply, self.profile.protection, self.motion
         if cause is None:
             return self.forced_hold
@@ -136,18 +144,54 @@ class Machine:
         if cause in BY_PHASE["overvoltage"].values():
             return motion.bus > s.overvoltage_v
         if cause in BY_PHASE["overcurrent"].values():  # a load that needs more than the trip level to hold
-            return (motion.cfg.hold + abs(motion.cfg.active)) / self.profile.motor.kt_nm_per_a > p.overcurrent_a
+            return self.load_current() > p.overcurrent_a
         if cause is FaultCause.MOTOR_OVERLOAD:
             return motion.motor_i2t > p.overload_warning * BUDGET
         if cause is FaultCause.DRIVE_OVERLOAD:
             return motion.drive_i2t > p.overload_warning * BUDGET
         if cause is FaultCause.OVERHEAT:
             return motion.temp > self.profile.thermal.overheat_c - self.profile.thermal.overheat_reset_k
+        if cause in (FaultCause.EXTERNAL, FaultCause.HALL):
+            return self.present(cause)
+        return False  # stall, communication: the reset itself is the retry
+
+    def present(self, cause: FaultCause) -> bool:
+        """Whether the condition that trips ``cause`` is there now, whoever set it (a bench, a master, a behaviour).
+
+        The condition, not its effect: a supply below the undervoltage level is present at once, before
+        the bus has fallen, and gone at once when the supply is back, while the reset guard
+        (:meth:`cause_persists`) may still refuse. Faults the model has no physical cause for (a power
+        stage, the EEPROM, ...) are never present: they are latched (:meth:`force`).
+        """
+        s, p, th, motion = self.profile.supply, self.profile.protection, self.profile.thermal, self.motion
+        bench, cfg = motion.bench, motion.cfg
+        if cause is FaultCause.UNDERVOLTAGE:
+            return bench.supply < s.undervoltage_v
+        if cause in BY_PHASE["overvoltage"].values():
+            return bench.supply > s.overvoltage_v
+        if cause in BY_PHASE["overcurrent"].values():  # holding the load, or starting or stopping it on the ramp
+            ramp = cfg.inertia * max(cfg.up, cfg.down) / STEP * RPM / self.profile.motor.kt_nm_per_a
+            return self.load_current() + ramp > p.overcurrent_a
+        if cause is FaultCause.STALL:  # the current limit cannot hold the load: a running rotor stalls
+            return self.load_current() > p.current_limit_a
+        if cause is FaultCause.MOTOR_OVERLOAD:  # past the rating within the limit (beyond it, a stall)
+            return self.load_current() <= p.current_limit_a and motion.motor_rate(self.load_current()) > 0.0
+        if cause is FaultCause.DRIVE_OVERLOAD:
+            return self.load_current() <= p.current_limit_a and motion.drive_rate(self.load_current()) > 0.0
+        if cause is FaultCause.OVERHEAT:  # the temperature the module heads for is past the trip level
+            return bench.ambient + motion.loss * th.resistance_k_per_w > th.overheat_c
         if cause is FaultCause.EXTERNAL:
-            return bool(motion.cfg.inputs & Input.EF)
+            return bool(cfg.inputs & Input.EF)
         if cause is FaultCause.HALL:
             return self.hall.fault is not None
-        return False  # stall, communication: the reset itself is the retry
+        if cause is FaultCause.COMMUNICATION:
+            return self.comm_expired(motion.k)
+        return False
+
+    def load_current(self) -> float:
+        """The current (A) the motor needs to hold its load: friction, load torque and active load."""
+        cfg = self.motion.cfg
+        return (cfg.hold + abs(cfg.active)) / self.profile.motor.kt_nm_per_a
 
     def inputs_changed(self, before: int) -> None:
         """The input terminals changed from ``before``: CLR resets on its rising edge; the run inputs command."""
