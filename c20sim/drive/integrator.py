@@ -1,23 +1,20 @@
 """The integrator: the motor, the speed loop, the DC bus, heat and overload, one fixed step at a time.
 
 :class:`Integrator` holds what moves with time (speed, ramp, current, bus,
-temperature, the two I^2 t budgets, the counters of stalled and braking
-steps) and advances it by :data:`~c20sim.drive.physics.STEP` for a drive in a
-given state: a speed loop of finite bandwidth (the ramp's torque fed forward,
-a PI on the rest) drives a current clamped at the current limit, and the
-protection trips overcurrent on the current the loop asks before the limit
-acts (a too-short ramp of a heavy load); overvoltage stall prevention
-(F11.03/F11.04) holds the ramp while braking would lift the bus above its
-level; the motor and the drive each have an inverse-time overload curve with
-thermal memory (F02.27 scales the motor's); inverter losses and so heating
-come from the current; loads can be passive (opposing motion) or active
-(signed, such as a hoist's weight). When every input is constant and the drive has settled it
-enters a :class:`~c20sim.drive.physics.Segment`, whose closed forms give the
-state at any later step directly, bit for bit as if it had stepped; a
-segment ends at the first step a protection would trip on.
+temperature, the two I^2 t budgets, the stalled and braking step counters)
+and advances it by one :data:`~c20sim.drive.physics.STEP` for a drive in a
+given state. A speed loop of finite bandwidth (the ramp's torque fed forward,
+a PI on the rest) drives a current clamped at the current limit; what it asks
+is what overcurrent trips on. Overvoltage stall prevention (F11.03/F11.04)
+holds the ramp while braking would lift the bus above its level; the motor
+and the drive each have an inverse-time overload curve with thermal memory
+(F02.27 scales the motor's); losses and so heating come from the current;
+loads are passive (opposing motion) or active (signed, a hoist's weight).
 
-It decides nothing about states: the protection (:mod:`~c20sim.drive.protection`)
-reads what it integrated and trips, and tells it when the output goes on or off.
+A settled drive with constant inputs enters a :class:`~c20sim.drive.physics.Segment`:
+its closed forms give the state at any later step directly, bit for bit as if
+it had stepped, up to the first step a protection (which decides, not this)
+would trip on.
 """
 
 from __future__ import annotations
@@ -59,6 +56,12 @@ def target_rpm(state: State, cfg: Config) -> float:
 class Integrator:
     """What moves with time in one drive, and the step that moves it."""
 
+    __slots__ = (
+        *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0", "k"),
+        *("brake_steps", "bus", "bus_settled", "current", "demand", "drive_i2t", "integ", "limited", "loss"),
+        *("motor_i2t", "phase", "power", "ramp", "segment", "speed", "speed_before", "stall_steps", "temp"),
+        *("temp_decay", "temp_rate"),
+    )
     cfg: Config
     segment: Segment | None
 
@@ -76,13 +79,10 @@ class Integrator:
 
     def power_up(self) -> None:
         """At rest, the bus at the level the supply gives a stopped drive, the overload budgets full."""
-        self.speed = self.speed_before = self.ramp = self.current = 0.0
+        self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
         self.integ = self.demand = 0.0
-        self.power = self.loss = 0.0
         self.bus = self.bus_rest(self.bench.supply)
-        self.bus_settled = True
-        self.limited = False
-        self.phase = CONSTANT
+        self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
         self.stall_steps = self.brake_steps = 0
         self.segment = None
@@ -100,8 +100,7 @@ class Integrator:
         if not driven:
             self.ramp = self.current = self.power = self.loss = 0.0
             self.integ = self.demand = 0.0
-        self.brake_steps = 0
-        self.stall_steps = 0
+        self.brake_steps = self.stall_steps = 0
         self.segment = None
 
     # --- The step.
