@@ -2,8 +2,9 @@
 
 The slave owns the access rules (who may write what, ranges, write enable,
 password); this module turns a drive's state into register values and a
-checked write into a change of the drive. RAM registers (2000H, 2001H, 200AH,
-200BH, 2010H) read back what was written and clear at power-up; function
+checked write into a change of the drive. RAM registers (2001H, 200AH, 200BH,
+200EH) read back what was written and clear at power-up; 2000H reads the
+command in force, which the machine drops on a trip (see :func:`write`); function
 codes live in the :class:`~c20sim.drive.params.ParameterStore`; every other
 cell is computed when read (:data:`READERS`), from the parts of a
 :class:`~c20sim.drive.model.Drive`: 2100H-2102H the status words, 3000H-300EH
@@ -42,7 +43,8 @@ __all__ = [
 ]
 
 #: Registers held in RAM (not function codes): they read back what was written; a power cycle clears them.
-RAM_REGISTERS = (Reg.COMMAND, Reg.SPEED_SETPOINT, Reg.VIRTUAL_INPUTS, Reg.VIRTUAL_OUTPUTS, Reg.WRITE_ENABLE)
+#: 2000H is volatile too, but it is the command in force, which the machine keeps (see :func:`write`).
+RAM_REGISTERS = (Reg.SPEED_SETPOINT, Reg.VIRTUAL_INPUTS, Reg.VIRTUAL_OUTPUTS, Reg.WRITE_ENABLE)
 
 DRIVE_ID = 0x0020
 STATUS2_BUS = 0x0001
@@ -76,11 +78,18 @@ def check_write(d: Drive, address: int, value: int) -> None:
 
 
 def write(d: Drive, address: int, value: int) -> None:
-    """Store a checked value: 2000H is a command, 200AH the virtual inputs, 2010H = 1 restores the defaults."""
+    """Store a checked value: 2000H is a command, 200AH the virtual inputs, 200FH = 1 restores the defaults.
+
+    2000H reads back the command in force (**assumed**; the sheet says only that it can be read and written
+    in any state): the last command written, until the drive drops it. A trip, a fault reset (whoever gives
+    it) and the end of a run or jog other than by a 2000H write (the keypad, the terminals, the
+    communication timeout's stop) drop it: 2000H then reads 0000h, as at power-up. A C20 does not restart
+    by itself after a reset, so "forward run" would no longer be true.
+    """
     d.motion.segment = None
     if address == Reg.COMMAND:
-        d.ram[address] = value
         d.machine.apply(Event(value))
+        d.machine.command = value  # after the transition it causes, which may drop the one before
     elif address == Reg.VIRTUAL_INPUTS:
         before = d.motion.cfg.inputs
         d.ram[address] = value
@@ -192,6 +201,7 @@ def output_watts(d: Drive) -> float:
 
 #: The computed cells: address -> its value for a drive.
 READERS: dict[int, Callable[[Drive], int]] = {
+    Reg.COMMAND: lambda d: d.machine.command,
     Reg.STATUS1: status1,
     Reg.STATUS2: status2,
     Reg.FAULT_CODE: fault_reported,

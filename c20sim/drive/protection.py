@@ -72,8 +72,9 @@ class Machine:
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
 
     def power_up(self) -> None:
-        """No fault, no request seen; off until the bus is above the recover level."""
+        """No fault, no request seen, no command in force; off until the bus is above the recover level."""
         self.bus_ok = self.motion.bus >= self.recover_v
+        self.command = 0  # 2000H
         self.fault = 0
         self.cause = None
         self.forced_hold = False
@@ -92,7 +93,12 @@ class Machine:
             self.enter(new)
 
     def enter(self, new: State) -> None:
-        self.motion.entered(self.state in DRIVEN, new in DRIVEN)
+        old = self.state
+        if new is State.FAULT or old is State.FAULT or (old in RUNNING and new not in RUNNING):
+            # The drive drops the command written to 2000H: a trip, a reset, or a run ended; the register
+            # face stores a command written after applying it, so 2000H reads it (assumed: see face.py).
+            self.command = 0
+        self.motion.entered(old in DRIVEN, new in DRIVEN)
         self.state = new
 
     def trip(self, code: int, cause: FaultCause | None) -> None:
