@@ -55,7 +55,8 @@ BY_PHASE = {
 
 
 class Machine:
-    """One drive's state, its fault latch and the guards that move it through :data:`TRANSITIONS`."""
+    """One drive's state, its fault latch, the 2000H command in force and the guards that move it through
+    :data:`~c20sim.drive.statemachine.TRANSITIONS`."""
 
     state: State
     cause: FaultCause | None
