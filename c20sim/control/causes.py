@@ -22,6 +22,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from ..core.simulator import Simulator
+from ..drive.model import Drive
 from ..drive.profile import FaultCause, Profile
 from ..drive.terminals import Input
 from ..wire.registers import fcode_address
@@ -64,8 +65,10 @@ class Cause:
     on: Callable[[Profile, Conditions], dict[str, object]]
     #: (profile, conditions now) -> the conditions that end it
     off: Callable[[Profile, Conditions], dict[str, object]]
-    #: (profile, conditions now) -> whether it is there now, whoever set the conditions
-    present: Callable[[Profile, Conditions], bool]
+
+    def present(self, drive: Drive) -> bool:
+        """Whether it is there now, whoever set the conditions: the drive's protection decides, per fault."""
+        return any(drive.cause_present(fault) for fault in self.faults)
 
 
 def _load_levels(p: Profile) -> dict[str, float]:
@@ -96,7 +99,6 @@ def _load(name: str, key: str, label: str, how: str, faults: tuple[FaultCause, .
         faults,
         lambda p, c: {"load_torque_nm": _load_levels(p)[name]},
         lambda p, c: {"load_torque_nm": 0.0},
-        lambda p, c: math.isclose(float(c["load_torque_nm"]), _load_levels(p)[name]),  # type: ignore[arg-type]
     )
 
 
@@ -104,12 +106,6 @@ def _inputs(c: Conditions) -> int:
     value = c["terminal_inputs"]
     assert isinstance(value, int)
     return value
-
-
-def _float(c: Conditions, name: str) -> float:
-    value = c[name]
-    assert isinstance(value, int | float)
-    return float(value)
 
 
 #: The hottest ambient any front end may set: the overheat cause's.
@@ -127,7 +123,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.UNDERVOLTAGE,),
             lambda p, c: {"supply_v": round(p.supply.undervoltage_v * 0.5, 1)},
             lambda p, c: {"supply_v": p.supply.voltage_v},
-            lambda p, c: _float(c, "supply_v") < p.supply.undervoltage_v,
         ),
         Cause(
             "overvoltage",
@@ -137,7 +132,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.OVERVOLTAGE_ACCEL, FaultCause.OVERVOLTAGE_DECEL, FaultCause.OVERVOLTAGE_CONSTANT),
             lambda p, c: {"supply_v": round(p.supply.overvoltage_v * 1.1, 1)},
             lambda p, c: {"supply_v": p.supply.voltage_v},
-            lambda p, c: _float(c, "supply_v") > p.supply.overvoltage_v,
         ),
         Cause(
             "overcurrent",
@@ -147,7 +141,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.OVERCURRENT_ACCEL, FaultCause.OVERCURRENT_DECEL, FaultCause.OVERCURRENT_CONSTANT),
             lambda p, c: {"load_inertia_kg_m2": _overcurrent_inertia(p)},
             lambda p, c: {"load_inertia_kg_m2": 0.0},
-            lambda p, c: math.isclose(_float(c, "load_inertia_kg_m2"), _overcurrent_inertia(p)),
         ),
         _load(
             "overload",
@@ -171,7 +164,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.OVERHEAT,),
             lambda p, c: {"ambient_c": HOT_AMBIENT},
             lambda p, c: {"ambient_c": p.thermal.ambient_c},
-            lambda p, c: _float(c, "ambient_c") > p.thermal.overheat_c,
         ),
         Cause(
             "hall",
@@ -181,7 +173,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.HALL,),
             lambda p, c: {"hall_fault": "stuck0"},
             lambda p, c: {"hall_fault": None},
-            lambda p, c: c["hall_fault"] is not None,
         ),
         Cause(
             "external",
@@ -191,7 +182,6 @@ CAUSES: Mapping[str, Cause] = {
             (FaultCause.EXTERNAL,),
             lambda p, c: {"terminal_inputs": _inputs(c) | Input.EF},
             lambda p, c: {"terminal_inputs": _inputs(c) & ~Input.EF},
-            lambda p, c: bool(_inputs(c) & Input.EF),
         ),
     )
 }
@@ -323,9 +313,9 @@ def fault(sim: Simulator, address: int, request: FaultRequest) -> str:
 
 def active(sim: Simulator, address: int) -> dict[str, bool]:
     """Every cause of the profile and whether it is there now, whoever brought it about."""
-    now = ops.conditions(sim, address)
-    held = ops.held_fault(sim, address)
-    out = {name: cause.present(sim.profile, now) for name, cause in CAUSES.items()}
+    held = ops.held_fault(sim, address)  # the drive brought to now
+    found = ops.drive(sim, address)
+    out = {name: cause.present(found) for name, cause in CAUSES.items()}
     out.update({name: held == code for name, code in latched(sim.profile).items()})
     return out
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 __all__ = [
     "HALL_SEQUENCE",
     "RPM",
+    "STEP",
     "TWO_PI",
     "Segment",
     "bus_step",
@@ -27,6 +28,9 @@ __all__ = [
     "overload_rate",
     "ramp_toward",
 ]
+
+#: The model's fixed internal step, seconds.
+STEP = 0.001
 
 #: rad/s per rpm.
 RPM = 2.0 * math.pi / 60.0

@@ -4,8 +4,12 @@ Every change of state is a row of :data:`TRANSITIONS`: a 2000H command (or the
 same command from the keypad or the terminals), or an event the model raises
 (bus lost or back, the ramp reached zero, the brake hold ended, a trip). A
 pair missing from the table is ignored, as the drive ignores a jog command
-while running. Guards (is the fault's cause gone? is the bus there?) are the
-model's job; the table only says where each accepted event leads.
+while running.
+
+What decides whether an event happens (the protections that trip, the bus
+coming and going, the reset guard: is the fault's cause gone?) lives beside
+the table, in :mod:`~c20sim.drive.protection`; the table only says where each
+accepted event leads.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from ..wire.registers import Command
 
 __all__ = [
     "DRIVEN",
+    "RUNNING",
+    "RUN_COMMANDS",
     "STATUS_WORD",
     "TRANSITIONS",
     "Event",
@@ -127,3 +133,9 @@ TRANSITIONS: Mapping[tuple[State, Event], State] = _table()
 def next_state(state: State, event: Event) -> State:
     """Where ``event`` leads from ``state`` (the same state if the table has no row)."""
     return TRANSITIONS.get((state, event), state)
+
+
+#: The commands that start the motor (refused from a run channel other than the one F00.01 selects).
+RUN_COMMANDS = frozenset({Event.FORWARD, Event.REVERSE, Event.JOG_FORWARD, Event.JOG_REVERSE})
+#: States in which the drive runs toward a set speed (DRIVEN less stopping on the ramp and braking).
+RUNNING = frozenset({State.FORWARD, State.REVERSE, State.JOG_FORWARD, State.JOG_REVERSE})

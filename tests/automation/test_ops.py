@@ -232,3 +232,14 @@ def test_the_dial_switches_are_a_condition_every_front_end_sets() -> None:
     assert ops.telemetry(sim, 1).run_channel == 0  # SW3 off: the keypad
     with pytest.raises(ops.ControlError, match=r"^dial_switches: 8 is outside 0-7$"):
         ops.set_conditions(sim, 1, {"dial_switches": 8})
+
+
+def test_whether_a_cause_is_present_is_the_drives_answer_whoever_set_the_condition() -> None:
+    sim = running()
+    drive = sim.drive(1)
+    drive.write(Reg.VIRTUAL_INPUTS, 0x008)  # EF through 200AH, as a master would: not a bench condition
+    drive.set_load_torque(3.0)  # past the current limit: a stall, though not the stall cause's own level
+    found = causes.active(sim, 1)
+    assert {name for name, on in found.items() if on} == {"external", "stall"}
+    for name, cause in causes.CAUSES.items():
+        assert found[name] == any(drive.cause_present(fault) for fault in cause.faults)

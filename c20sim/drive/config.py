@@ -1,0 +1,166 @@
+"""What the drive works from: the bench's conditions, and the settings derived from them and the parameters.
+
+:class:`Conditions` holds what a bench does to a drive (its supply, its load,
+the ambient, the analog inputs, the physical terminals, the dial switches),
+as set through the drive's injection methods. :func:`configure` derives from
+them, the function codes and the RAM registers the :class:`Config` the step
+works from: speeds, ramps, channels, the speed loop's gains, the
+communication timeout. A config only changes when an input does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from ..wire.registers import Reg, RunChannel, SpeedSource, fcode_address
+from . import physics
+from .params import ParameterStore
+from .physics import STEP
+from .profile import Profile
+from .terminals import multi_speed_index
+
+__all__ = [
+    "CHANNEL_COMM",
+    "CHANNEL_DIAL",
+    "CHANNEL_KEYPAD",
+    "CHANNEL_TERMINAL",
+    "COMM_CONTINUE",
+    "COMM_STOP",
+    "COMM_STOP_ANY",
+    "COMM_TRIP",
+    "DIAL_SPEED_SOURCE",
+    "SOURCE_DIAL",
+    "Conditions",
+    "Config",
+    "configure",
+    "limit_speed",
+]
+
+# Function codes the model reads beyond the mirrored ones (absent in a profile: the [motor] value is used).
+F_MAX_SPEED = fcode_address(0, 3)
+F_KEYPAD_SPEED = fcode_address(0, 10)
+F_JOG_SPEED = fcode_address(0, 13)
+F_COMM_TIMEOUT = fcode_address(8, 2)
+F_COMM_ACTION = fcode_address(8, 3)
+F_MULTI_SPEED = fcode_address(5, 0)
+F_MOTOR_OVERLOAD_COEFFICIENT = fcode_address(2, 27)
+F_OV_STALL = fcode_address(11, 3)
+F_OV_STALL_LEVEL = fcode_address(11, 4)
+
+#: F08.03, the action on a communication timeout (INVT GD20 P14.03).
+COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
+
+CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION
+# The dial switches SW1-SW3 (sheet: 2005H "3: dial switch setting (SW1 valid), model related", 2006H "3: dial
+# switch setting (SW3 valid)", 2007H "5: dial switch setting (SW2, SW3 valid)"). What each position selects is
+# not in the sheet: assumed, each switch on or off.
+#: 2006H = 3: SW3 on takes run commands from the terminals, off from the keypad (assumed).
+CHANNEL_DIAL = RunChannel.DIAL_SWITCH
+#: 2007H = 5: (SW2, SW3) select the speed source: keypad, AI1 knob, AI2 voltage, multi-segment (assumed).
+SOURCE_DIAL = SpeedSource.DIAL_SWITCH
+DIAL_SPEED_SOURCE = {(False, False): 0, (True, False): 1, (False, True): 2, (True, True): 4}
+
+
+@dataclass(slots=True)
+class Conditions:
+    """What the bench does to the drive, as set (the Hall sensor's fault is the sensor's own)."""
+
+    supply: float  #: the supply behind the DC bus, V
+    ambient: float  #: degC
+    load: float = 0.0  #: load torque opposing motion, N m
+    active: float = 0.0  #: signed load torque, N m, positive pushing forward
+    load_inertia: float = 0.0  #: kg m^2 added to the motor's
+    ai: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  #: AI1-AI3, V
+    physical_inputs: int = 0  #: the physical input terminals
+    dial: tuple[bool, bool, bool] = (False, False, False)  #: SW1, SW2, SW3
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    """Everything the step needs that only changes when an input changes."""
+
+    pole_pairs: int
+    max_rpm: float
+    up: float  #: rpm per step while accelerating
+    down: float  #: rpm per step while decelerating
+    reference_rpm: float
+    jog_rpm: float
+    channel: int
+    source: int
+    comm_timeout: float
+    inertia: float
+    hold: float  #: Coulomb friction plus load torque, N m
+    viscous: float  #: N m per rpm
+    active: float  #: signed load torque, N m, positive pushing forward
+    inputs: int  #: effective input terminals
+    kp: float  #: speed loop, N m per rad/s
+    ki: float  #: speed loop, N m per rad
+    stall_v: float  #: overvoltage stall level, V; 0 = off
+    motor_rated_a: float  #: rated current times the overload coefficient
+    comm_action: int
+
+
+def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench: Conditions) -> Config:
+    """The settings the step works from, for these parameters, RAM registers and conditions."""
+    m, regs = profile.motor, profile.registers
+    max_rpm = float(P.get(F_MAX_SPEED)) if F_MAX_SPEED in P else m.rated_speed_rpm
+    accel = max(P.get(Reg.ACCEL_TIME), 1) * 0.1
+    decel = max(P.get(Reg.DECEL_TIME), 1) * 0.1
+    pole_pairs = max(P.get(Reg.POLE_PAIRS), 1)
+    inputs = (bench.physical_inputs | ram[Reg.VIRTUAL_INPUTS]) & 0x1FF
+    source = P.get(Reg.SPEED_SOURCE)
+    if source == SOURCE_DIAL:
+        source = DIAL_SPEED_SOURCE[bench.dial[1], bench.dial[2]]
+    channel = P.get(Reg.RUN_CHANNEL)
+    if channel == CHANNEL_DIAL:
+        channel = CHANNEL_TERMINAL if bench.dial[2] else CHANNEL_KEYPAD
+    reference = 0.0
+    if source == 0 and F_KEYPAD_SPEED in P:
+        reference = P.get(F_KEYPAD_SPEED) * regs[F_KEYPAD_SPEED].scale * 60.0 / pole_pairs
+    elif source in (1, 2):
+        reference = bench.ai[source - 1] / 10.0 * max_rpm
+    elif source == 3:
+        reference = float(ram[Reg.SPEED_SETPOINT])
+    elif source == 4:
+        segment = F_MULTI_SPEED + multi_speed_index(inputs)
+        reference = float(P.get(segment)) if segment in P else 0.0
+    jog = float(P.get(F_JOG_SPEED)) if F_JOG_SPEED in P else m.jog_speed_rpm
+    timeout = P.get(F_COMM_TIMEOUT) * regs[F_COMM_TIMEOUT].scale if F_COMM_TIMEOUT in P else 0.0
+    inertia = m.inertia_kg_m2 + bench.load_inertia
+    bandwidth = physics.TWO_PI * profile.control.speed_loop_hz
+    stall_on = P.get(F_OV_STALL) if F_OV_STALL in P else 1
+    stall_pct = P.get(F_OV_STALL_LEVEL) if F_OV_STALL_LEVEL in P else 120
+    coefficient = (
+        P.get(F_MOTOR_OVERLOAD_COEFFICIENT) * regs[F_MOTOR_OVERLOAD_COEFFICIENT].scale / 100.0
+        if F_MOTOR_OVERLOAD_COEFFICIENT in P
+        else 1.0
+    )
+    return Config(
+        pole_pairs=pole_pairs,
+        max_rpm=max_rpm,
+        up=max_rpm / accel * STEP,
+        down=max_rpm / decel * STEP,
+        reference_rpm=limit_speed(profile, reference, max_rpm),
+        jog_rpm=limit_speed(profile, jog, max_rpm),
+        channel=channel,
+        source=source,
+        comm_timeout=timeout,
+        inertia=inertia,
+        hold=m.friction_nm + bench.load,
+        viscous=m.viscous_nm_per_krpm / 1000.0,
+        active=bench.active,
+        inputs=inputs,
+        kp=inertia * bandwidth,
+        ki=inertia * bandwidth * bandwidth / 4.0,
+        stall_v=profile.supply.voltage_v * stall_pct / 100.0 if stall_on else 0.0,
+        motor_rated_a=m.rated_current_a * max(coefficient, 0.01),
+        comm_action=P.get(F_COMM_ACTION) if F_COMM_ACTION in P else COMM_TRIP,
+    )
+
+
+def limit_speed(profile: Profile, rpm: float, max_rpm: float) -> float:
+    """A set speed within 0 to the maximum; a set speed above zero runs at least at the minimum speed."""
+    rpm = min(max(rpm, 0.0), max_rpm)
+    floor = min(profile.control.min_speed_rpm, max_rpm)
+    return floor if 0.0 < rpm < floor else rpm

@@ -1,0 +1,298 @@
+"""The integrator: the motor, the speed loop, the DC bus, heat and overload, one fixed step at a time.
+
+:class:`Integrator` holds what moves with time (speed, ramp, current, bus,
+temperature, the two I^2 t budgets, the stalled and braking step counters)
+and advances it by one :data:`~c20sim.drive.physics.STEP` for a drive in a
+given state. A speed loop of finite bandwidth (the ramp's torque fed forward,
+a PI on the rest) drives a current clamped at the current limit; what it asks
+is what overcurrent trips on. Overvoltage stall prevention (F11.03/F11.04)
+holds the ramp while braking would lift the bus above its level; the motor
+and the drive each have an inverse-time overload curve with thermal memory
+(F02.27 scales the motor's); losses and so heating come from the current;
+loads are passive (opposing motion) or active (signed, a hoist's weight).
+
+A settled drive with constant inputs enters a :class:`~c20sim.drive.physics.Segment`:
+its closed forms give the state at any later step directly, bit for bit as if
+it had stepped, up to the first step a protection (which decides, not this)
+would trip on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from . import physics
+from .config import Conditions, Config
+from .physics import CONSTANT, DECEL, RPM, STEP, Segment
+from .profile import Profile
+from .protection import BUDGET
+from .sensors import Hall
+from .statemachine import DRIVEN, RUNNING, State
+
+__all__ = ["SETTLED_RPM", "ZERO_RPM", "Integrator", "target_rpm"]
+
+#: Speed errors below this (rpm) while running at a constant set speed are settled: the loop is at rest.
+SETTLED_RPM = 1e-6
+#: Stopping on the ramp, the drive takes the rotor as stopped below this speed (rpm; assumed).
+ZERO_RPM = 1.0
+
+Control = tuple[float, float, float, float, bool, float]  # ramp, current, new speed, integrator, limited, demand
+
+
+def target_rpm(state: State, cfg: Config) -> float:
+    """The signed speed the ramp heads for in ``state``."""
+    if state is State.FORWARD:
+        return cfg.reference_rpm
+    if state is State.REVERSE:
+        return -cfg.reference_rpm
+    if state is State.JOG_FORWARD:
+        return cfg.jog_rpm
+    if state is State.JOG_REVERSE:
+        return -cfg.jog_rpm
+    return 0.0
+
+
+class Integrator:
+    """What moves with time in one drive, and the step that moves it."""
+
+    __slots__ = (
+        *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0", "k"),
+        *("brake_steps", "bus", "bus_settled", "current", "demand", "drive_i2t", "integ", "limited", "loss"),
+        *("motor_i2t", "phase", "power", "ramp", "segment", "speed", "speed_before", "stall_steps", "temp"),
+        *("temp_decay", "temp_rate"),
+    )
+    cfg: Config
+    segment: Segment | None
+
+    def __init__(self, profile: Profile, bench: Conditions, hall: Hall, t0: float) -> None:
+        self.profile, self.bench, self.hall, self.t0 = profile, bench, hall, t0
+        s, th = profile.supply, profile.thermal
+        self.k = 0
+        self.capacitance = s.bus_capacitance_uf * 1e-6
+        self.inv_source = 1.0 / max(s.source_resistance_ohm, 1e-3)
+        self.inv_bleed = self.capacitance / s.bleed_time_constant_s
+        self.inv_brake = 1.0 / s.brake_resistor_ohm
+        self.temp_rate = STEP / th.time_constant_s
+        self.temp_decay = math.exp(-self.temp_rate)
+        self.temp = bench.ambient  # the temperature survives a power cycle
+
+    def power_up(self) -> None:
+        """At rest, the bus at the level the supply gives a stopped drive, the overload budgets full."""
+        self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
+        self.integ = self.demand = 0.0
+        self.bus = self.bus_rest(self.bench.supply)
+        self.bus_settled, self.limited, self.phase = True, False, CONSTANT
+        self.motor_i2t = self.drive_i2t = 0.0
+        self.stall_steps = self.brake_steps = 0
+        self.segment = None
+
+    def bus_rest(self, supply: float) -> float:
+        """The bus of a stopped drive: the supply divided by the source and bleed resistances."""
+        if supply <= 0.0:
+            return 0.0
+        return supply * self.inv_source / (self.inv_source + self.inv_bleed)
+
+    def entered(self, was_driven: bool, driven: bool) -> None:
+        """The state changed: a start catches a turning rotor where it is, an output off drops the current."""
+        if driven and not was_driven:
+            self.ramp = self.speed
+        if not driven:
+            self.ramp = self.current = self.power = self.loss = 0.0
+            self.integ = self.demand = 0.0
+        self.brake_steps = self.stall_steps = 0
+        self.segment = None
+
+    # --- The step.
+
+    def step(self, state: State) -> None:
+        """One step of a drive in ``state``."""
+        self.k += 1
+        cfg, m, prot, th = self.cfg, self.profile.motor, self.profile.protection, self.profile.thermal
+        kt, resistance = m.kt_nm_per_a, m.resistance_ohm
+        speed = self.speed
+        limited = False
+        emf = kt * speed * RPM
+        if state in DRIVEN:
+            target = target_rpm(state, cfg)
+            ramp, phase = physics.ramp_toward(self.ramp, target, cfg.up, cfg.down)
+            if phase == DECEL and cfg.stall_v and self.bus > cfg.stall_v:
+                ramp = self.ramp  # overvoltage stall prevention: hold the output frequency, stretching the ramp
+            ramp, current, new_speed, integ, limited, wanted = self.control(state, ramp, target, speed, emf)
+            if phase == DECEL and cfg.stall_v and ramp != self.ramp:
+                ramp, current, new_speed, integ, limited, wanted = self.stall_limited(
+                    state, (ramp, current, new_speed, integ, limited, wanted), target, speed, emf
+                )
+            self.integ, self.demand = integ, wanted
+        else:
+            target, ramp, phase = 0.0, 0.0, CONSTANT
+            # Output off: only the freewheeling diodes conduct, once the back-EMF exceeds the bus.
+            current = 0.0 if abs(emf) <= self.bus else -math.copysign(abs(emf) - self.bus, emf) / resistance
+            new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        bus, power, loss = self.bus_after(new_speed, current)
+        self.bus_settled = abs(bus - self.bus) <= 1e-9  # a chopper at its threshold never settles
+        temp_ss = self.bench.ambient + loss * th.resistance_k_per_w
+        self.temp = temp_ss + (self.temp - temp_ss) * self.temp_decay
+        self.motor_i2t = max(0.0, self.motor_i2t + STEP * self.motor_rate(current))
+        self.drive_i2t = max(0.0, self.drive_i2t + STEP * self.drive_rate(current))
+        self.hall.step(new_speed, cfg.pole_pairs, self.t0 + (self.k - 1) * STEP)
+        if state in RUNNING and abs(target) > prot.stall_speed_rpm and abs(new_speed) < prot.stall_speed_rpm:
+            self.stall_steps += 1
+        else:
+            self.stall_steps = 0
+        if state is State.BRAKING:
+            self.brake_steps += 1
+        self.speed_before, self.speed, self.ramp, self.current = speed, new_speed, ramp, current
+        self.power, self.loss, self.bus, self.phase, self.limited = power, loss, bus, phase, limited
+
+    def control(self, state: State, ramp: float, target: float, speed: float, emf: float) -> Control:
+        """One step of the speed loop toward ``ramp``: (ramp, current, new speed, integrator, limited, demand).
+
+        The ramp's acceleration torque is fed forward and a PI on the speed error does the rest; the
+        current limit clamps the current and holds the ramp back to the rotor. Nothing is changed.
+        """
+        cfg, m, prot = self.cfg, self.profile.motor, self.profile.protection
+        kt, resistance = m.kt_nm_per_a, m.resistance_ohm
+        error = (self.ramp - speed) * RPM  # where the rotor should be now; the feedforward takes it on
+        integ = self.integ + cfg.ki * error * STEP
+        wanted = (cfg.inertia * (ramp - self.ramp) * RPM / STEP + cfg.kp * error + integ) / kt
+        high = min(prot.current_limit_a, (self.bus - emf) / resistance)
+        low = max(-prot.current_limit_a, (-self.bus - emf) / resistance)
+        limited = not low <= wanted <= high
+        if limited:  # the integrator holds (no wind-up)
+            integ = self.integ
+            current = high if wanted > high else low
+        else:
+            current = wanted
+        new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        if limited:
+            ramp = new_speed  # the current limit holds the ramp back
+        elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < settled_rpm(state):
+            # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
+            new_speed = ramp
+            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
+            current = integ / kt
+        return ramp, current, new_speed, integ, limited, wanted
+
+    def stall_limited(self, state: State, full: Control, target: float, speed: float, emf: float) -> Control:
+        """Overvoltage stall prevention, looking one step ahead as the drive's fast stall loop does.
+
+        The bus rises by volts per millisecond under hard braking: the ramp's step down is cut to what
+        brings the bus to the stall level, and held if the bus is there already.
+        """
+        stall_v = self.cfg.stall_v
+        full_bus = self.bus_after(full[2], full[1])[0]
+        if full_bus <= stall_v:
+            return full
+        held = self.control(state, self.ramp, target, speed, emf)
+        held_bus = self.bus_after(held[2], held[1])[0]
+        if held_bus >= stall_v or full[0] == held[0]:
+            return held
+        share = (stall_v - held_bus) / (full_bus - held_bus)
+        return self.control(state, self.ramp + share * (full[0] - self.ramp), target, speed, emf)
+
+    def bus_after(self, speed: float, current: float) -> tuple[float, float, float]:
+        """The bus after this step with the motor at ``speed`` drawing ``current``: (bus, power, loss)."""
+        m, th = self.profile.motor, self.profile.thermal
+        power = (m.kt_nm_per_a * speed * RPM + current * m.resistance_ohm) * current
+        loss = th.conduction_resistance_ohm * current * current + th.switching_loss_w_per_a * abs(current)
+        bus = physics.bus_step(
+            self.bus,
+            self.bench.supply,
+            (power + loss) / max(self.bus, 1.0),
+            inv_source=self.inv_source,
+            inv_bleed=self.inv_bleed,
+            inv_brake=self.inv_brake,
+            chopper_v=self.profile.supply.brake_chopper_v,
+            capacitance=self.capacitance,
+            dt=STEP,
+        )
+        return bus, power, loss
+
+    def motor_rate(self, current: float) -> float:
+        """The motor's overload budget used per second at ``current`` (negative: cooling)."""
+        p = self.profile.protection
+        return physics.overload_rate(
+            abs(current) / self.cfg.motor_rated_a, p.motor_overload_curve, p.overload_cooling_s
+        )
+
+    def drive_rate(self, current: float) -> float:
+        """The drive's overload budget used per second at ``current`` (negative: cooling)."""
+        p = self.profile.protection
+        return physics.overload_rate(
+            abs(current) / p.drive_rated_current_a, p.drive_overload_curve, p.overload_cooling_s
+        )
+
+    # --- Steady segments: skipping ahead exactly.
+
+    def try_segment(self, state: State) -> None:
+        """Enter a steady segment if the drive in ``state`` has settled and every input is constant."""
+        if state in (State.DECELERATING, State.BRAKING, State.COASTING) or not self.bus_settled:
+            return
+        if self.speed != self.speed_before:
+            return
+        if state in DRIVEN:
+            if self.limited or self.stall_steps or self.hall.fault is not None:
+                return
+            if self.ramp != target_rpm(state, self.cfg) or self.speed != self.ramp:
+                return
+        elif self.speed != 0.0:
+            return
+        elif self.current != 0.0:
+            return  # the diodes still conduct
+        watch = state not in (State.FAULT, State.OFF)
+        thermal = self.profile.thermal
+        temp_ss = self.bench.ambient + self.loss * thermal.resistance_k_per_w
+        motor_rate = STEP * self.motor_rate(self.current)
+        drive_rate = STEP * self.drive_rate(self.current)
+        self.hall.mark_segment()
+        self.segment = Segment(
+            k0=self.k,
+            temp0=self.temp,
+            temp_ss=temp_ss,
+            temp_rate=self.temp_rate,
+            motor_i2t0=self.motor_i2t,
+            motor_rate=motor_rate,
+            drive_i2t0=self.drive_i2t,
+            drive_rate=drive_rate,
+            theta0=self.hall.theta,
+            theta_rate=self.speed * RPM * self.cfg.pole_pairs * STEP,
+            watch_heat=watch and temp_ss > thermal.overheat_c,
+            watch_overload=watch and (motor_rate > 0.0 or drive_rate > 0.0),
+        )
+
+    def segment_event(self, seg: Segment, n: int, expired: Callable[[int], bool]) -> bool:
+        """True if a protection trips at step ``n`` of the segment (monotone in ``n``)."""
+        if seg.watch_heat and seg.temp(n) >= self.profile.thermal.overheat_c:
+            return True
+        if seg.watch_overload and (seg.motor_i2t(n) >= BUDGET or seg.drive_i2t(n) >= BUDGET):
+            return True
+        return expired(seg.k0 + n)
+
+    def advance_segment(self, target: int, expired: Callable[[int], bool]) -> bool:
+        """Jump along the segment to step ``target``, or to the first step a protection trips on (True)."""
+        seg = self.segment
+        assert seg is not None
+        first, last = self.k + 1 - seg.k0, target - seg.k0
+        event = self.segment_event(seg, last, expired)
+        n = last
+        if event:  # find the first step that trips: the same step a 1 ms poll would find
+            low, high = first, last
+            while low < high:
+                mid = (low + high) // 2
+                if self.segment_event(seg, mid, expired):
+                    high = mid
+                else:
+                    low = mid + 1
+            n = low
+        self.k = seg.k0 + n
+        self.temp = seg.temp(n)
+        self.motor_i2t = seg.motor_i2t(n)
+        self.drive_i2t = seg.drive_i2t(n)
+        self.hall.skip(seg, n, self.t0 + seg.k0 * STEP, self.cfg.pole_pairs)
+        return event
+
+
+def settled_rpm(state: State) -> float:
+    """How close to its set speed the rotor counts as there; stopping, zero speed is detected at 1 rpm."""
+    return SETTLED_RPM if state in RUNNING else ZERO_RPM

@@ -1,0 +1,286 @@
+"""The protections and the guards beside the state table: what decides that a transition happens.
+
+:class:`Machine` holds one drive's state and its fault latch, and feeds
+events to :data:`~c20sim.drive.statemachine.TRANSITIONS`. Every decision
+about them is made here: each protection watches a physical condition that
+the integrator (:mod:`~c20sim.drive.integrator`) and the Hall sensors
+(:mod:`~c20sim.drive.sensors`) give it, and trips by a transition of the
+table with the profile's code, in a fixed order; the bus comes and goes with
+an undervoltage recover level; the automatic events (at zero, hold done) and
+the terminals' run and reset inputs become events; and a latched fault is
+released by a reset only once its cause is gone (:meth:`Machine.cause_persists`).
+
+"Is this cause present" is decided here and nowhere else: :meth:`Machine.present`
+answers it for every :class:`~c20sim.drive.profile.FaultCause` from the
+conditions the drive is in, whoever set them; the control layer's causes
+(:mod:`c20sim.control.causes`) ask it through :meth:`Drive.cause_present
+<c20sim.drive.model.Drive.cause_present>`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
+from .physics import ACCEL, CONSTANT, DECEL, RPM, STEP
+from .profile import FaultCause, Profile
+from .sensors import Hall
+from .statemachine import DRIVEN, RUNNING, Event, State, next_state
+from .terminals import Input
+
+if TYPE_CHECKING:
+    from .integrator import Integrator
+
+__all__ = ["BUDGET", "BY_PHASE", "TRIPS_ON_UNDERVOLTAGE", "Machine"]
+
+
+#: The motor's and the drive's overload budgets: each trips when its I^2 t reaches it.
+BUDGET = 1.0
+#: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
+TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
+#: The overcurrent and overvoltage causes by the ramp's phase when they trip.
+BY_PHASE = {
+    "overcurrent": {
+        ACCEL: FaultCause.OVERCURRENT_ACCEL,
+        DECEL: FaultCause.OVERCURRENT_DECEL,
+        CONSTANT: FaultCause.OVERCURRENT_CONSTANT,
+    },
+    "overvoltage": {
+        ACCEL: FaultCause.OVERVOLTAGE_ACCEL,
+        DECEL: FaultCause.OVERVOLTAGE_DECEL,
+        CONSTANT: FaultCause.OVERVOLTAGE_CONSTANT,
+    },
+}
+
+
+class Machine:
+    """One drive's state, its fault latch, the 2000H command in force and the guards that move it through
+    :data:`~c20sim.drive.statemachine.TRANSITIONS`."""
+
+    state: State
+    cause: FaultCause | None
+    last_comm: float | None
+
+    def __init__(self, profile: Profile, motion: Integrator, hall: Hall, t0: float) -> None:
+        self.profile, self.motion, self.hall, self.t0 = profile, motion, hall, t0
+        s, p = profile.supply, profile.protection
+        self.codes: Mapping[FaultCause, int] = {
+            spec.cause: spec.code for spec in profile.faults.values() if spec.cause is not None
+        }
+        self.recover_v = s.undervoltage_recover_v or s.undervoltage_v
+        self.stall_steps_limit = max(1, round(p.stall_time_s / STEP))
+        self.brake_steps_limit = round(p.brake_hold_s / STEP)
+
+    def power_up(self) -> None:
+        """No fault, no request seen, no command in force; off until the bus is above the recover level."""
+        self.bus_ok = self.motion.bus >= self.recover_v
+        self.command = 0  # 2000H
+        self.fault = 0
+        self.cause = None
+        self.forced_hold = False
+        self.last_comm = None
+        self.state = State.STOPPED if self.bus_ok else State.OFF
+
+    # --- Transitions.
+
+    def apply(self, event: Event) -> None:
+        """Feed one event to the state table."""
+        if event is Event.RESET:
+            self.reset()
+            return
+        new = next_state(self.state, event)
+        if new is not self.state:
+            self.enter(new)
+
+    def enter(self, new: State) -> None:
+        old = self.state
+        if new is State.FAULT or old is State.FAULT or (old in RUNNING and new not in RUNNING):
+            # The drive drops the command written to 2000H: a trip, a reset, or a run ended; the register
+            # face stores a command written after applying it, so 2000H reads it (assumed: see face.py).
+            self.command = 0
+        self.motion.entered(old in DRIVEN, new in DRIVEN)
+        self.state = new
+
+    def trip(self, code: int, cause: FaultCause | None) -> None:
+        if self.state is State.FAULT:
+            return
+        self.fault, self.cause = code, cause
+        if cause is FaultCause.COMMUNICATION:
+            self.last_comm = None  # re-armed by the next request
+        self.enter(next_state(self.state, Event.TRIP))
+
+    def trip_on(self, cause: FaultCause) -> bool:
+        code = self.codes.get(cause)
+        if code is None:
+            return False  # the profile has no code for it: this drive lacks the protection
+        self.trip(code, cause)
+        return True
+
+    def force(self, code: int, persistent: bool) -> None:
+        """Latch fault ``code`` now; with ``persistent`` a reset fails until released."""
+        self.forced_hold = persistent
+        if self.state is State.FAULT:
+            self.fault, self.cause = code, None
+        else:
+            self.trip(code, None)
+
+    @property
+    def held_fault(self) -> int | None:
+        """The code of a fault forced with ``persistent`` and not yet released, else None."""
+        return self.fault if self.forced_hold and self.cause is None and self.fault else None
+
+    # --- Guards.
+
+    def reset(self) -> bool:
+        """A fault reset: released only once the cause is gone; False if refused."""
+        if self.state is not State.FAULT or self.cause_persists():
+            return False
+        self.fault, self.cause = 0, None
+        self.enter(next_state(self.state, Event.RESET))
+        return True
+
+    def cause_persists(self) -> bool:
+        """The reset guard: whether the latched fault's cause still holds it (the fault may outlast the
+        condition that tripped it: a bus still below its recover level, a hot module, a spent budget)."""
+        cause, s, p, motion = self.cause, self.profile.supply, self.profile.protection, self.motion
+        if cause is None:
+            return self.forced_hold
+        if cause is FaultCause.UNDERVOLTAGE:
+            return not self.bus_ok
+        if cause in BY_PHASE["overvoltage"].values():
+            return motion.bus > s.overvoltage_v
+        if cause in BY_PHASE["overcurrent"].values():  # a load that needs more than the trip level to hold
+            return self.load_current() > p.overcurrent_a
+        if cause is FaultCause.MOTOR_OVERLOAD:
+            return motion.motor_i2t > p.overload_warning * BUDGET
+        if cause is FaultCause.DRIVE_OVERLOAD:
+            return motion.drive_i2t > p.overload_warning * BUDGET
+        if cause is FaultCause.OVERHEAT:
+            return motion.temp > self.profile.thermal.overheat_c - self.profile.thermal.overheat_reset_k
+        if cause in (FaultCause.EXTERNAL, FaultCause.HALL):
+            return self.present(cause)
+        return False  # stall, communication: the reset itself is the retry
+
+    def present(self, cause: FaultCause) -> bool:
+        """Whether the condition that trips ``cause`` is there now, whoever set it (a bench, a master, a behaviour).
+
+        The condition, not its effect: a supply below the undervoltage level is present at once, before
+        the bus has fallen, and gone at once when the supply is back, while the reset guard
+        (:meth:`cause_persists`) may still refuse. Faults the model has no physical cause for (a power
+        stage, the EEPROM, ...) are never present: they are latched (:meth:`force`).
+        """
+        s, p, th, motion = self.profile.supply, self.profile.protection, self.profile.thermal, self.motion
+        bench, cfg = motion.bench, motion.cfg
+        if cause is FaultCause.UNDERVOLTAGE:
+            return bench.supply < s.undervoltage_v
+        if cause in BY_PHASE["overvoltage"].values():
+            return bench.supply > s.overvoltage_v
+        if cause in BY_PHASE["overcurrent"].values():  # holding the load, or starting or stopping it on the ramp
+            ramp = cfg.inertia * max(cfg.up, cfg.down) / STEP * RPM / self.profile.motor.kt_nm_per_a
+            return self.load_current() + ramp > p.overcurrent_a
+        if cause is FaultCause.STALL:  # the current limit cannot hold the load: a running rotor stalls
+            return self.load_current() > p.current_limit_a
+        if cause is FaultCause.MOTOR_OVERLOAD:  # past the rating within the limit (beyond it, a stall)
+            return self.load_current() <= p.current_limit_a and motion.motor_rate(self.load_current()) > 0.0
+        if cause is FaultCause.DRIVE_OVERLOAD:
+            return self.load_current() <= p.current_limit_a and motion.drive_rate(self.load_current()) > 0.0
+        if cause is FaultCause.OVERHEAT:  # the temperature the module heads for is past the trip level
+            return bench.ambient + motion.loss * th.resistance_k_per_w > th.overheat_c
+        if cause is FaultCause.EXTERNAL:
+            return bool(cfg.inputs & Input.EF)
+        if cause is FaultCause.HALL:
+            return self.hall.fault is not None
+        if cause is FaultCause.COMMUNICATION:
+            return self.comm_expired(motion.k)
+        return False
+
+    def load_current(self) -> float:
+        """The current (A) the motor needs to hold its load: friction, load torque and active load."""
+        cfg = self.motion.cfg
+        return (cfg.hold + abs(cfg.active)) / self.profile.motor.kt_nm_per_a
+
+    def inputs_changed(self, before: int) -> None:
+        """The input terminals changed from ``before``: CLR resets on its rising edge; the run inputs command."""
+        cfg = self.motion.cfg
+        after = cfg.inputs
+        if after & ~before & Input.CLR:
+            self.reset()
+        run_bits = Input.FWD | Input.REV | Input.JOGF | Input.JOGR
+        if cfg.channel != CHANNEL_TERMINAL or not (before ^ after) & run_bits:
+            return
+        fwd, rev = bool(after & Input.FWD), bool(after & Input.REV)
+        jogf, jogr = bool(after & Input.JOGF), bool(after & Input.JOGR)
+        if fwd != rev:
+            self.apply(Event.FORWARD if fwd else Event.REVERSE)
+        elif not fwd and jogf != jogr:
+            self.apply(Event.JOG_FORWARD if jogf else Event.JOG_REVERSE)
+        else:
+            self.apply(Event.STOP)
+
+    def protect(self) -> None:
+        """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
+        state, motion = self.state, self.motion
+        supply, prot = self.profile.supply, self.profile.protection
+        if motion.bus < supply.undervoltage_v:
+            self.bus_ok = False
+        elif motion.bus >= self.recover_v:
+            self.bus_ok = True  # back only above the recover level: no flicker around the trip level
+        if state is State.FAULT:
+            return
+        if not self.bus_ok:
+            if state in TRIPS_ON_UNDERVOLTAGE:
+                self.trip_on(FaultCause.UNDERVOLTAGE)
+            elif state is not State.OFF:
+                self.apply(Event.POWER_LOST)
+            return
+        if state is State.OFF:
+            self.apply(Event.POWER_BACK)
+            return
+        driven = state in DRIVEN
+        if motion.bus > supply.overvoltage_v and self.trip_on(BY_PHASE["overvoltage"][motion.phase]):
+            return
+        # The current the loop asks this step flows for the microseconds the limit takes to act: a ramp of a
+        # heavy load that asks more than the trip level trips here, a load beyond the limit slows the rotor.
+        if driven and abs(motion.demand) > prot.overcurrent_a and self.trip_on(BY_PHASE["overcurrent"][motion.phase]):
+            return
+        if self.hall.glitch and self.trip_on(FaultCause.HALL):  # a bad code trips whenever the bus is up
+            return
+        if motion.stall_steps >= self.stall_steps_limit and self.trip_on(FaultCause.STALL):
+            return
+        if motion.motor_i2t >= BUDGET and self.trip_on(FaultCause.MOTOR_OVERLOAD):
+            return
+        if motion.drive_i2t >= BUDGET and self.trip_on(FaultCause.DRIVE_OVERLOAD):
+            return
+        if motion.temp >= self.profile.thermal.overheat_c and self.trip_on(FaultCause.OVERHEAT):
+            return
+        if motion.cfg.inputs & Input.EF and self.trip_on(FaultCause.EXTERNAL):
+            return
+        if self.comm_expired(motion.k):
+            if motion.cfg.comm_action == COMM_TRIP:
+                self.trip_on(FaultCause.COMMUNICATION)
+            else:  # F08.03 = 2 or 3: no alarm, ramp to stop; re-armed by the next request
+                self.last_comm = None
+                self.apply(Event.STOP if state not in (State.JOG_FORWARD, State.JOG_REVERSE) else Event.JOG_STOP)
+
+    def comm_expired(self, k: int) -> bool:
+        """True if the communication timeout has run out by step ``k``."""
+        cfg = self.motion.cfg
+        return (
+            cfg.comm_timeout > 0.0
+            and cfg.comm_action != COMM_CONTINUE
+            and (cfg.channel == CHANNEL_COMM or cfg.comm_action == COMM_STOP_ANY)
+            and self.last_comm is not None
+            and self.state not in (State.FAULT, State.OFF)
+            and self.t0 + k * STEP - self.last_comm > cfg.comm_timeout
+        )
+
+    def auto_events(self) -> None:
+        """The events the model raises itself: the rotor at zero, the brake's hold done."""
+        state, motion = self.state, self.motion
+        if state is State.DECELERATING and motion.speed == 0.0 and motion.ramp == 0.0:
+            self.apply(Event.AT_ZERO)
+        elif state is State.BRAKING and motion.brake_steps >= self.brake_steps_limit:
+            self.apply(Event.HOLD_DONE)
+        elif state is State.COASTING and motion.speed == 0.0:
+            self.apply(Event.AT_ZERO)
