@@ -429,10 +429,13 @@ def summary(action: str, result: Any) -> str:
 
 def _asked(action: str, args: argparse.Namespace) -> str:
     """The action as the user asked for it, in the words they typed: ``set supply_v=30``, ``key reset``."""
+    names: list[str] = []
+    for row in _actions().get(action, []):
+        names += [n for n in row.parameters if n != "address"] + [f.name for f in row.fields]
     words = [action]
-    for name in ("register", "key", "value", "seconds", "factor", "speed", "channel", "code", "cause", "setup"):
+    for name in dict.fromkeys([*names, "code", "cause", "setup"]):
         value = getattr(args, name, None)
-        if value is not None and value != "defaults":
+        if value is not None and value is not False and value != "defaults":
             words.append(str(value))
     words += list(getattr(args, "values", None) or [])
     if getattr(args, "persistent", False):

@@ -15,21 +15,42 @@ nothing.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from ..wire.errors import ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg
 from .config import CHANNEL_COMM
-from .physics import RPM, STEP
-from .profile import FaultCause
-from .protection import BUDGET
+from .physics import BUDGET, RPM, STEP
+from .profile import FaultCause, Profile
 from .sensors import noise
 from .statemachine import DRIVEN, RUN_COMMANDS, STATUS_WORD, Event, State
 from .terminals import Output
 
 if TYPE_CHECKING:
-    from .model import Drive
+    from .config import Conditions
+    from .integrator import Integrator
+    from .params import ParameterStore
+    from .protection import Machine
+    from .sensors import Hall
+
+
+class Drive(Protocol):
+    """What the register face reads and writes of a drive: its parts (:class:`~c20sim.drive.model.Drive`
+    has them). A protocol, so the face needs no import of the model that composes it."""
+
+    profile: Profile
+    t0: float
+    t: float
+    ram: dict[int, int]
+    parameters: ParameterStore
+    bench: Conditions
+    hall: Hall
+    machine: Machine
+    motion: Integrator
+
+    def _reconfigure(self) -> None: ...
+
 
 __all__ = [
     "DRIVE_ID",

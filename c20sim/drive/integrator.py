@@ -24,9 +24,8 @@ from collections.abc import Callable
 
 from . import physics
 from .config import Conditions, Config
-from .physics import CONSTANT, DECEL, RPM, STEP, Segment
+from .physics import BUDGET, CONSTANT, DECEL, RPM, STEP, Segment
 from .profile import Profile
-from .protection import BUDGET
 from .sensors import Hall
 from .statemachine import DRIVEN, RUNNING, State
 

@@ -167,3 +167,7 @@ class Segment:
 
     def theta(self, n: int) -> float:
         return (self.theta0 + n * self.theta_rate) % TWO_PI
+
+
+#: The motor's and the drive's overload budgets: each trips when its I^2 t reaches it.
+BUDGET = 1.0

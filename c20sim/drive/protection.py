@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
-from .physics import ACCEL, CONSTANT, DECEL, RPM, STEP
+from .physics import ACCEL, BUDGET, CONSTANT, DECEL, RPM, STEP
 from .profile import FaultCause, Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, RUNNING, Event, State, next_state
@@ -32,11 +32,9 @@ from .terminals import Input
 if TYPE_CHECKING:
     from .integrator import Integrator
 
-__all__ = ["BUDGET", "BY_PHASE", "TRIPS_ON_UNDERVOLTAGE", "Machine"]
+__all__ = ["BY_PHASE", "TRIPS_ON_UNDERVOLTAGE", "Machine"]
 
 
-#: The motor's and the drive's overload budgets: each trips when its I^2 t reaches it.
-BUDGET = 1.0
 #: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
 TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
 #: The overcurrent and overvoltage causes by the ramp's phase when they trip.

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from . import face
-from .protection import BUDGET
+from .physics import BUDGET
 
 if TYPE_CHECKING:
-    from .model import Drive
+    from .face import Drive
 
 __all__ = ["Telemetry", "snapshot"]
 
