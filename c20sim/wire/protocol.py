@@ -49,7 +49,9 @@ __all__ = [
     "decode_response",
     "encode",
     "expected_length",
+    "frame_time",
     "silence_times",
+    "transaction_time",
     "with_crc",
 ]
 
@@ -374,6 +376,28 @@ def silence_times(baud: int, bits: int = SHEET_CHAR_BITS) -> tuple[float, float]
     if baud > 19200:
         return 0.00075, 0.00175
     return 1.5 * char_time(baud, bits), 3.5 * char_time(baud, bits)
+
+
+def frame_time(length: int, baud: int, bits: int = SHEET_CHAR_BITS) -> float:
+    """Seconds a frame of ``length`` bytes holds an RS485 line: its characters and the t3.5 before it."""
+    return length * char_time(baud, bits) + silence_times(baud, bits)[1]
+
+
+def transaction_time(
+    request: int, reply: int, baud: int, bits: int = SHEET_CHAR_BITS, turnaround: float = 0.0
+) -> float:
+    """Seconds one transaction holds an RS485 line at ``baud``: the request (``request`` bytes) and the reply
+    (``reply`` bytes, 0 for a broadcast or silence), each with the t3.5 before it, and the drive's
+    ``turnaround`` between them. The line's real time, whatever transport carried the frames: the bus timing
+    of every transport and the audit's line demand both use it.
+
+    >>> round(transaction_time(8, 7, 19200) * 1000, 3)  # a one-register read at 19200 8N1
+    11.458
+    """
+    time = frame_time(request, baud, bits)
+    if reply:
+        time += turnaround + frame_time(reply, baud, bits)
+    return time
 
 
 class FrameKind(enum.Enum):

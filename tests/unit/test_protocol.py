@@ -25,6 +25,7 @@ from c20sim.wire.protocol import (
     decode_response,
     encode,
     silence_times,
+    transaction_time,
     with_crc,
 )
 
@@ -455,3 +456,29 @@ def test_strict_silence_is_known_one_character_after_t35() -> None:
     framer.feed(READ[1:], 1.0 + 0.0265 + 8 * char)
     framer.tick(5.0)
     assert [e.kind for e in framer.events()] == [FrameKind.NOISE]  # one frame, broken by a gap over t1.5
+
+
+@pytest.mark.parametrize(
+    ("request_len", "reply_len", "baud", "bits", "turnaround", "expected_us"),
+    [
+        # a one-register read at 19200 8N1: 8 + 7 characters of 10 bits, a t3.5 of 3.5 characters before each
+        (8, 7, 19200, 10, 0.0, (8 + 3.5 + 7 + 3.5) * 10 / 19200 * 1e6),
+        # the drive's turnaround sits between the request and the reply
+        (8, 7, 19200, 10, 0.002, ((8 + 3.5 + 7 + 3.5) * 10 / 19200 + 0.002) * 1e6),
+        # 8E1 is 11 bits a character
+        (8, 7, 9600, 11, 0.0, (8 + 3.5 + 7 + 3.5) * 11 / 9600 * 1e6),
+        # above 19200 baud t3.5 is fixed at 1.75 ms (Modbus over Serial Line V1.02, 2.5.1.1)
+        (8, 7, 57600, 10, 0.0, ((8 + 7) * 10 / 57600 + 2 * 0.00175) * 1e6),
+        # a broadcast has no reply: the request and its t3.5 only, no turnaround
+        (8, 0, 19200, 10, 0.002, (8 + 3.5) * 10 / 19200 * 1e6),
+    ],
+)
+def test_a_transaction_holds_the_line_for_its_characters_and_silences(
+    request_len: int, reply_len: int, baud: int, bits: int, turnaround: float, expected_us: float
+) -> None:
+    got = transaction_time(request_len, reply_len, baud, bits, turnaround)
+    assert got * 1e6 == pytest.approx(expected_us, abs=1e-6)
+
+
+def test_a_19200_line_carries_about_86_single_register_reads_a_second() -> None:
+    assert int(1 / transaction_time(8, 7, 19200)) == 87  # the "about 86": 87.27 with no turnaround
