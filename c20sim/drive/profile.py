@@ -105,6 +105,14 @@ class ProtocolParams:
     )
     password: int = field(default=0, metadata=_num(0, 65535, "", "user password; 0 = none"))
     password_register: str = field(default="F07.00", metadata={"doc": "function code where the password is written"})
+    eeprom_endurance_writes: int = field(
+        default=100_000,
+        metadata=_num(1000, 10**9, "writes", "writes one function code's EEPROM cell stands (the audit's wear figure)"),
+    )
+    broadcast_delay_ms: float = field(
+        default=100.0,
+        metadata=_num(0, 10000, "ms", "time the drive needs after a broadcast before the next request (the audit)"),
+    )
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[2] / "c20sim"
 #: The layers from the wire inwards-out: a module may import its own layer and those before it.
-LAYERS = ("wire", "drive", "core", "transport", "control", "traffic", "scenario")
+LAYERS = ("wire", "drive", "core", "audit", "transport", "control", "traffic", "scenario")
 #: What the pure core (wire, drive, core) may not import: event loops, sockets, ports, threads, screens, masters.
 IO_MODULES = ("asyncio", "socket", "selectors", "serial", "threading", "subprocess", "aiohttp", "textual", "pymodbus")
 
@@ -93,7 +93,7 @@ def test_no_import_circle() -> None:
     assert circles == []
 
 
-@pytest.mark.parametrize("layer", ["wire", "drive", "core"])
+@pytest.mark.parametrize("layer", ["wire", "drive", "core", "audit"])
 def test_the_pure_core_imports_no_io(layer: str) -> None:
     found = sorted(
         (name, target)

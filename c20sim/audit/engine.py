@@ -1,0 +1,629 @@
+"""The audit's engine: frames and their times in, findings out; no I/O, no clock.
+
+Sans-I/O like the framer: :meth:`Auditor.feed` takes one frame (its time, its
+direction, its bytes) and :meth:`Auditor.events` hands back the findings that
+are new or whose figure grew since the last call; :meth:`Auditor.findings` is
+the report so far. Live (every frame the bus records) and offline (a frame
+log, a packet capture) go through the same engine, so a log recorded live
+gives the same findings later.
+
+The drive's facts come from its profile: the turnaround, the EEPROM's
+endurance, the time it needs after a broadcast, the defaults of the
+communication timeout (F08.02) and the maximum speed (F00.03). Writes the
+master makes to those function codes are followed. The line's real time for
+a transaction is :func:`c20sim.wire.protocol.transaction_time`, whatever
+transport carried the frames. Every limit a rule judges by and that no
+document gives is marked ``assumed`` here and in docs/audit.md.
+
+Memory is bounded whatever the stream's length: a window of the line's last
+transactions (at most :data:`MAX_WINDOW` entries), a few counters per drive
+and subject (at most :data:`MAX_SUBJECTS` of them), and a bounded queue of
+events.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from ..drive.profile import Profile
+from ..wire.protocol import (
+    BROADCAST,
+    SHEET_CHAR_BITS,
+    ExceptionCode,
+    FunctionCode,
+    crc_ok,
+    frame_time,
+    transaction_time,
+)
+from ..wire.registers import BAUD_RATES, Command, Reg, address_label, fcode_address, is_fcode
+from .findings import RULES, Finding, FrameRef, Severity
+
+__all__ = ["MAX_SUBJECTS", "MAX_WINDOW", "Auditor", "Limits", "LineDemand"]
+
+F_MAX_SPEED = fcode_address(0, 3)
+F_BAUD = fcode_address(8, 1)
+F_COMM_TIMEOUT = fcode_address(8, 2)
+
+#: Times closer than this are one (a frame log rounds them to the microsecond).
+_EPSILON = 1e-6
+#: The most transactions the line-demand window holds (a 1 s window at 100,000 transactions a second).
+MAX_WINDOW = 100_000
+#: The most (drive, subject) counters kept; beyond, new subjects are not followed (the first ones are).
+MAX_SUBJECTS = 4096
+#: The most findings waiting in :meth:`Auditor.events`; the oldest go first (findings() keeps them all).
+MAX_EVENTS = 1024
+
+_READ = FunctionCode.READ_REGISTERS
+_WRITE1 = FunctionCode.WRITE_SINGLE
+_WRITEN = FunctionCode.WRITE_MULTIPLE
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What the rules judge by, where no document gives a figure: all **assumed**, all settable."""
+
+    window: float = 1.0  #: seconds of traffic the line demand is measured over; assumed
+    demand_error: float = 100.0  #: percent of the line: the replies queue and time out
+    demand_warning: float = 80.0  #: percent of the line: no room left for retries; assumed
+    cyclic_writes: int = 5  #: writes of one function code that make it cyclic; assumed
+    wear_error_h: float = 8760.0  #: rated endurance reached within a year: error; assumed
+    wear_warning_h: float = 87600.0  #: ... within ten years (a drive's service life): warning; assumed
+    watchdog_margin: float = 0.8  #: a silence above this fraction of the comm timeout; assumed
+    repeats: int = 3  #: the same refusal this many times is ignored, not a probe; assumed
+    resets: int = 3  #: fault resets within ``reset_window`` that make a loop; assumed
+    reset_window: float = 60.0  #: seconds; assumed
+    enable_hold: float = 5.0  #: seconds 200EH may stay 1 after the last function-code write; assumed
+
+
+@dataclass(frozen=True, slots=True)
+class LineDemand:
+    """How much of the real line the traffic needs: now (the last window), at its peak, over the whole stream."""
+
+    baud: int
+    bits: int
+    now: float  #: percent, over the last window
+    peak: float  #: percent, the highest window
+    mean: float  #: percent, over the whole stream
+    transactions: int  #: requests seen
+    busy: float  #: seconds of line the whole stream needs
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "baud": self.baud,
+            "format": _format(self.bits),
+            "now_percent": round(self.now, 1),
+            "peak_percent": round(self.peak, 1),
+            "mean_percent": round(self.mean, 1),
+            "transactions": self.transactions,
+            "busy_s": round(self.busy, 6),
+        }
+
+
+def _format(bits: int) -> str:
+    return {10: "8N1", 11: "8E1"}.get(bits, f"{bits}-bit")
+
+
+@dataclass(slots=True)
+class _Pending:
+    """The last request, until its reply (or the next request)."""
+
+    seq: int
+    t: float
+    data: bytes
+    slave: int
+    function: int
+    register: int
+    value: int  #: the value written (0x06, first of a 0x10), else -1
+    cost: float  #: seconds of line the transaction needs
+    reply_t: float | None = None
+
+
+@dataclass(slots=True)
+class _Drive:
+    """What the audit follows of one drive."""
+
+    comm_timeout: float
+    max_speed: int
+    last_t: float | None = None
+    last_seq: int = 0
+    longest: float = 0.0
+    write_enable: bool = False
+    enable_ref: FrameRef | None = None
+    last_fcode_write: float | None = None
+    resets: deque[FrameRef] = field(default_factory=lambda: deque(maxlen=64))
+
+
+@dataclass(slots=True)
+class _Count:
+    n: int = 0
+    first: FrameRef | None = None
+    last: FrameRef | None = None
+    same_value: bool = True
+    value: int = -1
+
+
+class Auditor:
+    """The rules over one line's frame stream. ``feed`` frames in order; read ``events`` or ``findings``."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        *,
+        baud: int | None = None,
+        bits: int = SHEET_CHAR_BITS,
+        comm_timeout: float | None = None,
+        limits: Limits | None = None,
+        ignore: Iterable[str] = (),
+    ) -> None:
+        self.profile = profile
+        default_baud = profile.defaults.get(F_BAUD, 4)
+        self.baud = baud if baud is not None else BAUD_RATES[default_baud if default_baud < len(BAUD_RATES) else 4]
+        self.bits = bits
+        self.limits = limits or Limits()
+        self.ignore = frozenset(ignore)
+        unknown = sorted(self.ignore - set(RULES))
+        if unknown:
+            raise ValueError(f"unknown rule {unknown[0]!r}; the rules are {', '.join(RULES)}")
+        self.turnaround = profile.protocol.turnaround_ms / 1000.0
+        self.endurance = profile.protocol.eeprom_endurance_writes
+        self.broadcast_delay = profile.protocol.broadcast_delay_ms / 1000.0
+        timeout_spec = profile.registers.get(F_COMM_TIMEOUT) if F_COMM_TIMEOUT in profile.defaults else None
+        self._timeout_scale = timeout_spec.scale if timeout_spec is not None else 0.1
+        self._timeout_override = comm_timeout
+        self._default_timeout = (
+            comm_timeout if comm_timeout is not None else profile.defaults.get(F_COMM_TIMEOUT, 0) * self._timeout_scale
+        )
+        self._default_max_speed = profile.defaults.get(F_MAX_SPEED, 3000)
+        self._eeprom = frozenset(profile.mirrors) | frozenset(a for a in profile.defaults if is_fcode(a))
+        self._timeout_cells = {F_COMM_TIMEOUT} | {r for r, f in profile.mirrors.items() if f == F_COMM_TIMEOUT}
+        self._speed_cells = {F_MAX_SPEED} | {r for r, f in profile.mirrors.items() if f == F_MAX_SPEED}
+        self.frames = 0
+        self._enabled: set[int] = set()  #: drives with 200EH = 1
+        self._pending: _Pending | None = None
+        self._drives: dict[int, _Drive] = {}
+        self._counts: dict[tuple[str, int, int, int], _Count] = {}
+        self._findings: dict[tuple[str, int | None, str], Finding] = {}
+        self._events: deque[Finding] = deque(maxlen=MAX_EVENTS)
+        self._cost: dict[tuple[int, int], float] = {}
+        # the line-demand window: (t, seq, cost) of the last transactions, and their sum
+        self._window: deque[tuple[float, int, float]] = deque()
+        self._window_sum = 0.0
+        self._first_t: float | None = None
+        self._last_t = 0.0
+        self._now = 0.0
+        self._peak = 0.0
+        self._transactions = 0
+        self._busy = 0.0
+
+    # -- the stream
+
+    def feed(self, t: float, direction: str, data: bytes) -> None:
+        """One frame: ``direction`` ``rx`` (master to drive) or ``tx`` (drive to master), at time ``t`` (seconds)."""
+        self.frames += 1
+        if direction == "rx":
+            self._request(self.frames, t, data)
+        elif direction == "tx":
+            self._reply(self.frames, t, data)
+        else:
+            raise ValueError(f"direction {direction!r}: expected rx or tx")
+
+    def feed_all(self, frames: Iterable[tuple[float, str, bytes]]) -> None:
+        for t, direction, data in frames:
+            self.feed(t, direction, data)
+
+    def events(self) -> list[Finding]:
+        """The findings new or grown since the last call, oldest first."""
+        out = list(self._events)
+        self._events.clear()
+        return out
+
+    def findings(self) -> list[Finding]:
+        """Every finding so far, worst first, then by rule, drive and subject."""
+        return sorted(
+            self._findings.values(),
+            key=lambda f: (-f.severity, f.rule, -1 if f.drive is None else f.drive, f.subject),
+        )
+
+    def worst(self) -> Severity | None:
+        return max((f.severity for f in self._findings.values()), default=None)
+
+    def line_demand(self) -> LineDemand:
+        span = (self._last_t - self._first_t) if self._first_t is not None else 0.0
+        mean = 100.0 * self._busy / span if span >= self.limits.window else 0.0
+        return LineDemand(self.baud, self.bits, self._now, self._peak, mean, self._transactions, self._busy)
+
+    # -- requests
+
+    def _request(self, seq: int, t: float, data: bytes) -> None:
+        ref = FrameRef(seq, t)
+        n = len(data)
+        if n < 4 or not crc_ok(data):
+            self._demand(ref, frame_time(n, self.baud, self.bits))  # noise still holds the line
+            return
+        slave, function = data[0], data[1]
+        register, value, reply = -1, -1, 5
+        if function in (_READ, _WRITE1) and n == 8:
+            register, value = struct.unpack_from(">HH", data, 2)
+            if function == _READ:
+                reply, value = 5 + 2 * value, -1
+            else:
+                reply = 8
+        elif function == _WRITEN and n >= 11 and n == 9 + data[6]:
+            register, value = struct.unpack_from(">HH", data, 2)[0], struct.unpack_from(">H", data, 7)[0]
+            reply = 8
+        if slave == BROADCAST:
+            reply = 0
+        key = (n, reply)
+        cost = self._cost.get(key)
+        if cost is None:
+            cost = self._cost[key] = transaction_time(n, reply, self.baud, self.bits, self.turnaround)
+        self._timing(ref, data, slave, cost)
+        self._pending = _Pending(seq, t, data, slave, function, register, value, cost)
+        self._demand(ref, cost)
+        drives = list(self._drives) if slave == BROADCAST else [slave]
+        if slave == BROADCAST and not drives:
+            return
+        for address in drives:
+            self._silence(address, ref)
+        if slave != BROADCAST and function in (_WRITE1, _WRITEN) and register >= 0:
+            self._written(slave, register, value, data, ref, function)
+        if self._enabled:
+            self.check_idle(t)
+
+    def _drive(self, address: int) -> _Drive:
+        found = self._drives.get(address)
+        if found is None:
+            found = self._drives[address] = _Drive(self._default_timeout, self._default_max_speed)
+        return found
+
+    def _timing(self, ref: FrameRef, data: bytes, slave: int, cost: float) -> None:
+        """collision, early-retry, broadcast-turnaround: did this request leave too soon after the last one?"""
+        last = self._pending
+        if last is None:
+            return
+        gap = ref.t - last.t
+        if last.slave == BROADCAST:
+            if gap < self.broadcast_delay:
+                self._report(
+                    "broadcast-turnaround",
+                    Severity.WARNING,
+                    None,
+                    "",
+                    (FrameRef(last.seq, last.t), ref),
+                    f"a request {gap * 1000:.1f} ms after a broadcast; the drive needs "
+                    f"{self.broadcast_delay * 1000:.0f} ms (the profile's broadcast_delay_ms)",
+                    gap,
+                    "wait the turnaround delay after every broadcast before the next request",
+                )
+            return
+        if last.reply_t is not None:
+            early = ref.t < last.reply_t - _EPSILON  # sent before the reply to the last one came out
+            need = last.reply_t - last.t
+        else:
+            need = last.cost
+            early = gap < need - _EPSILON  # no reply: sent before one could have finished on the line
+        if not early:
+            return
+        what = "a retry" if data == last.data else "a request"
+        rule = "early-retry" if data == last.data else "collision"
+        self._report(
+            rule,
+            Severity.ERROR,
+            last.slave,
+            "",
+            (FrameRef(last.seq, last.t), ref),
+            f"{what} {gap * 1000:.1f} ms after the last, before its reply could have finished "
+            f"({need * 1000:.1f} ms on {self.baud} {_format(self.bits)})",
+            gap,
+            "wait for the reply, or for a timeout longer than the transaction's line time, before the next request",
+            bump=True,
+        )
+
+    def _demand(self, ref: FrameRef, cost: float) -> None:
+        t = ref.t
+        if self._first_t is None:
+            self._first_t = t
+        self._last_t = t
+        self._transactions += 1
+        self._busy += cost
+        window = self._window
+        window.append((t, ref.seq, cost))
+        self._window_sum += cost
+        horizon = t - self.limits.window + _EPSILON  # a frame log's times are rounded to the microsecond
+        while window and (window[0][0] <= horizon or len(window) > MAX_WINDOW):
+            self._window_sum -= window.popleft()[2]
+        if t - self._first_t < self.limits.window:
+            return  # not yet a whole window seen
+        percent = 100.0 * self._window_sum / self.limits.window
+        self._now = percent
+        if percent <= self._peak + 0.5:
+            self._peak = max(self._peak, percent)
+            return
+        self._peak = percent
+        if percent < self.limits.demand_warning or "line-demand" in self.ignore:
+            return
+        severity = Severity.ERROR if percent >= self.limits.demand_error else Severity.WARNING
+        count = len(window)
+        self._report(
+            "line-demand",
+            severity,
+            None,
+            "",
+            (FrameRef(window[0][1], window[0][0]), ref),
+            f"line demand {percent:.0f} % of {self.baud} {_format(self.bits)}: {count} transactions in "
+            f"{self.limits.window:g} s need {self._window_sum:.3f} s of line",
+            percent,
+            "poll less often or fewer registers, split the drives over more lines, or raise the baud rate "
+            "(F08.01); the replies of a real line would queue and time out",
+        )
+
+    def _silence(self, address: int, ref: FrameRef) -> None:
+        """comm-watchdog: the longest silence towards the drive, against its communication timeout."""
+        drive = self._drive(address)
+        last = drive.last_t
+        drive.last_t, last_seq, drive.last_seq = ref.t, drive.last_seq, ref.seq
+        if last is None or drive.comm_timeout <= 0.0:
+            return
+        gap = ref.t - last
+        if gap <= drive.longest:
+            return
+        drive.longest = gap
+        ratio = gap / drive.comm_timeout
+        if ratio < self.limits.watchdog_margin:
+            return
+        tripped = ratio > 1.0
+        self._report(
+            "comm-watchdog",
+            Severity.ERROR if tripped else Severity.WARNING,
+            address,
+            "",
+            (FrameRef(last_seq, last), ref),
+            f"longest silence {gap:.2f} s is {100 * ratio:.0f} % of the communication timeout "
+            f"F08.02 = {drive.comm_timeout:g} s" + (": the drive trips CE" if tripped else ""),
+            100.0 * ratio,
+            "talk to the drive well within its timeout (a poll at most half of F08.02 apart), or raise F08.02",
+        )
+
+    def _written(self, slave: int, register: int, value: int, data: bytes, ref: FrameRef, function: int) -> None:
+        """The request side of writes: speed-above-max, reset-loop."""
+        drive = self._drive(slave)
+        if register == Reg.SPEED_SETPOINT and value > drive.max_speed:
+            self._report(
+                "speed-above-max",
+                Severity.WARNING,
+                slave,
+                "2001H",
+                (ref,),
+                f"speed reference 2001H = {value} rpm above the maximum speed F00.03 = {drive.max_speed} rpm",
+                float(value),
+                f"keep 2001H within F00.03 ({drive.max_speed} rpm): the drive limits it or refuses it (0x03)",
+                bump=True,
+            )
+        elif register == Reg.COMMAND and value == Command.RESET:
+            resets = drive.resets
+            resets.append(ref)
+            while resets and resets[0].t < ref.t - self.limits.reset_window:
+                resets.popleft()
+            if len(resets) >= self.limits.resets:
+                span = ref.t - resets[0].t
+                self._report(
+                    "reset-loop",
+                    Severity.WARNING,
+                    slave,
+                    "2000H",
+                    (resets[0], ref),
+                    f"fault reset 2000H = 7 sent {len(resets)} times in {span:.1f} s",
+                    float(len(resets)),
+                    "read the fault code (2102H) and remove its cause before one reset; a reset loop hides the fault",
+                )
+
+    # -- replies
+
+    def _reply(self, seq: int, t: float, data: bytes) -> None:
+        pending = self._pending
+        if pending is None or pending.reply_t is not None or pending.slave == BROADCAST:
+            return
+        if len(data) < 5 or data[0] != pending.slave or (data[1] & 0x7F) != pending.function or not crc_ok(data):
+            return  # a dropped reply (no bytes), noise, or not the answer to the last request
+        pending.reply_t = t
+        ref = FrameRef(seq, t)
+        if data[1] & 0x80:
+            self._refused(pending, data[2], ref)
+        elif pending.function in (_WRITE1, _WRITEN):
+            self._stored(pending, ref)
+
+    def _refused(self, request: _Pending, code: int, ref: FrameRef) -> None:
+        register = request.register
+        if register == Reg.SPEED_SETPOINT and code == ExceptionCode.ILLEGAL_VALUE:
+            return  # speed-above-max says it
+        if code == ExceptionCode.NOT_WHILE_RUNNING:
+            rule = "refused-while-running"
+            advice = f"stop the drive before writing {address_label(register)} (W/R*: written only while stopped)"
+        elif code == ExceptionCode.OPERATION_FAILED and register == Reg.COMMAND:
+            rule = "run-channel"
+            advice = "select the communication run channel (2006H = 2, F00.01) before sending run commands"
+        elif code == ExceptionCode.OPERATION_FAILED and register in self._eeprom:
+            rule = "fcode-locked"
+            advice = "write 200EH = 1 before function-code writes, and 200EH = 0 after them"
+        elif code == ExceptionCode.ILLEGAL_ADDRESS and request.function == _READ:
+            rule = "absent-register"
+            advice = f"drop {address_label(register)} from the poll list: the drive has no such register"
+        else:
+            rule = "refused-repeat"
+            advice = "read the refusal: repeating the request gets the same answer"
+        key = (rule, request.slave, register, code)
+        count = self._count(key)
+        if count is None:
+            return
+        count.n += 1
+        count.first = count.first or FrameRef(request.seq, request.t)
+        count.last = ref
+        if count.n < self.limits.repeats:
+            return
+        action = "read" if request.function == _READ else "write"
+        label = address_label(register) if register >= 0 else f"function 0x{request.function:02X}"
+        try:
+            meaning = ExceptionCode(code).meaning
+        except ValueError:
+            meaning = "not a code of the sheet"
+        self._report(
+            rule,
+            Severity.WARNING,
+            request.slave,
+            label,
+            (count.first, ref),
+            f"{action} of {label} refused 0x{code:02X} ({meaning}) {count.n} times",
+            float(count.n),
+            advice,
+        )
+
+    def _stored(self, request: _Pending, ref: FrameRef) -> None:
+        """A write the drive took: follow the settings the rules use; eeprom-wear, write-enable-left-on."""
+        register, value, slave = request.register, request.value, request.slave
+        drive = self._drive(slave)
+        if register == Reg.WRITE_ENABLE:
+            drive.write_enable = value != 0
+            if value:
+                self._enabled.add(slave)
+            else:
+                self._enabled.discard(slave)
+            drive.enable_ref = FrameRef(request.seq, request.t) if value else None
+            drive.last_fcode_write = None
+            return
+        if register in self._timeout_cells and self._timeout_override is None:
+            drive.comm_timeout = value * self._timeout_scale
+            drive.longest = 0.0
+        elif register in self._speed_cells:
+            drive.max_speed = value
+        if register not in self._eeprom:
+            return
+        drive.last_fcode_write = request.t
+        count = self._count(("eeprom-wear", slave, register, 0))
+        if count is None:
+            return
+        count.n += 1
+        count.same_value = count.same_value and (count.value in (-1, value))
+        count.value = value
+        count.first = count.first or FrameRef(request.seq, request.t)
+        count.last = FrameRef(request.seq, request.t)
+        if count.n < self.limits.cyclic_writes:
+            return
+        span = count.last.t - count.first.t
+        if span <= 0.0:
+            return
+        per_hour = (count.n - 1) / span * 3600.0
+        hours = self.endurance / per_hour
+        if hours >= self.limits.wear_warning_h:
+            return
+        label = address_label(register)
+        ram = register | 0x8000
+        same = "the same value each time; " if count.same_value else ""
+        self._report(
+            "eeprom-wear",
+            Severity.ERROR if hours < self.limits.wear_error_h else Severity.WARNING,
+            slave,
+            label,
+            (count.first, count.last),
+            f"{label} stored {per_hour:,.0f} times an hour ({same}{count.n} writes): rated "
+            f"{self.endurance:,} writes reached in {_duration(hours)}",
+            per_hour,
+            f"write {label} only when it changes; a value that changes all the time belongs in RAM: "
+            f"2001H for the speed reference, or {ram:04X}H ({label}, RAM only) where the drive has the "
+            "INVT family's RAM-only addresses",
+        )
+
+    def check_idle(self, t: float) -> None:
+        """write-enable-left-on: 200EH still 1 ``enable_hold`` s after the last function-code write.
+
+        :meth:`feed` calls it on every request while a drive has 200EH = 1; call it at the stream's end too
+        (offline: with the last frame's time), or now and then live."""
+        for address in sorted(self._enabled):
+            drive = self._drives[address]
+            if drive.enable_ref is None:
+                continue
+            since = drive.last_fcode_write if drive.last_fcode_write is not None else drive.enable_ref.t
+            if t - since >= self.limits.enable_hold:
+                self._report(
+                    "write-enable-left-on",
+                    Severity.WARNING,
+                    address,
+                    "200EH",
+                    (drive.enable_ref,),
+                    f"200EH = 1 (function codes writable) left on {t - since:.1f} s after the last function-code write",
+                    t - since,
+                    "write 200EH = 0 after the function-code writes, so that a stray write cannot change a parameter",
+                )
+                drive.enable_ref = None  # said once per enabling
+
+    # -- findings
+
+    def _count(self, key: tuple[str, int, int, int]) -> _Count | None:
+        found = self._counts.get(key)
+        if found is None:
+            if len(self._counts) >= MAX_SUBJECTS:
+                return None
+            found = self._counts[key] = _Count()
+        return found
+
+    def _report(
+        self,
+        rule: str,
+        severity: Severity,
+        drive: int | None,
+        subject: str,
+        frames: tuple[FrameRef, ...],
+        figure: str,
+        value: float,
+        advice: str,
+        *,
+        bump: bool = False,
+    ) -> None:
+        if rule in self.ignore:
+            return
+        key = (rule, drive, subject)
+        before = self._findings.get(key)
+        count = before.count + 1 if before else 1
+        if before is not None and bump:
+            # a repeat of a one-off: keep the first frames and figure, count it
+            finding = Finding(
+                rule,
+                max(severity, before.severity),
+                drive,
+                subject,
+                (before.frames[0], frames[-1]),
+                before.figure,
+                before.value,
+                count,
+                before.advice,
+                before.source,
+            )
+        else:
+            finding = Finding(
+                rule, severity, drive, subject, frames, figure, value, count, advice, _source(rule, self.profile)
+            )
+        self._findings[key] = finding
+        self._events.append(finding)
+
+
+def _duration(hours: float) -> str:
+    if hours < 1.0:
+        return f"{hours * 60:.0f} min"
+    if hours < 48.0:
+        return f"{hours:.1f} h"
+    if hours < 24 * 365:
+        return f"{hours / 24:.0f} days"
+    return f"{hours / 8760:.1f} years"
+
+
+def _source(rule: str, profile: Profile) -> str:
+    base = RULES[rule].source
+    if rule == "eeprom-wear":
+        return f"{base} (eeprom_endurance_writes = {profile.protocol.eeprom_endurance_writes:,}, assumed)"
+    if rule == "broadcast-turnaround":
+        return f"{base} (broadcast_delay_ms = {profile.protocol.broadcast_delay_ms:g}, assumed)"
+    if rule == "comm-watchdog":
+        return f"{base} (its margin {Limits.watchdog_margin:g} assumed)"
+    return base

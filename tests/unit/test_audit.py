@@ -1,0 +1,294 @@
+"""The audit's rules on the pure core: a master's frames to a real drive on a bus, in virtual time.
+
+Each misbehaving master gets exactly its finding with its figure; a sane one gets none. The same frames
+read back as a frame log (t, dir, hex) give the same findings: live and offline are one engine.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from c20sim.audit import RULES, Auditor, Finding, Limits, Severity
+from c20sim.core.bus import Bus
+from c20sim.core.slave import Slave
+from c20sim.drive.model import Drive
+from c20sim.drive.profile import Profile
+from c20sim.wire.protocol import (
+    ExceptionCode,
+    ExceptionResponse,
+    ReadRequest,
+    ReadResponse,
+    WriteSingleRequest,
+    encode,
+    transaction_time,
+)
+from c20sim.wire.registers import Reg, fcode_address
+from tests.conftest import Line
+
+READ_TX = transaction_time(8, 7, 19200, 10, 0.002)  # a one-register read at 19200 8N1, 2 ms turnaround
+F00_03, F00_10, F00_11, F00_50, F08_02 = (fcode_address(g, n) for g, n in ((0, 3), (0, 10), (0, 11), (0, 50), (8, 2)))
+
+
+class Master:
+    """A master on a bus of one real drive (address 1), with the auditor fed by the bus, as serve feeds it."""
+
+    def __init__(self, profile: Profile) -> None:
+        self.bus = Bus([Slave(profile, Drive(profile))])
+        self.line = Line(self.bus)
+        self.auditor = Auditor(profile)
+        self.log: list[tuple[float, str, bytes]] = []
+        self.profile = profile
+
+        def listen(record: object) -> None:
+            t, direction, data = record.t, str(record.direction), record.data  # type: ignore[attr-defined]
+            self.log.append((t, direction, data))
+            self.auditor.feed(t, direction, data)
+
+        self.bus.subscribe(listen)
+
+    def read(self, register: int, dt: float, slave: int = 1) -> bytes | None:
+        return self.line.send(encode(ReadRequest(slave, register, 1)), dt)
+
+    def write(self, register: int, value: int, dt: float, slave: int = 1) -> bytes | None:
+        return self.line.send(encode(WriteSingleRequest(slave, register, value)), dt)
+
+    def findings(self) -> list[Finding]:
+        """The live findings; checked to be those of the same frames read back offline."""
+        live = self.auditor.findings()
+        offline = Auditor(self.profile)
+        for t, direction, data in self.log:
+            offline.feed(round(t, 6), direction, bytes.fromhex(data.hex(" ")))
+        assert [(f.key, f.severity, f.figure, f.count) for f in offline.findings()] == [
+            (f.key, f.severity, f.figure, f.count) for f in live
+        ]
+        return live
+
+
+@pytest.fixture
+def master(profile: Profile) -> Master:
+    return Master(profile)
+
+
+def only(master: Master) -> Finding:
+    found = master.findings()
+    assert [f.rule for f in found] == [found[0].rule] if found else []
+    assert len(found) == 1, [f.line() for f in found]
+    return found[0]
+
+
+def test_a_sane_poller_gets_no_finding(master: Master) -> None:
+    for _ in range(40):
+        master.read(Reg.STATUS1, 0.0625)
+        master.read(Reg.MOTOR_SPEED, 0.0625)
+    assert master.findings() == []
+    demand = master.auditor.line_demand()
+    assert demand.now == pytest.approx(16 * READ_TX * 100)  # 16 reads a second
+    assert demand.transactions == 80
+
+
+def test_a_poller_too_fast_for_the_line(master: Master) -> None:
+    for _ in range(600):
+        master.read(Reg.STATUS1, 1 / 256)  # each after its reply: no collision, but 256 a second
+    finding = only(master)
+    assert (finding.rule, finding.severity, finding.drive) == ("line-demand", Severity.ERROR, None)
+    assert finding.value == pytest.approx(256 * READ_TX * 100)
+    assert finding.figure == "line demand 345 % of 19200 8N1: 256 transactions in 1 s need 3.445 s of line"
+    assert master.auditor.line_demand().peak == pytest.approx(256 * READ_TX * 100)
+
+
+def test_a_cyclic_function_code_writer_wears_the_eeprom(master: Master) -> None:
+    assert master.write(Reg.WRITE_ENABLE, 1, 0.1) is not None
+    for i in range(20):
+        master.write(F00_10, 2000 + i, 0.125)
+    master.write(Reg.WRITE_ENABLE, 0, 0.1)
+    finding = only(master)
+    assert (finding.rule, finding.severity, finding.drive, finding.subject) == (
+        "eeprom-wear",
+        Severity.ERROR,
+        1,
+        "F00.10",
+    )
+    assert finding.value == pytest.approx(28800.0)  # 19 writes in 2.375 s
+    assert finding.figure == "F00.10 stored 28,800 times an hour (20 writes): rated 100,000 writes reached in 3.5 h"
+    assert "800AH" in finding.advice
+    assert "assumed" in finding.source
+
+
+def test_writing_the_ram_only_address_is_no_wear(master: Master) -> None:
+    for _ in range(20):
+        master.write(0x800A, 2000, 0.125)  # refused by this model (0x02), never stored
+    assert [f.rule for f in master.findings()] == ["refused-repeat"]
+
+
+def test_a_slow_poller_near_the_watchdog(master: Master) -> None:
+    master.write(Reg.WRITE_ENABLE, 1, 0.1)
+    master.write(F08_02, 50, 0.1)  # 5.0 s
+    master.write(Reg.WRITE_ENABLE, 0, 0.1)
+    for _ in range(4):
+        master.read(Reg.STATUS1, 4.5)
+    finding = only(master)
+    assert (finding.rule, finding.severity, finding.drive) == ("comm-watchdog", Severity.WARNING, 1)
+    assert finding.value == pytest.approx(90.0)
+    assert finding.figure == "longest silence 4.50 s is 90 % of the communication timeout F08.02 = 5 s"
+
+
+def test_a_silence_past_the_timeout_is_an_error(profile: Profile) -> None:
+    auditor = Auditor(profile, comm_timeout=2.0)
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    auditor.feed(1.0, "rx", request)
+    auditor.feed(3.5, "rx", request)
+    (finding,) = auditor.findings()
+    assert (finding.rule, finding.severity, finding.value) == ("comm-watchdog", Severity.ERROR, 125.0)
+    assert finding.figure.endswith(": the drive trips CE")
+
+
+def test_an_early_retrier(master: Master) -> None:
+    master.read(Reg.STATUS1, 0.1, slave=7)  # nobody at 7: silence
+    master.read(Reg.STATUS1, 0.005, slave=7)  # retried after 5 ms: the reply needs 13.5 ms on the line
+    master.read(Reg.STATUS1, 0.05, slave=7)  # after 50 ms: a fair timeout
+    finding = only(master)
+    assert (finding.rule, finding.severity, finding.drive, finding.count) == ("early-retry", Severity.ERROR, 7, 1)
+    assert finding.figure == (
+        "a retry 5.0 ms after the last, before its reply could have finished (13.5 ms on 19200 8N1)"
+    )
+    assert [f.seq for f in finding.frames] == [1, 2]
+
+
+def test_a_request_before_the_reply_collides(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    auditor.feed(1.0, "rx", encode(ReadRequest(1, Reg.STATUS1, 1)))
+    auditor.feed(1.001, "rx", encode(ReadRequest(1, Reg.STATUS2, 1)))  # pipelined: its reply comes after
+    auditor.feed(1.002, "tx", bytes.fromhex("01 03 02 00 05 78 47"))
+    (finding,) = auditor.findings()
+    assert (finding.rule, finding.drive) == ("collision", 1)
+
+
+def test_one_that_ignores_0x08(master: Master) -> None:
+    master.write(Reg.SPEED_SETPOINT, 1000, 0.1)
+    master.write(Reg.COMMAND, 1, 0.1)
+    for _ in range(4):
+        assert master.write(Reg.BAUD, 3, 0.1) == encode(ExceptionResponse(1, 6, ExceptionCode.NOT_WHILE_RUNNING))
+    master.write(Reg.COMMAND, 5, 0.1)
+    finding = only(master)
+    assert (finding.rule, finding.drive, finding.subject, finding.count) == ("refused-while-running", 1, "2009H", 2)
+    assert finding.figure == "write of 2009H refused 0x08 (parameter cannot be changed while running) 4 times"
+
+
+def test_one_that_talks_right_after_a_broadcast(master: Master) -> None:
+    master.read(Reg.STATUS1, 0.1)
+    master.write(Reg.SPEED_SETPOINT, 500, 0.2, slave=0)
+    master.read(Reg.STATUS1, 0.01)
+    finding = only(master)
+    assert (finding.rule, finding.severity, finding.drive) == ("broadcast-turnaround", Severity.WARNING, None)
+    assert finding.figure.startswith("a request 10.0 ms after a broadcast; the drive needs 100 ms")
+
+
+def test_one_that_leaves_200eh_enabled(master: Master) -> None:
+    master.write(Reg.WRITE_ENABLE, 1, 0.1)
+    master.write(F00_11, 50, 0.1)
+    for _ in range(12):
+        master.read(Reg.STATUS1, 0.5)
+    finding = only(master)
+    assert (finding.rule, finding.drive, finding.subject) == ("write-enable-left-on", 1, "200EH")
+    assert finding.figure == "200EH = 1 (function codes writable) left on 5.0 s after the last function-code write"
+
+
+def test_200eh_written_back_to_0_is_clean(master: Master) -> None:
+    master.write(Reg.WRITE_ENABLE, 1, 0.1)
+    master.write(F00_11, 50, 0.1)
+    master.write(Reg.WRITE_ENABLE, 0, 0.1)
+    for _ in range(12):
+        master.read(Reg.STATUS1, 0.5)
+    assert master.findings() == []
+
+
+@pytest.mark.parametrize(
+    ("steps", "rule", "subject", "code"),
+    [
+        ([("read", F00_50)] * 3, "absent-register", "F00.50", 0x02),
+        ([("write", F00_10, 100)] * 3, "fcode-locked", "F00.10", 0x04),
+    ],
+)
+def test_repeated_refusals(master: Master, steps: list[tuple[object, ...]], rule: str, subject: str, code: int) -> None:
+    for step in steps:
+        if step[0] == "read":
+            master.read(int(step[1]), 0.1)  # type: ignore[call-overload]
+        else:
+            master.write(int(step[1]), int(step[2]), 0.1)  # type: ignore[call-overload]
+    finding = only(master)
+    assert (finding.rule, finding.subject, finding.count) == (rule, subject, 1)
+    assert f"refused 0x{code:02X}" in finding.figure and finding.figure.endswith("3 times")
+
+
+def test_two_refusals_are_a_probe_not_a_finding(master: Master) -> None:
+    master.read(F00_50, 0.1)
+    master.read(F00_50, 0.1)
+    assert master.findings() == []
+
+
+def test_run_commands_on_the_wrong_channel(master: Master) -> None:
+    master.write(Reg.WRITE_ENABLE, 1, 0.1)
+    master.write(Reg.RUN_CHANNEL, 1, 0.1)  # terminals
+    master.write(Reg.WRITE_ENABLE, 0, 0.1)
+    for _ in range(3):
+        assert master.write(Reg.COMMAND, 1, 0.1) == encode(ExceptionResponse(1, 6, ExceptionCode.OPERATION_FAILED))
+    finding = only(master)
+    assert (finding.rule, finding.subject) == ("run-channel", "2000H")
+
+
+def test_a_reset_loop(master: Master) -> None:
+    for _ in range(3):
+        master.write(Reg.COMMAND, 7, 2.0)
+    finding = only(master)
+    assert (finding.rule, finding.subject) == ("reset-loop", "2000H")
+    assert finding.figure == "fault reset 2000H = 7 sent 3 times in 4.0 s"
+
+
+def test_a_speed_reference_above_the_maximum(master: Master) -> None:
+    master.write(Reg.WRITE_ENABLE, 1, 0.1)
+    master.write(F00_03, 2000, 0.1)
+    master.write(Reg.WRITE_ENABLE, 0, 0.1)
+    master.write(Reg.SPEED_SETPOINT, 2500, 0.1)
+    finding = only(master)
+    assert (finding.rule, finding.subject, finding.value) == ("speed-above-max", "2001H", 2500.0)
+    assert finding.figure == "speed reference 2001H = 2500 rpm above the maximum speed F00.03 = 2000 rpm"
+
+
+def test_ignore_silences_a_rule_and_an_unknown_rule_is_one_line(profile: Profile) -> None:
+    auditor = Auditor(profile, comm_timeout=2.0, ignore=["comm-watchdog"])
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    auditor.feed(1.0, "rx", request)
+    auditor.feed(3.5, "rx", request)
+    assert auditor.findings() == []
+    with pytest.raises(ValueError, match="unknown rule 'line-demnad'; the rules are line-demand, "):
+        Auditor(profile, ignore=["line-demnad"])
+
+
+def test_events_give_new_and_grown_findings_once(profile: Profile) -> None:
+    auditor = Auditor(profile, limits=Limits(window=0.5))
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    reply = encode(ReadResponse(1, (5,)))
+    for k in range(200):
+        auditor.feed(k / 100, "rx", request)  # 100 a second: 135 %
+        auditor.feed(k / 100 + 0.002, "tx", reply)
+    events = auditor.events()
+    assert events and all(e.rule == "line-demand" for e in events)
+    assert auditor.events() == []
+    assert events[-1] == auditor.findings()[0]
+
+
+def test_the_window_is_bounded(profile: Profile) -> None:
+    from c20sim.audit.engine import MAX_WINDOW
+
+    auditor = Auditor(profile)
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    for k in range(MAX_WINDOW + 10):
+        auditor.feed(k * 1e-6, "rx", request)
+    assert len(auditor._window) <= MAX_WINDOW
+
+
+def test_every_rule_has_a_section_in_the_docs() -> None:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "audit.md").read_text()
+    assert [rule for rule in RULES if f"### `{rule}`" not in text] == []
