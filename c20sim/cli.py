@@ -20,6 +20,7 @@ from .plant import add_plant_commands, drive_addresses
 from .scenario.schema import add_schema_command
 from .scenario.suite import add_run_scenario_command
 from .serve import ServeOptions, pty_supported, run, run_server
+from .traffic.auditlog import add_audit_command
 from .traffic.capture import add_decode_command
 from .traffic.record import add_record_command
 from .traffic.replay import add_replay_command
@@ -219,6 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     add_decode_command(sub)
+    add_audit_command(sub)
 
     profiles = sub.add_parser("profiles", help="list the shipped profiles, or show one")
     profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")

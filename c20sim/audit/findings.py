@@ -82,7 +82,8 @@ class Finding:
     def line(self) -> str:
         """One line of text: ``error line-demand line: line demand 573 % ... -> advice``."""
         subject = f" {self.subject}" if self.subject else ""
-        return f"{self.severity.label} {self.rule} {self.where}{subject}: {self.figure}. {self.advice} [{self.source}]"
+        advice = self.advice[:1].upper() + self.advice[1:]
+        return f"{self.severity.label} {self.rule} {self.where}{subject}: {self.figure}. {advice}. [{self.source}]"
 
 
 @dataclass(frozen=True, slots=True)

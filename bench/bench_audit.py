@@ -1,0 +1,112 @@
+"""How fast ``c20sim audit`` reads a frame log, and that its memory stays bounded.
+
+Writes a frame log of N frames (default 1,000,000) as ``serve --log-frames`` writes it: a
+master polling four drives (status, speed, current of each, every 100 ms), writing a speed
+reference now and then, reading an absent register, and each request's reply. Then audits it
+in this process, as ``c20sim audit`` does (the same reader and engine), and prints the CPU and
+wall time, the frames a second, and the resident memory before and after. A reference loop
+gives the ratio, for noisy machines.
+
+    .venv/bin/python bench/bench_audit.py [--frames 1000000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import cpu_seconds, machine, rss_kib
+
+from c20sim.audit import Auditor
+from c20sim.drive.profile import load_profile
+from c20sim.traffic.auditlog import audit_log
+from c20sim.wire.protocol import (
+    ExceptionCode,
+    ExceptionResponse,
+    ReadRequest,
+    ReadResponse,
+    WriteSingleRequest,
+    WriteSingleResponse,
+    encode,
+)
+
+
+def reference_loop() -> float:
+    x = 0.0
+    for i in range(1_000_000):
+        x = x * 0.999 + i
+    return x
+
+
+def write_log(path: Path, frames: int) -> None:
+    cycle: list[tuple[bytes, bytes, str]] = []
+    for slave in (1, 2, 3, 4):
+        for register in (0x2100, 0x3006, 0x3004):
+            cycle.append((encode(ReadRequest(slave, register, 1)), encode(ReadResponse(slave, (5,))), "reply"))
+    cycle.append((encode(WriteSingleRequest(1, 0x2001, 1500)), encode(WriteSingleResponse(1, 0x2001, 1500)), "reply"))
+    absent = encode(ExceptionResponse(2, 3, ExceptionCode.ILLEGAL_ADDRESS))
+    cycle.append((encode(ReadRequest(2, 0x0032, 1)), absent, "exception"))
+    step = 0.1 / len(cycle)
+    t = 0.0
+    written = 0
+    with path.open("w") as out:
+        while written < frames:
+            for request, reply, kind in cycle:
+                for direction, data, what, at in (("rx", request, "request", t), ("tx", reply, kind, t + 0.002)):
+                    record = {
+                        "t": round(at, 6),
+                        "wall": round(1.7e9 + at, 3),
+                        "model_t": round(t, 6),
+                        "dir": direction,
+                        "hex": data.hex(" ").upper(),
+                        "kind": what,
+                        "slave": data[0],
+                        "text": "2100H = 0005h (status word 1: stopped)",
+                        "note": "",
+                    }
+                    out.write(json.dumps(record) + "\n")
+                    written += 1
+                t += step
+                if written >= frames:
+                    break
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=1_000_000)
+    args = parser.parse_args()
+    profile = load_profile("c20-400hr")
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "frames.jsonl"
+        write_log(log, args.frames)
+        size = os.path.getsize(log)
+        start = time.process_time()
+        reference_loop()
+        reference = time.process_time() - start
+        rss_before = rss_kib()
+        wall, cpu = time.perf_counter(), cpu_seconds()
+        auditor = audit_log(str(log), Auditor(profile))
+        wall, cpu = time.perf_counter() - wall, cpu_seconds() - cpu
+        rss_after = rss_kib()
+    print(machine())
+    print(f"log: {args.frames:,} frames, {size / 1e6:.0f} MB")
+    print(f"reference loop (1e6 float multiply-adds): {reference * 1e3:.1f} ms CPU")
+    print(
+        f"audit: {wall:.2f} s wall, {cpu:.2f} s CPU ({cpu / reference:.0f} x reference), "
+        f"{args.frames / wall:,.0f} frames/s"
+    )
+    print(f"RSS before {rss_before / 1024:.1f} MiB, after {rss_after / 1024:.1f} MiB")
+    for finding in auditor.findings():
+        print("  " + finding.line())
+    print(f"line demand peak {auditor.line_demand().peak:.0f} %")
+
+
+if __name__ == "__main__":
+    main()
