@@ -100,6 +100,12 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3)",
     )
     what.add_argument("--ready-file", metavar="PATH", help="write the real endpoint addresses as JSON when ready")
+    what.add_argument(
+        "--no-audit",
+        dest="audit",
+        action="store_false",
+        help="do not audit the masters live (GET /audit; docs/audit.md); c20sim audit reads a frame log later",
+    )
 
 
 def build_simulator(args: argparse.Namespace) -> Simulator:
@@ -130,6 +136,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         control=args.control,
         control_token=args.control_token,
         scenario=getattr(args, "scenario", None),
+        audit=getattr(args, "audit", True),
     )
     if not options.any_endpoint:
         options.pty = pty_supported()  # no pty on Windows: TCP alone

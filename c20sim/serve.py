@@ -85,6 +85,8 @@ class ServeOptions:
     control_token: str | None = None
     #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
     scenario: str | None = None
+    #: the live audit (c20sim.control.liveaudit, docs/audit.md): on unless --no-audit
+    audit: bool = True
     extra_ready: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -145,6 +147,10 @@ class Server:
                 print(f"c20sim: warning: {warning}", file=sys.stderr, flush=True)
             check(scenario, sim)
         try:
+            if opts.audit:
+                from .control import liveaudit
+
+                self._unsubscribe.append(liveaudit.start(sim).close)
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:

@@ -31,7 +31,8 @@ from collections.abc import Callable, Coroutine, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from .control import causes, ops
+from .audit import RULES, Finding, Severity
+from .control import causes, liveaudit, ops
 from .core.bus import Direction, FrameRecord, RecordKind
 from .core.simulator import Simulator, check_addresses, make_clock
 from .drive.model import Telemetry
@@ -364,6 +365,50 @@ class C20Sim:
         """Fail unless ``drive`` reports fault ``code`` (0 for none) in 2102H."""
         __tracebackhide__ = True
         self.assert_register("2102H", code, drive)
+
+    # --- The audit (docs/audit.md).
+
+    def _live_audit(self) -> liveaudit.LiveAudit:
+        found = liveaudit.of(self.sim)
+        if found is None:
+            raise C20SimError("the audit is off for this simulator")
+        return found
+
+    def audit(self, *, ignore: Iterable[str] = ()) -> list[Finding]:
+        """What the masters did so far that would fail on a real line: the live audit's findings, worst first
+        (those of the rules in ``ignore`` left out)."""
+        skip = _rules(ignore)
+        found = self.call(lambda: self._live_audit().findings())
+        return [f for f in found if f.rule not in skip]
+
+    def clear_audit(self) -> None:
+        """Start the audit afresh: what the masters do from now on is judged (a set-up's frames forgotten)."""
+        self.call(lambda: self._live_audit().restart())
+
+    def assert_master_clean(self, *, ignore: Iterable[str] = (), severity: str = "note") -> None:
+        """Fail if the audit found anything at or above ``severity`` (note: anything), but the rules in ``ignore``;
+        the message lists each finding in one line: rule, drive, figure, advice, source."""
+        __tracebackhide__ = True
+        try:
+            level = Severity.parse(severity)
+        except ValueError as exc:
+            raise C20SimError(f"assert_master_clean: {exc}") from None
+        found = [f for f in self.audit(ignore=ignore) if f.severity >= level]
+        if found:
+            raise AssertionError(
+                f"the audit found {len(found)} thing(s) the master would do wrong on a real line:\n"
+                + "\n".join(f.line() for f in found)
+            )
+
+
+def _rules(names: Iterable[str]) -> frozenset[str]:
+    if isinstance(names, str):
+        names = (names,)
+    given = frozenset(names)
+    unknown = sorted(given - set(RULES))
+    if unknown:
+        raise C20SimError(f"ignore: unknown rule {unknown[0]!r}; the rules are {', '.join(RULES)}")
+    return given
 
 
 def _written(request: object) -> dict[int, int]:

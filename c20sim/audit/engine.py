@@ -198,6 +198,21 @@ class Auditor:
         self._transactions = 0
         self._busy = 0.0
 
+    def know(self, address: int, *, comm_timeout: float | None = None, max_speed: int | None = None) -> None:
+        """What a live drive holds now (its F08.02 in seconds, its F00.03 in rpm), where it differs from the
+        profile's defaults (a state file); the master's writes are followed from here on."""
+        drive = self._drive(address)
+        if comm_timeout is not None and self._timeout_override is None:
+            drive.comm_timeout = comm_timeout
+        if max_speed is not None:
+            drive.max_speed = max_speed
+
+    def set_baud(self, baud: int) -> None:
+        """The line's baud changed (a 2009H write the line followed): judge the next transactions at it."""
+        if baud != self.baud:
+            self.baud = baud
+            self._cost.clear()
+
     # -- the stream
 
     def feed(self, t: float, direction: str, data: bytes) -> None:

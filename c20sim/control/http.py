@@ -40,7 +40,7 @@ from ..core.simulator import Simulator
 from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
-from . import causes, httpguard, ops, routes
+from . import causes, httpguard, liveaudit, ops, routes
 from .openapi import document
 from .ops import ControlError, unknown
 
@@ -101,6 +101,7 @@ def snapshot(sim: Simulator) -> dict[str, Any]:
         state["registers"] = {name: found.read(int(reg)) for name, reg in SNAPSHOT_REGISTERS.items()}
         drives.append(state)
     clock = ops.clock_state(sim)
+    audit = liveaudit.of(sim)
     return {
         "type": "telemetry",
         "t": sim.now(),
@@ -108,6 +109,7 @@ def snapshot(sim: Simulator) -> dict[str, Any]:
         "paused": clock["paused"],
         "drives": drives,
         "link": ops.link_state(sim.link_faults(None)),
+        "audit": None if audit is None else audit.summary(),
     }
 
 

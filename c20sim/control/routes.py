@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..core.simulator import Simulator
-from . import causes, ops
+from . import causes, liveaudit, ops
 from .ops import ControlError, unknown
 from .schemas import conditions_schema, link_schema
 
@@ -179,6 +179,32 @@ def invoke(sim: Simulator, row: Route, parameters: Mapping[str, Any], data: Mapp
 
 def _state(sim: Simulator, address: int) -> dict[str, Any]:
     return ops.drive_state(sim, address)
+
+
+def _live_audit(sim: Simulator) -> liveaudit.LiveAudit:
+    found = liveaudit.of(sim)
+    if found is None:
+        raise ControlError("the audit is off (serve --no-audit)", status=409)
+    return found
+
+
+def _audit(sim: Simulator) -> dict[str, Any]:
+    return _live_audit(sim).report()
+
+
+def _clear_audit(sim: Simulator) -> dict[str, Any]:
+    audit = _live_audit(sim)
+    audit.restart()
+    return audit.report()
+
+
+def _counters(sim: Simulator, address: int) -> dict[str, object]:
+    """The drive's traffic counters, and the line demand of the live audit (the line the drive is on)."""
+    counters = ops.counters(sim, address)
+    audit = liveaudit.of(sim)
+    if audit is not None:
+        counters["line_demand"] = audit.auditor.line_demand().as_dict()
+    return counters
 
 
 def _time(sim: Simulator) -> dict[str, Any]:
@@ -371,8 +397,8 @@ TABLE = Table(
             "GET",
             f"{_D}/counters",
             "counters",
-            "- (requests, replies, exceptions by code, CRC errors, silences, injected)",
-            ops.counters,
+            "- (requests, replies, exceptions by code, CRC errors, silences, injected; line_demand: the audit's)",
+            _counters,
             help="the drive's traffic: requests, replies, exceptions by code, CRC errors, silences",
         ),
         Route(
@@ -550,6 +576,22 @@ TABLE = Table(
             "frames",
             "- (query: last=N (N >= 1), slave=N, since=SEQ); log_dropped: records --log-frames lost",
             help="the frame log",
+        ),
+        Route(
+            "GET",
+            "/audit",
+            "audit",
+            "- (what the masters would do wrong on a real line: findings, line demand; docs/audit.md)",
+            _audit,
+            help="the audit's findings and the line demand (docs/audit.md)",
+        ),
+        Route(
+            "DELETE",
+            "/audit",
+            "clear_audit",
+            "- (the audit starts afresh: findings and line demand forgotten)",
+            _clear_audit,
+            help="start the audit afresh",
         ),
         Route(
             "DELETE", "/frames", "clear_frames", "- (empties the frame log)", changes=True, help="empty the frame log"

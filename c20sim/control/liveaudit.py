@@ -1,0 +1,108 @@
+"""The audit, live: an :class:`~c20sim.audit.Auditor` fed every frame the bus records.
+
+``serve`` starts one for its simulator (``--no-audit``: none); ``GET /audit``
+reads it, ``DELETE /audit`` starts it afresh, the telemetry snapshot (``GET
+/telemetry``, ``/stream``) carries a summary, and a drive's counters carry the
+line demand. The auditor works on the event loop, between frames, in the
+listener the bus calls for each record: a few microseconds a frame, and no
+I/O (the engine is pure). It judges the frames' times, which the ports stamp
+on the monotonic clock: the master's rhythm as a plant would see it, whatever
+the model's clock (virtual, or a realtime clock at a speed factor).
+"""
+
+from __future__ import annotations
+
+import time
+import weakref
+from collections.abc import Iterable
+from typing import Any
+
+from ..audit import Auditor, Finding, Limits
+from ..audit.engine import F_COMM_TIMEOUT, F_MAX_SPEED
+from ..core.bus import FrameRecord
+from ..core.simulator import Simulator
+
+__all__ = ["LiveAudit", "of", "start"]
+
+
+class LiveAudit:
+    """One simulator's live audit."""
+
+    def __init__(self, sim: Simulator, *, ignore: Iterable[str] = (), limits: Limits | None = None) -> None:
+        self.sim = sim
+        self.ignore = tuple(ignore)
+        self.limits = limits
+        self.auditor = self._fresh()
+        self._unsubscribe = sim.bus.subscribe(self._feed)
+
+    def _fresh(self) -> Auditor:
+        sim = self.sim
+        auditor = Auditor(sim.profile, baud=sim.bus.line_baud, ignore=self.ignore, limits=self.limits)
+        spec = sim.profile.registers.get(F_COMM_TIMEOUT)
+        for address, drive in sim.drives.items():
+            timeout = drive.read(F_COMM_TIMEOUT) * spec.scale if spec is not None else None
+            speed = drive.read(F_MAX_SPEED) if sim.profile.registers.get(F_MAX_SPEED) is not None else None
+            auditor.know(address, comm_timeout=timeout, max_speed=speed)
+        return auditor
+
+    def _feed(self, record: FrameRecord) -> None:
+        auditor = self.auditor
+        baud = self.sim.bus.line_baud
+        if baud != auditor.baud:
+            auditor.set_baud(baud)
+        auditor.feed(record.t, record.direction.value, record.data)
+
+    def findings(self) -> list[Finding]:
+        """The findings so far; 200EH left on is judged at the line's time now (the monotonic clock the ports
+        stamp frames with, whatever the model's clock)."""
+        if self.auditor.frames:
+            self.auditor.check_idle(time.monotonic())
+        return self.auditor.findings()
+
+    def report(self) -> dict[str, Any]:
+        findings = self.findings()
+        worst = max((f.severity for f in findings), default=None)
+        return {
+            "frames": self.auditor.frames,
+            "worst": None if worst is None else worst.label,
+            "line_demand": self.auditor.line_demand().as_dict(),
+            "findings": [f.as_dict() for f in findings],
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """What the telemetry snapshot carries: the count by severity, the worst, and the line demand."""
+        findings = self.auditor.findings()
+        counts = {"error": 0, "warning": 0, "note": 0}
+        for finding in findings:
+            counts[finding.severity.label] += 1
+        demand = self.auditor.line_demand()
+        return {
+            "findings": counts,
+            "rules": sorted({f.rule for f in findings}),
+            "line_demand_percent": round(demand.now, 1),
+            "line_demand_peak_percent": round(demand.peak, 1),
+        }
+
+    def restart(self) -> None:
+        """Forget what was seen: the next frames are judged afresh (the drives' settings read again)."""
+        self.auditor = self._fresh()
+
+    def close(self) -> None:
+        self._unsubscribe()
+        _LIVE.pop(self.sim, None)
+
+
+_LIVE: weakref.WeakKeyDictionary[Simulator, LiveAudit] = weakref.WeakKeyDictionary()
+
+
+def start(sim: Simulator, *, ignore: Iterable[str] = (), limits: Limits | None = None) -> LiveAudit:
+    """The simulator's live audit, started now unless it runs already."""
+    found = _LIVE.get(sim)
+    if found is None:
+        found = _LIVE[sim] = LiveAudit(sim, ignore=ignore, limits=limits)
+    return found
+
+
+def of(sim: Simulator) -> LiveAudit | None:
+    """The simulator's live audit, or None when it is off."""
+    return _LIVE.get(sim)
