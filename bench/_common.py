@@ -128,6 +128,7 @@ class ServerSpec:
     faults: str | None = None
     fault_period: float = 0.5
     log_size: int = 2000
+    audit: bool = True  #: c20sim: the live audit (serve's default; --no-audit: False)
 
 
 @dataclass
@@ -227,7 +228,7 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
         ports = []
         for i in range(spec.buses):
             sim = Simulator(profile, spec.addresses, clock=RealtimeClock(), seed=spec.seed + i, log_size=spec.log_size)
-            server = Server(sim, ServeOptions(tcp="127.0.0.1:0"))
+            server = Server(sim, ServeOptions(tcp="127.0.0.1:0", audit=spec.audit))
             await server.start()
             assert server.endpoints.tcp is not None
             ports.append(server.endpoints.tcp.port)

@@ -8,6 +8,13 @@ wall time, the frames a second, and the resident memory before and after. A refe
 gives the ratio, for noisy machines.
 
     .venv/bin/python bench/bench_audit.py [--frames 1000000]
+
+With ``--live``, it measures what the live audit costs the wire instead: two c20sim servers in child
+processes (turnaround 0), one with the audit on (serve's default) and one with ``--no-audit``, taking
+turns in rounds under one sequential RTU-over-TCP client (bench_tcp.py's write/read pairs, alone on the
+machine: low load); it prints p50 and p99 of each and the ratio of the p99s (target: within 1.1).
+
+    .venv/bin/python bench/bench_audit.py --live [--requests 20000 --rounds 5]
 """
 
 from __future__ import annotations
@@ -22,7 +29,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import cpu_seconds, machine, rss_kib
+from _common import ChildServer, RawRtuClient, ServerSpec, cpu_seconds, machine, percentile, rss_kib
+from bench_tcp import run as transact_pairs
 
 from c20sim.audit import Auditor
 from c20sim.drive.profile import load_profile
@@ -78,10 +86,44 @@ def write_log(path: Path, frames: int) -> None:
                     break
 
 
+def live(requests: int, rounds: int) -> None:
+    servers = {
+        "audit on": ChildServer(ServerSpec("c20sim", turnaround_ms=0.0, audit=True)),
+        "audit off (--no-audit)": ChildServer(ServerSpec("c20sim", turnaround_ms=0.0, audit=False)),
+    }
+    latencies: dict[str, list[float]] = {name: [] for name in servers}
+    try:
+        clients = {name: RawRtuClient("127.0.0.1", server.port) for name, server in servers.items()}
+        for client in clients.values():
+            transact_pairs(client, 1000, 0)  # warm up
+        for r in range(rounds):
+            for name, client in clients.items() if r % 2 == 0 else reversed(clients.items()):
+                latencies[name] += transact_pairs(client, requests // rounds, r * requests)
+        for client in clients.values():
+            client.close()
+    finally:
+        for server in servers.values():
+            server.stop()
+    print(machine())
+    print(f"{requests:,} sequential requests per server in {rounds} alternating rounds (write/read 2001H)")
+    p99 = {}
+    for name, values in latencies.items():
+        values.sort()
+        p99[name] = percentile(values, 99)
+        print(f"  {name:<24} p50 {percentile(values, 50) * 1e3:.3f} ms  p99 {p99[name] * 1e3:.3f} ms")
+    print(f"p99 audit on / off: {p99['audit on'] / p99['audit off (--no-audit)']:.3f} (target: <= 1.1)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1_000_000)
+    parser.add_argument("--live", action="store_true", help="the live audit's cost to the wire's p99 instead")
+    parser.add_argument("--requests", type=int, default=20_000)
+    parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
+    if args.live:
+        live(args.requests, args.rounds)
+        return
     profile = load_profile("c20-400hr")
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "frames.jsonl"

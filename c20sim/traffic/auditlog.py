@@ -13,6 +13,7 @@ memory stays bounded whatever its length. A line that is not a frame (the frame 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import re
@@ -26,6 +27,7 @@ from ..audit.engine import LineDemand
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES
+from .pcap import is_capture, read_capture
 
 __all__ = ["MAX_LINE", "add_audit_command", "audit_log", "junit_xml", "read_frames"]
 
@@ -92,26 +94,37 @@ def _slow(line: str, number: int, where: str) -> Iterator[tuple[float, str, byte
     yield float(t), direction, data
 
 
-def audit_log(path: str, auditor: Auditor) -> Auditor:
-    """Feed the frame log at ``path`` (``-``: stdin) through ``auditor``; C20SimError for a file it cannot read."""
+def audit_log(path: str, auditor: Auditor, *, server_port: int | None = None) -> Auditor:
+    """Feed the frame log or packet capture at ``path`` (``-``: stdin) through ``auditor``; C20SimError for a
+    file it cannot read. A capture (pcap, pcapng) is told by its first bytes; ``server_port`` picks its
+    conversation (and says which side is the master when the capture starts mid-connection)."""
     where = "stdin" if path == "-" else path
     last = 0.0
     try:
-        stream = sys.stdin if path == "-" else open(path, encoding="utf-8", errors="replace")  # noqa: SIM115
+        raw = sys.stdin.buffer if path == "-" else open(path, "rb")  # noqa: SIM115
     except OSError as exc:
         raise C20SimError(f"{path}: cannot read: {exc.strerror}") from None
     try:
+        head = raw.peek(4)[:4] if isinstance(raw, io.BufferedReader) else b""
+        frames = (
+            read_capture(raw, where, server_port)
+            if is_capture(head)
+            else read_frames(io.TextIOWrapper(raw, encoding="utf-8", errors="replace"), where)
+        )
         feed = auditor.feed
-        for t, direction, data in read_frames(stream, where):
+        for t, direction, data in frames:
             feed(t, direction, data)
             last = t
     except OSError as exc:
         raise C20SimError(f"{where}: cannot read: {exc.strerror}") from None
     finally:
-        if stream is not sys.stdin:
-            stream.close()
+        if path != "-":
+            raw.close()
     if auditor.frames == 0:
-        raise C20SimError(f"{where}: no frames; a frame log has one JSON object a line with t, dir and hex")
+        raise C20SimError(
+            f"{where}: no frames; give a frame log (one JSON object a line with t, dir and hex) or a capture of "
+            "Modbus on TCP"
+        )
     auditor.check_idle(last)
     return auditor
 
@@ -165,7 +178,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise C20SimError(f"--ignore: {exc}") from None
-    audit_log(args.log, auditor)
+    audit_log(args.log, auditor, server_port=args.server_port)
     findings = auditor.findings()
     if args.junit:
         try:
@@ -203,12 +216,13 @@ def _char_bits(text: str) -> int:
 def add_audit_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
         "audit",
-        help="report what a master would do wrong on a real line, from a frame log",
+        help="report what a master would do wrong on a real line, from a frame log or a packet capture",
         description="Run the audit's rules (docs/audit.md) over a JSONL frame log, from serve --log-frames or "
-        "c20sim record; only t, dir and hex are read. Exit 0 if no finding is at or above --fail-on, 1 if one is, "
+        "c20sim record (only t, dir and hex are read), or over a pcap or pcapng capture of Modbus TCP or RTU "
+        "over TCP (tcpdump, Wireshark). Exit 0 if no finding is at or above --fail-on, 1 if one is, "
         "2 if the log cannot be read.",
     )
-    parser.add_argument("log", help="the frame log (- for stdin)")
+    parser.add_argument("log", help="the frame log or packet capture (- for stdin)")
     parser.add_argument("--profile", default=DEFAULT_PROFILE, help="the drive's profile (its facts the rules use)")
     parser.add_argument("--format", choices=("text", "json"), default="text", help="the report's format")
     parser.add_argument("--junit", metavar="FILE", help="write a JUnit XML report here: a test case per rule")
@@ -225,5 +239,11 @@ def add_audit_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument(
         "--comm-timeout", type=float, metavar="S", help="the drives' communication timeout (default: F08.02)"
+    )
+    parser.add_argument(
+        "--server-port",
+        type=int,
+        metavar="PORT",
+        help="a packet capture: the drive's or the gateway's TCP port (only its conversations are read)",
     )
     parser.set_defaults(func=cmd_audit)

@@ -1,0 +1,111 @@
+"""Packet captures read as frames: Modbus TCP and RTU over TCP, pcap and pcapng, retransmissions, frames split
+and joined across segments, and one line for a capture c20sim cannot read."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import dpkt
+import pytest
+
+from c20sim.cli import main
+from c20sim.traffic.pcap import read_capture
+from c20sim.wire.protocol import ReadRequest, ReadResponse, encode, with_crc
+from c20sim.wire.registers import Reg
+
+MASTER, DRIVE = (b"\x7f\x00\x00\x01", 40000), (b"\x7f\x00\x00\x01", 502)
+REQUEST = encode(ReadRequest(1, Reg.STATUS1, 1))
+REPLY = encode(ReadResponse(1, (5,)))
+
+
+def segment(src: tuple[bytes, int], dst: tuple[bytes, int], seq: int, data: bytes = b"", flags: int = 0x18) -> bytes:
+    tcp = dpkt.tcp.TCP(sport=src[1], dport=dst[1], seq=seq, ack=1, flags=flags, data=data)
+    ip = dpkt.ip.IP(src=src[0], dst=dst[0], p=dpkt.ip.IP_PROTO_TCP, data=tcp)
+    ip.len = len(bytes(ip))
+    return bytes(dpkt.ethernet.Ethernet(src=b"\x00" * 6, dst=b"\x00" * 6, type=dpkt.ethernet.ETH_TYPE_IP, data=ip))
+
+
+def mbap(transaction: int, rtu: bytes) -> bytes:
+    """The Modbus TCP form of an RTU frame: the MBAP header, the unit id and the PDU (no CRC)."""
+    body = rtu[:-2]
+    return transaction.to_bytes(2, "big") + b"\x00\x00" + len(body).to_bytes(2, "big") + body
+
+
+def capture(packets: list[tuple[float, bytes]], *, ng: bool = False) -> bytes:
+    out = io.BytesIO()
+    writer = dpkt.pcapng.Writer(out) if ng else dpkt.pcap.Writer(out)
+    for ts, packet in packets:
+        writer.writepkt(packet, ts=ts)
+    return out.getvalue()
+
+
+def handshake() -> list[tuple[float, bytes]]:
+    return [
+        (0.0, segment(MASTER, DRIVE, 99, flags=dpkt.tcp.TH_SYN)),
+        (0.0001, segment(DRIVE, MASTER, 499, flags=dpkt.tcp.TH_SYN | dpkt.tcp.TH_ACK)),
+    ]
+
+
+def test_rtu_over_tcp_with_a_retransmission_and_frames_split_and_joined() -> None:
+    packets = handshake()
+    packets += [
+        (1.0, segment(MASTER, DRIVE, 100, REQUEST[:3])),  # a frame split over two segments
+        (1.0005, segment(MASTER, DRIVE, 103, REQUEST[3:])),
+        (1.0005, segment(MASTER, DRIVE, 103, REQUEST[3:])),  # retransmitted: read once
+        (1.003, segment(DRIVE, MASTER, 500, REPLY)),
+        (1.1, segment(MASTER, DRIVE, 108, REQUEST + REQUEST)),  # two frames in one segment
+    ]
+    frames = list(read_capture(io.BytesIO(capture(packets)), "x.pcap"))
+    assert frames == [(1.0005, "rx", REQUEST), (1.003, "tx", REPLY), (1.1, "rx", REQUEST), (1.1, "rx", REQUEST)]
+
+
+def test_modbus_tcp_becomes_rtu_frames_in_pcapng() -> None:
+    packets = handshake()
+    packets += [
+        (2.0, segment(MASTER, DRIVE, 100, mbap(7, REQUEST))),
+        (2.002, segment(DRIVE, MASTER, 500, mbap(7, REPLY))),
+    ]
+    frames = list(read_capture(io.BytesIO(capture(packets, ng=True)), "x.pcapng"))
+    assert frames == [(2.0, "rx", REQUEST), (2.002, "tx", with_crc(REPLY[:-2]))]
+
+
+def test_a_capture_begun_mid_connection_needs_the_server_port(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "mid.pcap"
+    path.write_bytes(
+        capture([(1.0, segment(MASTER, DRIVE, 100, REQUEST)), (1.003, segment(DRIVE, MASTER, 500, REPLY))])
+    )
+    assert main(["audit", str(path)]) == 2
+    assert capsys.readouterr().err == (
+        f"c20sim: {path}: the capture starts after the connection 127.0.0.1:40000 - 127.0.0.1:502 was opened, so "
+        "which side is the master is unknown; give --server-port (the drive's or the gateway's port)\n"
+    )
+    assert main(["audit", str(path), "--server-port", "502", "--format", "json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 2
+
+
+def test_a_fast_poller_in_a_capture(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    packets = handshake()
+    for k in range(300):
+        t = 1.0 + k / 100
+        packets += [
+            (t, segment(MASTER, DRIVE, 100 + 8 * k, REQUEST)),
+            (t + 0.002, segment(DRIVE, MASTER, 500 + 7 * k, REPLY)),
+        ]
+    path = tmp_path / "fast.pcap"
+    path.write_bytes(capture(packets))
+    assert main(["audit", str(path), "--format", "json"]) == 1
+    (finding,) = json.loads(capsys.readouterr().out)["findings"]
+    assert (finding["rule"], round(finding["value"])) == ("line-demand", 135)
+
+
+def test_a_damaged_capture_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    packets = [*handshake(), (1.0, segment(MASTER, DRIVE, 100, REQUEST))]
+    path = tmp_path / "cut.pcap"
+    path.write_bytes(capture(packets)[:-5])
+    assert main(["audit", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"c20sim: {path}: ")
