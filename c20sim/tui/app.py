@@ -39,6 +39,7 @@ from ..control.client import RemoteOps
 from ..control.ops import ControlError
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS
+from .audit import AuditPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
 from .widgets import (
@@ -63,7 +64,7 @@ T = TypeVar("T")
 STREAM_BUFFER = 40
 FRAME_HZ = 5
 
-TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5", "registers": "f6"}
+TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5", "registers": "f6", "audit": "f7"}
 
 HELP = """\
 # c20sim dashboard
@@ -94,6 +95,7 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `F4` | device faults: one key each, the cause switched on or off; `z` clears all |
 | `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
 | `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code) |
+| `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |
 | `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
@@ -171,6 +173,8 @@ class MainScreen(Screen[None]):
                 yield LinkFaultsPanel(bench, id="link-panel")
             with TabPane("Registers F6", id="registers"):
                 yield RegistersPanel(bench, id="registers-panel")
+            with TabPane("Audit F7", id="audit"):
+                yield AuditPanel(bench, id="audit-panel")
         yield Footer()
 
     def on_mount(self) -> None:
@@ -410,6 +414,8 @@ class Dashboard(App[int]):
             screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
         elif active == "registers":
             screen.query_one(RegistersPanel).show()
+        elif active == "audit":
+            screen.query_one(AuditPanel).show()
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -525,6 +531,7 @@ class Dashboard(App[int]):
             "faults": DeviceFaultsPanel,
             "link": LinkFaultsPanel,
             "registers": "#reg-table",
+            "audit": "#audit-table",
         }[tab]
         screen.query_one(target).focus()  # type: ignore[call-overload]
 

@@ -346,6 +346,15 @@ class Workbench:
             return str(exc)
         return None
 
+    def audit(self) -> dict[str, Any] | None:
+        """The live audit's report (``GET /audit``: findings, line demand); None when the server audits nothing."""
+        try:
+            return dict(self.ops.call("audit"))
+        except ops.ControlError as exc:
+            if exc.status == 409:  # serve --no-audit
+                return None
+            raise
+
     def counters(self, address: int) -> dict[str, object]:
         """The drive's traffic: requests, replies, exceptions by code, CRC errors, silences, injected."""
         return dict(self.ops.call("counters", address=address))

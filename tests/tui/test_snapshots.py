@@ -130,3 +130,18 @@ def test_register_view(snap_compare: Any, served: Served) -> None:
         await pilot.pause()
 
     assert snap_compare(Dashboard(served.remote()), terminal_size=(80, 24), run_before=registers_while_running)
+
+
+def test_audit_view(snap_compare: Any, served: Served) -> None:
+    """F7: a master polling 20 times a second, reading an absent register every cycle, talking after a broadcast."""
+
+    async def audited(pilot: Pilot[Any]) -> None:
+        app = await attached(pilot)
+        send(served, *["01 03 21 00 00 01 8E 36"] * 30)  # status word 1, every 50 ms: 27 % of the line
+        send(served, *["01 03 00 32 00 01 25 C5"] * 3)  # F00.50: absent, refused 0x02 each time
+        send(served, "00 06 20 01 05 DC D0 D2", "01 03 21 00 00 01 8E 36")  # a broadcast, then 50 ms later a read
+        await pilot.press("f7")
+        app.refresh_views()
+        await pilot.pause()
+
+    assert snap_compare(Dashboard(served.remote()), terminal_size=(100, 24), run_before=audited)
