@@ -22,6 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..audit import RULES
 from ..control import causes, ops
 from ..control.schemas import conditions_schema, link_schema
 from ..drive.profile import (
@@ -216,6 +217,18 @@ def scenario_schema() -> dict[str, Any]:
             "expect_silence": {
                 "type": "boolean",
                 "description": "the step's writes (or a read of 2100H) must get no reply",
+            },
+            "expect_findings": {
+                "type": "array",
+                "items": {"enum": list(RULES)},
+                "uniqueItems": True,
+                "description": "the audit's rules that must have found something by this step (docs/audit.md)",
+            },
+            "forbid_findings": {
+                "type": "array",
+                "items": {"enum": ["any", *RULES]},
+                "uniqueItems": True,
+                "description": 'rules that must have found nothing by this step; "any": no finding at all',
             },
             "within": {
                 "type": "number",

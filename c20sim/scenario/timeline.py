@@ -20,6 +20,12 @@ A fault is given by its cause, as a bench brings it about
 cause), or latched by code (``fault = { code = 16, persistent = true }``);
 ``clear_fault = { cause = "undervoltage" }`` ends a cause and presses reset.
 
+A step may expect the audit (docs/audit.md) to have found something by then
+(``expect_findings = ["eeprom-wear"]``), or nothing of a rule
+(``forbid_findings = ["line-demand"]``, ``["any"]``: nothing at all): the
+frames the scenario's writes and every master sent are judged as a real line
+would take them.
+
 A step may expect its writes to be refused (``expect_exception = 8``: each
 write answered with exception 0x08) or unanswered (``expect_silence = true``:
 no reply, as from a drive that is offline; with no write in the step, a read
@@ -50,7 +56,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
-from ..control import causes, ops
+from ..audit import RULES
+from ..control import causes, liveaudit, ops
 from ..core.simulator import Simulator
 from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
@@ -128,6 +135,13 @@ class Step:
     expect_exception: int | None = None  #: every write of the step must be refused with this code
     expect_silence: bool = False  #: no write (or a read of 2100H, with none) may be answered
     within: float | None = None  #: poll ``expect`` in model time for up to this long
+    expect_findings: tuple[str, ...] = ()  #: the audit's rules that must have found something by now
+    forbid_findings: tuple[str, ...] = ()  #: rules that must have found nothing ("any": no finding at all)
+
+    @property
+    def audited(self) -> bool:
+        """The step reads the audit (docs/audit.md)."""
+        return bool(self.expect_findings or self.forbid_findings)
 
     @property
     def cause(self) -> str | None:
@@ -165,6 +179,8 @@ STEP_KEYS = (
     "expect_exception",
     "expect_silence",
     "within",
+    "expect_findings",
+    "forbid_findings",
 )
 
 #: Model seconds between two reads of a ``within`` step's registers.
@@ -344,6 +360,19 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
             raise fail("within", "nothing to wait for; give expect = { ... } too")
         within = float(within)
 
+    findings: dict[str, tuple[str, ...]] = {}
+    for key, allowed in (("expect_findings", tuple(RULES)), ("forbid_findings", ("any", *RULES))):
+        given = raw.get(key, [])
+        if not isinstance(given, list) or not all(isinstance(x, str) for x in given):
+            raise fail(key, 'expected a list of the audit\'s rules, such as ["eeprom-wear"]')
+        for name in given:
+            if name not in allowed:
+                raise fail(key, str(ops.unknown("rule", name, allowed)))
+        findings[key] = tuple(given)
+    both = set(findings["expect_findings"]) & set(findings["forbid_findings"])
+    if both:
+        raise fail("forbid_findings", f"{sorted(both)[0]} is expected and forbidden at once; give one of the two")
+
     return Step(
         index=index,
         at=float(at),
@@ -362,6 +391,8 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         expect_exception=expect_exception,
         expect_silence=expect_silence,
         within=within,
+        expect_findings=findings["expect_findings"],
+        forbid_findings=findings["forbid_findings"],
     )
 
 
@@ -475,7 +506,33 @@ def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Ou
     if step.keypad is not None:
         taken = ops.press_key(sim, address, step.keypad)
         out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
-    return out + _expectations(step, sim, address, t)
+    return out + _expectations(step, sim, address, t) + _audited(step, sim, t)
+
+
+def _audited(step: Step, sim: Simulator, t: float) -> list[Outcome]:
+    """``expect_findings`` and ``forbid_findings``: what the live audit found by now (any drive, or the line)."""
+    if not step.audited:
+        return []
+    audit = liveaudit.of(sim)
+    if audit is None:
+        return [Outcome(step, t, False, "audit: off (serve --no-audit); no finding can be checked")]
+    found = audit.findings()
+    out: list[Outcome] = []
+    for rule in step.expect_findings:
+        hits = [f for f in found if f.rule == rule]
+        if hits:
+            out.append(Outcome(step, t, True, f"audit: {rule} found: {hits[0].where}: {hits[0].figure}"))
+        else:
+            seen = ", ".join(sorted({f.rule for f in found})) or "none"
+            out.append(Outcome(step, t, False, f"audit: no {rule} finding, expected one (findings: {seen})"))
+    for rule in step.forbid_findings:
+        hits = [f for f in found if rule in ("any", f.rule)]
+        if hits:
+            what = "; ".join(f"{f.rule} {f.where}: {f.figure}" for f in hits[:3])
+            out.append(Outcome(step, t, False, f"audit: {what}, forbidden"))
+        else:
+            out.append(Outcome(step, t, True, f"audit: no {'finding' if rule == 'any' else rule + ' finding'}"))
+    return out
 
 
 def _expectations(step: Step, sim: Simulator, address: int, t: float, since: float | None = None) -> list[Outcome]:
@@ -606,11 +663,19 @@ async def _submit(line: Line, frame: bytes) -> Reply | None:
         return None  # the line never answered (a bug it logged): the outcome says no reply
 
 
+def _audit_for(scenario: Scenario, sim: Simulator) -> None:
+    """A scenario that reads the audit has one: started now if the simulator audits nothing yet (a served one
+    has it from the start, unless --no-audit)."""
+    if any(step.audited for step in scenario.steps) and liveaudit.of(sim) is None:
+        liveaudit.start(sim)
+
+
 def run(scenario: Scenario, sim: Simulator) -> Report:
     """Play ``scenario`` on a simulator with a virtual clock, instantly."""
     if not sim.virtual:
         raise ScenarioError(scenario.path, "", "run needs a virtual clock; use play() to follow a realtime one")
     check(scenario, sim)
+    _audit_for(scenario, sim)
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:
@@ -635,6 +700,7 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
     is waited for. With the server's ``line``, writes are frames on it, served in turn with the
     ports' (without, they go to the bus directly); each outcome is printed to ``out``."""
     check(scenario, sim)
+    _audit_for(scenario, sim)
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:

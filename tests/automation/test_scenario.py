@@ -115,7 +115,8 @@ def test_a_refused_keypad_press_fails() -> None:
         (
             {"at": 1, "expct": {}},
             "s.toml: step 1 (at 1 s), key 'expct': unknown key 'expct'; did you mean 'expect'? (known: at, drive, "
-            "note, set, link, clear_link, fault, clear_fault, power_cycle, write, keypad, expect, expect_exception, expect_silence, within)",
+            "note, set, link, clear_link, fault, clear_fault, power_cycle, write, keypad, expect, expect_exception, "
+            "expect_silence, within, expect_findings, forbid_findings)",
         ),
         (
             {"at": 1, "set": {"supply": 3}},
