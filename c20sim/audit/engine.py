@@ -49,6 +49,9 @@ F_COMM_TIMEOUT = fcode_address(8, 2)
 
 #: Times closer than this are one (a frame log rounds them to the microsecond).
 _EPSILON = 1e-6
+#: How early a reply may seem to go out against its record's time: the event loop's timers (libuv's) count in
+#: whole milliseconds, so a reply due 2 ms after a request may leave after 1.x ms by the frames' clock.
+_TIMER_SLACK = 0.001
 #: The most transactions the line-demand window holds (a 1 s window at 100,000 transactions a second).
 MAX_WINDOW = 100_000
 #: The most (drive, subject) counters kept; beyond, new subjects are not followed (the first ones are).
@@ -315,7 +318,7 @@ class Auditor:
                 )
             return
         if last.reply_t is not None:
-            early = ref.t < last.reply_t - _EPSILON  # sent before the reply to the last one came out
+            early = ref.t < last.reply_t - _TIMER_SLACK  # sent before the reply to the last one came out
             need = last.reply_t - last.t
         else:
             need = last.cost

@@ -157,10 +157,20 @@ def test_an_early_retrier(master: Master) -> None:
 def test_a_request_before_the_reply_collides(profile: Profile) -> None:
     auditor = Auditor(profile)
     auditor.feed(1.0, "rx", encode(ReadRequest(1, Reg.STATUS1, 1)))
-    auditor.feed(1.001, "rx", encode(ReadRequest(1, Reg.STATUS2, 1)))  # pipelined: its reply comes after
+    auditor.feed(1.0002, "rx", encode(ReadRequest(1, Reg.STATUS2, 1)))  # pipelined: its reply comes after
     auditor.feed(1.002, "tx", bytes.fromhex("01 03 02 00 05 78 47"))
     (finding,) = auditor.findings()
     assert (finding.rule, finding.drive) == ("collision", 1)
+
+
+def test_a_request_within_a_timer_tick_of_the_reply_is_a_sequential_master(profile: Profile) -> None:
+    # the reply is recorded as due 2 ms after the request; the loop's millisecond timers may send it after 1.1 ms
+    auditor = Auditor(profile)
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    auditor.feed(1.0, "rx", request)
+    auditor.feed(1.002, "tx", encode(ReadResponse(1, (5,))))
+    auditor.feed(1.0012, "rx", request)
+    assert auditor.findings() == []
 
 
 def test_one_that_ignores_0x08(master: Master) -> None:
