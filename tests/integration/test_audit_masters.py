@@ -271,3 +271,42 @@ async def test_mbpoll_at_a_sane_rate(serve: ServeFactory, tmp_path: Path, capsys
         assert bench.offline(tmp_path / "log.jsonl", capsys)["findings"] == []
     finally:
         bench.close()
+
+
+def test_a_sequential_master_against_c20sim_serve_is_no_early_retrier(tmp_path: Path) -> None:
+    """c20sim serve runs on uvloop, whose timers count whole milliseconds: a sequential master polling as fast as
+    the replies come gets the line-demand finding and nothing else (no collision, no early retry)."""
+    import subprocess
+    import sys
+    import urllib.request
+
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusTcpClient
+
+    from tests.conftest import wait_for_ready_file
+
+    ready = tmp_path / "ready.json"
+    proc = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"),
+            "--ready-file",
+            str(ready),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        where = wait_for_ready_file(ready, proc)
+        host, port = where["tcp"].rsplit(":", 1)
+        client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=2, retries=0)
+        assert client.connect()
+        start = time.monotonic()
+        while time.monotonic() - start < 1.5:
+            assert not client.read_holding_registers(Reg.STATUS1, count=1, device_id=1).isError()
+        client.close()
+        with urllib.request.urlopen(f"{where['control']}/audit", timeout=10) as answer:
+            report = json.loads(answer.read())
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert [f["rule"] for f in report["findings"]] == ["line-demand"], report["findings"]
