@@ -184,6 +184,8 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         client.send(bytes.fromhex("01 03 21 00 00 01 00 00"))  # a bad CRC: the drive answers 0x06
         assert client.recv(5) == bytes.fromhex("01 83 06 C1 32")
     counters = json.loads(ctl(ready, "counters").stdout)
+    demand = counters.pop("line_demand")  # the live audit's: every frame on the line, the bad CRC's too
+    assert (demand["transactions"], demand["baud"], demand["format"]) == (7, 19200, "8N1")
     assert counters == {
         "requests": 6,
         "replies": 3,
