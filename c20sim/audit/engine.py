@@ -249,10 +249,24 @@ class Auditor:
     def worst(self) -> Severity | None:
         return max((f.severity for f in self._findings.values()), default=None)
 
-    def line_demand(self) -> LineDemand:
+    def line_demand(self, t: float | None = None) -> LineDemand:
+        """The line demand; ``now`` over the window before ``t`` (live: the clock's time, so that a master gone
+        quiet reads 0 %), or before the last request."""
+        now = self._now
+        if t is not None and t > self._last_t and self._first_t is not None:
+            self._expire(t - self.limits.window + _EPSILON)
+            now = 100.0 * self._window_sum / self.limits.window if t - self._first_t >= self.limits.window else 0.0
         span = (self._last_t - self._first_t) if self._first_t is not None else 0.0
         mean = 100.0 * self._busy / span if span >= self.limits.window else 0.0
-        return LineDemand(self.baud, self.bits, self._now, self._peak, mean, self._transactions, self._busy)
+        return LineDemand(self.baud, self.bits, now, self._peak, mean, self._transactions, self._busy)
+
+    def _expire(self, horizon: float) -> None:
+        """Drop the window's transactions at or before ``horizon`` (and beyond its bound)."""
+        window = self._window
+        while window and (window[0][0] <= horizon or len(window) > MAX_WINDOW):
+            self._window_sum -= window.popleft()[2]
+        if not window:
+            self._window_sum = 0.0  # no rounding left over
 
     # -- requests
 
@@ -360,9 +374,7 @@ class Auditor:
         window = self._window
         window.append((t, ref.seq, cost))
         self._window_sum += cost
-        horizon = t - self.limits.window + _EPSILON  # a frame log's times are rounded to the microsecond
-        while window and (window[0][0] <= horizon or len(window) > MAX_WINDOW):
-            self._window_sum -= window.popleft()[2]
+        self._expire(t - self.limits.window + _EPSILON)  # a frame log's times are rounded to the microsecond
         if t - self._first_t < self.limits.window:
             return  # not yet a whole window seen
         percent = 100.0 * self._window_sum / self.limits.window

@@ -17,7 +17,7 @@ import weakref
 from collections.abc import Iterable
 from typing import Any
 
-from ..audit import Auditor, Finding, Limits
+from ..audit import Auditor, Finding, Limits, LineDemand
 from ..audit.engine import F_COMM_TIMEOUT, F_MAX_SPEED
 from ..core.bus import FrameRecord
 from ..core.simulator import Simulator
@@ -65,7 +65,7 @@ class LiveAudit:
         return {
             "frames": self.auditor.frames,
             "worst": None if worst is None else worst.label,
-            "line_demand": self.auditor.line_demand().as_dict(),
+            "line_demand": self.line_demand().as_dict(),
             "findings": [f.as_dict() for f in findings],
         }
 
@@ -75,13 +75,17 @@ class LiveAudit:
         counts = {"error": 0, "warning": 0, "note": 0}
         for finding in findings:
             counts[finding.severity.label] += 1
-        demand = self.auditor.line_demand()
+        demand = self.line_demand()
         return {
             "findings": counts,
             "rules": sorted({f.rule for f in findings}),
             "line_demand_percent": round(demand.now, 1),
             "line_demand_peak_percent": round(demand.peak, 1),
         }
+
+    def line_demand(self) -> LineDemand:
+        """The line demand now: ``now`` over the last window by the ports' clock (0 % once the masters are quiet)."""
+        return self.auditor.line_demand(time.monotonic() if self.auditor.frames else None)
 
     def restart(self) -> None:
         """Forget what was seen: the next frames are judged afresh (the drives' settings read again)."""

@@ -203,7 +203,7 @@ def _counters(sim: Simulator, address: int) -> dict[str, object]:
     counters = ops.counters(sim, address)
     audit = liveaudit.of(sim)
     if audit is not None:
-        counters["line_demand"] = audit.auditor.line_demand().as_dict()
+        counters["line_demand"] = audit.line_demand().as_dict()
     return counters
 
 

@@ -287,6 +287,19 @@ def test_events_give_new_and_grown_findings_once(profile: Profile) -> None:
     assert events[-1] == auditor.findings()[0]
 
 
+def test_the_line_demand_now_falls_to_0_when_the_master_is_quiet(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    request, reply = encode(ReadRequest(1, Reg.STATUS1, 1)), encode(ReadResponse(1, (5,)))
+    for k in range(32):
+        auditor.feed(k / 16, "rx", request)
+        auditor.feed(k / 16 + 0.002, "tx", reply)
+    expected = 16 * READ_TX * 100
+    assert auditor.line_demand().now == pytest.approx(expected)
+    assert auditor.line_demand(31 / 16 + 0.5).now == pytest.approx(8 * READ_TX * 100)  # half the window left
+    quiet = auditor.line_demand(10.0)
+    assert (quiet.now, quiet.peak, quiet.transactions) == (0.0, pytest.approx(expected), 32)
+
+
 def test_the_window_is_bounded(profile: Profile) -> None:
     from c20sim.audit.engine import MAX_WINDOW
 
