@@ -11,10 +11,11 @@ gives the ratio, for noisy machines.
 
 With ``--live``, it measures what the live audit costs the wire instead: two c20sim servers in child
 processes (turnaround 0), one with the audit on (serve's default) and one with ``--no-audit``, taking
-turns in rounds under one sequential RTU-over-TCP client (bench_tcp.py's write/read pairs, alone on the
-machine: low load); it prints p50 and p99 of each and the ratio of the p99s (target: within 1.1).
+turns in rounds under one sequential RTU-over-TCP client (bench_tcp.py's write/read pairs) at a low
+load (``--rate``, 200 requests a second by default; 0: back to back, the wire saturated); run it alone on
+the machine. It prints p50 and p99 of each and the ratio of the p99s (target: within 1.1).
 
-    .venv/bin/python bench/bench_audit.py --live [--requests 20000 --rounds 5]
+    .venv/bin/python bench/bench_audit.py --live [--requests 10000 --rounds 5 --rate 200]
 """
 
 from __future__ import annotations
@@ -86,7 +87,23 @@ def write_log(path: Path, frames: int) -> None:
                     break
 
 
-def live(requests: int, rounds: int) -> None:
+def paced(client: RawRtuClient, count: int, first: int, rate: float) -> list[float]:
+    """``count`` write/read pairs' latencies, a request every ``1 / rate`` s (0: back to back)."""
+    if rate <= 0:
+        return transact_pairs(client, count, first)
+    latencies: list[float] = []
+    period = 1.0 / rate
+    due = time.perf_counter()
+    for i in range(count // 2):
+        due += 2 * period
+        latencies += transact_pairs(client, 2, first + i)
+        pause = due - time.perf_counter()
+        if pause > 0:
+            time.sleep(pause)
+    return latencies
+
+
+def live(requests: int, rounds: int, rate: float) -> None:
     servers = {
         "audit on": ChildServer(ServerSpec("c20sim", turnaround_ms=0.0, audit=True)),
         "audit off (--no-audit)": ChildServer(ServerSpec("c20sim", turnaround_ms=0.0, audit=False)),
@@ -98,14 +115,15 @@ def live(requests: int, rounds: int) -> None:
             transact_pairs(client, 1000, 0)  # warm up
         for r in range(rounds):
             for name, client in clients.items() if r % 2 == 0 else reversed(clients.items()):
-                latencies[name] += transact_pairs(client, requests // rounds, r * requests)
+                latencies[name] += paced(client, requests // rounds, r * requests, rate)
         for client in clients.values():
             client.close()
     finally:
         for server in servers.values():
             server.stop()
     print(machine())
-    print(f"{requests:,} sequential requests per server in {rounds} alternating rounds (write/read 2001H)")
+    pace = f"{rate:g} requests/s" if rate > 0 else "back to back"
+    print(f"{requests:,} sequential requests per server, {pace}, in {rounds} alternating rounds (write/read 2001H)")
     p99 = {}
     for name, values in latencies.items():
         values.sort()
@@ -120,9 +138,10 @@ def main() -> None:
     parser.add_argument("--live", action="store_true", help="the live audit's cost to the wire's p99 instead")
     parser.add_argument("--requests", type=int, default=20_000)
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--rate", type=float, default=200.0, help="--live: requests a second (0: back to back)")
     args = parser.parse_args()
     if args.live:
-        live(args.requests, args.rounds)
+        live(args.requests, args.rounds, args.rate)
         return
     profile = load_profile("c20-400hr")
     with tempfile.TemporaryDirectory() as tmp:

@@ -273,7 +273,10 @@ class Auditor:
     def _request(self, seq: int, t: float, data: bytes) -> None:
         ref = FrameRef(seq, t)
         n = len(data)
-        if n < 4 or not self._crc_ok(data):
+        good = self._crcs.get(data)
+        if good is None:
+            good = self._crc_ok(data)
+        if n < 4 or not good:
             self._demand(ref, frame_time(n, self.baud, self.bits))  # noise still holds the line
             return
         slave, function = data[0], data[1]
@@ -296,13 +299,13 @@ class Auditor:
         self._timing(ref, data, slave, cost)
         self._pending = _Pending(seq, t, data, slave, function, register, value, cost)
         self._demand(ref, cost)
-        drives = list(self._drives) if slave == BROADCAST else [slave]
-        if slave == BROADCAST and not drives:
-            return
-        for address in drives:
-            self._silence(address, ref)
-        if slave != BROADCAST and function in (_WRITE1, _WRITEN) and register >= 0:
-            self._written(slave, register, value, data, ref, function)
+        if slave == BROADCAST:
+            for address in list(self._drives):  # a broadcast feeds every drive's timer
+                self._silence(address, ref)
+        else:
+            self._silence(slave, ref)
+            if function in (_WRITE1, _WRITEN) and register >= 0:
+                self._written(slave, register, value, data, ref, function)
         if self._enabled:
             self.check_idle(t)
 
@@ -374,13 +377,16 @@ class Auditor:
         window = self._window
         window.append((t, ref.seq, cost))
         self._window_sum += cost
-        self._expire(t - self.limits.window + _EPSILON)  # a frame log's times are rounded to the microsecond
+        horizon = t - self.limits.window + _EPSILON  # a frame log's times are rounded to the microsecond
+        if window[0][0] <= horizon or len(window) > MAX_WINDOW:
+            self._expire(horizon)
         if t - self._first_t < self.limits.window:
             return  # not yet a whole window seen
         percent = 100.0 * self._window_sum / self.limits.window
         self._now = percent
         if percent <= self._peak + 0.5:
-            self._peak = max(self._peak, percent)
+            if percent > self._peak:
+                self._peak = percent
             return
         self._peak = percent
         if percent < self.limits.demand_warning or "line-demand" in self.ignore:
@@ -466,14 +472,16 @@ class Auditor:
         pending = self._pending
         if pending is None or pending.reply_t is not None or pending.slave == BROADCAST:
             return
-        if len(data) < 5 or data[0] != pending.slave or (data[1] & 0x7F) != pending.function or not self._crc_ok(data):
+        if len(data) < 5 or data[0] != pending.slave or (data[1] & 0x7F) != pending.function:
             return  # a dropped reply (no bytes), noise, or not the answer to the last request
+        good = self._crcs.get(data)
+        if not (good if good is not None else self._crc_ok(data)):
+            return
         pending.reply_t = t
-        ref = FrameRef(seq, t)
         if data[1] & 0x80:
-            self._refused(pending, data[2], ref)
-        elif pending.function in (_WRITE1, _WRITEN):
-            self._stored(pending, ref)
+            self._refused(pending, data[2], FrameRef(seq, t))
+        elif pending.function != _READ:
+            self._stored(pending, FrameRef(seq, t))
 
     def _refused(self, request: _Pending, code: int, ref: FrameRef) -> None:
         register = request.register

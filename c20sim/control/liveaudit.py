@@ -4,16 +4,19 @@
 reads it, ``DELETE /audit`` starts it afresh, the telemetry snapshot (``GET
 /telemetry``, ``/stream``) carries a summary, and a drive's counters carry the
 line demand. The auditor works on the event loop, between frames, in the
-listener the bus calls for each record: a few microseconds a frame, and no
-I/O (the engine is pure). It judges the frames' times, which the ports stamp
+listener the bus calls for each record queues it, and the audit runs once the
+reply has gone (the loop's next turn): a few microseconds a frame, off the
+reply's path, and no I/O (the engine is pure). It judges the frames' times, which the ports stamp
 on the monotonic clock: the master's rhythm as a plant would see it, whatever
 the model's clock (virtual, or a realtime clock at a speed factor).
 """
 
 from __future__ import annotations
 
+import asyncio
 import time
 import weakref
+from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
@@ -22,7 +25,10 @@ from ..audit.engine import F_COMM_TIMEOUT, F_MAX_SPEED
 from ..core.bus import FrameRecord
 from ..core.simulator import Simulator
 
-__all__ = ["LiveAudit", "of", "start"]
+__all__ = ["MAX_QUEUE", "LiveAudit", "of", "start"]
+
+#: Records waiting for the audit before it runs at once (the loop is busy: a burst of frames).
+MAX_QUEUE = 4096
 
 
 class LiveAudit:
@@ -33,6 +39,8 @@ class LiveAudit:
         self.ignore = tuple(ignore)
         self.limits = limits
         self.auditor = self._fresh()
+        self._queue: deque[tuple[float, str, bytes, int]] = deque()
+        self._scheduled = False
         self._unsubscribe = sim.bus.subscribe(self._feed)
 
     def _fresh(self) -> Auditor:
@@ -46,15 +54,35 @@ class LiveAudit:
         return auditor
 
     def _feed(self, record: FrameRecord) -> None:
-        auditor = self.auditor
-        baud = self.sim.bus.line_baud
-        if baud != auditor.baud:
-            auditor.set_baud(baud)
-        auditor.feed(record.t, record.direction.value, record.data)
+        """The bus's listener, called while a request is served: on an event loop it only queues the record,
+        and the audit runs once the reply has gone (``call_soon``), so it never delays one."""
+        self._queue.append((record.t, record.direction.value, record.data, self.sim.bus.line_baud))
+        if self._scheduled:
+            if len(self._queue) >= MAX_QUEUE:
+                self.drain()  # the loop is not getting round to it: keep the queue bounded
+            return
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # no loop (a scenario run, a unit test): audit at once
+            self.drain()
+            return
+        self._scheduled = True
+        loop.call_soon(self.drain)
+
+    def drain(self) -> None:
+        """Audit the records queued so far."""
+        self._scheduled = False
+        queue, auditor = self._queue, self.auditor
+        while queue:
+            t, direction, data, baud = queue.popleft()
+            if baud != auditor.baud:
+                auditor.set_baud(baud)
+            auditor.feed(t, direction, data)
 
     def findings(self) -> list[Finding]:
         """The findings so far; 200EH left on is judged at the line's time now (the monotonic clock the ports
         stamp frames with, whatever the model's clock)."""
+        self.drain()
         if self.auditor.frames:
             self.auditor.check_idle(time.monotonic())
         return self.auditor.findings()
@@ -71,6 +99,7 @@ class LiveAudit:
 
     def summary(self) -> dict[str, Any]:
         """What the telemetry snapshot carries: the count by severity, the worst, and the line demand."""
+        self.drain()
         findings = self.auditor.findings()
         counts = {"error": 0, "warning": 0, "note": 0}
         for finding in findings:
@@ -85,10 +114,12 @@ class LiveAudit:
 
     def line_demand(self) -> LineDemand:
         """The line demand now: ``now`` over the last window by the ports' clock (0 % once the masters are quiet)."""
+        self.drain()
         return self.auditor.line_demand(time.monotonic() if self.auditor.frames else None)
 
     def restart(self) -> None:
         """Forget what was seen: the next frames are judged afresh (the drives' settings read again)."""
+        self._queue.clear()
         self.auditor = self._fresh()
 
     def close(self) -> None:

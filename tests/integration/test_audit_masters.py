@@ -246,7 +246,7 @@ async def test_a_well_behaved_pymodbus_master(bench: Bench, tmp_path: Path, caps
         client.close()
     assert bench.live() == []
     audit = liveaudit.of(bench.served.sim)
-    assert audit is not None and 10.0 < audit.auditor.line_demand().peak < 40.0
+    assert audit is not None and 10.0 < audit.line_demand().peak < 40.0
     assert bench.offline(tmp_path / "log.jsonl", capsys)["findings"] == []
 
 
