@@ -192,7 +192,15 @@ def _at(data: bytes, i: int, direction: Literal["request", "response"]) -> int |
 
 
 def _reply_to(message: Response, pending: Request | None) -> bool:
-    return pending is not None and message.slave == pending.slave and message.function & 0x7F == pending.function
+    """Whether ``message`` can be ``pending``'s reply: the same slave and function, and for a write the echo
+    of what it wrote (a 0x06 reply that differs from the request is the next request, not its echo)."""
+    if pending is None or message.slave != pending.slave or message.function & 0x7F != pending.function:
+        return False
+    if isinstance(message, WriteSingleResponse) and isinstance(pending, WriteSingleRequest):
+        return (message.register, message.value) == (pending.register, pending.value)
+    if isinstance(message, WriteMultipleResponse) and isinstance(pending, WriteMultipleRequest):
+        return (message.start, message.count) == (pending.start, pending.count)
+    return True
 
 
 def _piece(

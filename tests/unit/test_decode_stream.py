@@ -252,3 +252,17 @@ def test_a_closed_pipe_ends_decode_quietly(tmp_path: Path) -> None:
     finally:
         os.close(write_end)
     assert (result.returncode, result.stderr) == (0, b"")
+
+
+def test_a_different_0x06_after_an_unanswered_one_is_the_next_request_not_its_echo() -> None:
+    """Found by the property test above: two unanswered writes of one register with different values. A 0x06
+    reply echoes its request byte for byte, so the second frame cannot be the first one's reply."""
+    first, second = encode(WriteSingleRequest(1, 0, 0)), encode(WriteSingleRequest(1, 0, 1))
+    stream = encode(ReadRequest(1, 0, 1)) + first + second
+    assert [(p.kind, p.data) for p in split_frames(stream)] == [
+        ("request", encode(ReadRequest(1, 0, 1))),
+        ("request", first),
+        ("request", second),
+    ]
+    echo = split_frames(first + first)
+    assert [(p.kind, p.request) for p in echo] == [("request", None), ("reply", WriteSingleRequest(1, 0, 0))]
