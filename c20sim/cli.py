@@ -71,6 +71,11 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
     where.add_argument(
+        "--metrics",
+        metavar="HOST:PORT",
+        help="serve GET /metrics alone (Prometheus, read-only, no token), such as 0.0.0.0:9120",
+    )
+    where.add_argument(
         "--control-token",
         metavar="TOKEN",
         help="the token the control API asks for (beyond loopback one is generated and written to the ready file)",
@@ -128,6 +133,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         ready_file=args.ready_file,
         control=args.control,
         control_token=args.control_token,
+        metrics=args.metrics,
         scenario=getattr(args, "scenario", None),
     )
     if not options.any_endpoint:

@@ -83,6 +83,8 @@ class ServeOptions:
     control: str | None = None
     #: the token the control API asks for; None: none on loopback, a generated one beyond it
     control_token: str | None = None
+    #: HOST:PORT of a read-only listener serving GET /metrics alone (Prometheus), or None
+    metrics: str | None = None
     #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
     scenario: str | None = None
     extra_ready: dict[str, str] = field(default_factory=dict)
@@ -127,6 +129,7 @@ class Server:
         self.frame_log: FrameLog | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self.control: ControlApi | None = None
+        self.metrics: ControlApi | None = None  #: the --metrics listener: GET /metrics alone, no token
         self._ready: tuple[Path, str] | None = None  #: the ready file written, and what it says
         self.scenario_task: asyncio.Task[Report] | None = None
 
@@ -188,7 +191,17 @@ class Server:
                     token = new_token()  # beyond loopback, never without one
                 self.control = ControlApi(sim, token=token, endpoints=self.endpoints.addresses)
                 self.control.frame_log = self.frame_log
+                self.control.line = line
                 await self.control.start(host, port)
+            if opts.metrics:
+                from .control import routes
+                from .control.http import ControlApi
+
+                host, port = parse_host_port(opts.metrics, "--metrics")
+                self.metrics = ControlApi(sim, endpoints=self.endpoints.addresses)
+                self.metrics.line = line
+                only = routes.Table([routes.table().named("metrics")])
+                await self.metrics.start(host, port, table=only, option="--metrics")
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
             if self.control is not None:
@@ -208,12 +221,17 @@ class Server:
         control = {"control": self.control.url} if self.control is not None and self.control.url else {}
         if self.control is not None and self.control.token is not None:
             control["token"] = self.control.token
+        if self.metrics is not None and self.metrics.url:
+            control["metrics"] = f"{self.metrics.url}/metrics"
         return {**self.endpoints.addresses(), **control, **self.options.extra_ready}
 
     async def _close_control(self) -> None:
         if self.control is not None:
             await self.control.close()
             self.control = None
+        if self.metrics is not None:
+            await self.metrics.close()
+            self.metrics = None
 
     def ready_line(self) -> str:
         parts = [f"{key} {value}" for key, value in self.addresses().items() if key != "token"]

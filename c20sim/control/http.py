@@ -37,6 +37,7 @@ from aiohttp import web
 
 from ..core.bus import FrameRecord
 from ..core.simulator import Simulator
+from ..transport.line import Line
 from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
@@ -142,6 +143,7 @@ class ControlApi:
         self.url = ""
         self.host = ""  #: the HOST the API is bound to, for the guard's Host check
         self.frame_log: Any = None  #: serve's --log-frames writer (transport.framelog.FrameLog), for its drop count
+        self.line: Line | None = None  #: serve's line, for its latency and busy time in GET /metrics
         #: the token every request must carry, or None (loopback without --control-token)
         self.token = token
         #: where masters connect (the ready file's endpoints), shown by GET / for a dashboard's title
@@ -174,12 +176,16 @@ class ControlApi:
     def first_seq(self) -> int:
         return self._seen - len(self.sim.bus.records)
 
-    async def start(self, host: str, port: int) -> None:
+    async def start(
+        self, host: str, port: int, *, table: routes.Table | None = None, option: str = "--control"
+    ) -> None:
+        """Listen on ``host``:``port``, serving ``table`` (the whole control surface by default; serve's
+        ``--metrics`` listener serves its one row)."""
         self.host = host
-        if (warning := httpguard.check_bind(host)) is not None:
+        if option == "--control" and (warning := httpguard.check_bind(host)) is not None:
             print(f"c20sim: {warning}", file=sys.stderr, flush=True)
         httpguard.quiet_logs()
-        runner = web.AppRunner(make_app(self), access_log=None, **httpguard.run_app_kwargs())
+        runner = web.AppRunner(make_app(self, table), access_log=None, **httpguard.run_app_kwargs())
         await runner.setup()
         site = httpguard.site(runner, host, port)  # a TCPSite with a connection cap and a header timeout
         try:
@@ -187,7 +193,7 @@ class ControlApi:
         except OSError as exc:
             await runner.cleanup()
             raise C20SimError(
-                f"--control {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
+                f"{option} {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
             ) from None
         self._runner = runner
         bound_port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), port)
@@ -393,6 +399,14 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
     async def openapi(request: web.Request) -> web.Response:
         return reply(document(table))
 
+    async def metrics(request: web.Request) -> web.Response:
+        from .metrics import exposition  # imports prometheus_client: only when scraped
+
+        body, content_type = exposition(sim, api.line, request.headers.get("Accept", ""))
+        response = web.Response(body=body)
+        response.headers["Content-Type"] = content_type
+        return response
+
     own: dict[str, Callable[[web.Request], Awaitable[web.StreamResponse]]] = {
         "index": index,
         "telemetry": get_telemetry,
@@ -402,6 +416,7 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         "clear_frames": delete_frames,
         "health": health,
         "openapi": openapi,
+        "metrics": metrics,
     }
 
     def generic(row: routes.Route) -> Callable[[web.Request], Awaitable[web.StreamResponse]]:

@@ -557,6 +557,13 @@ TABLE = Table(
         # the service routes: health, the document, the clock, set-ups, generators
         Route(
             "GET",
+            "/metrics",
+            "metrics",
+            "- (Prometheus text format: each drive's counters, state and telemetry, the line's reply latency)",
+            cli=None,
+        ),
+        Route(
+            "GET",
             "/health",
             "health",
             "- (200 once serving, 503 before; for orchestrators)",

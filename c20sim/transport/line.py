@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
+from bisect import bisect_left
 from collections import deque
 from collections.abc import Callable
 
@@ -29,7 +31,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["Line", "Respond", "SelfTimed"]
+__all__ = ["LATENCY_BUCKETS", "Latency", "Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +53,44 @@ class SelfTimed:
         self.respond(reply)
 
 
+#: Upper bounds (seconds) of the reply latency histogram's buckets: from a fast TCP reply to a slow line's.
+LATENCY_BUCKETS: tuple[float, ...] = (
+    0.0001,
+    0.0002,
+    0.0005,
+    0.001,
+    0.002,
+    0.005,
+    0.01,
+    0.02,
+    0.05,
+    0.1,
+    0.2,
+    0.5,
+    1.0,
+)
+
+
+class Latency:
+    """How long replies took, from the request's last byte to the reply handed to its port: a histogram.
+
+    Counting costs a bisect and two additions per reply on the serving loop; reading it
+    (``GET /metrics``) costs nothing on the wire's path.
+    """
+
+    __slots__ = ("count", "counts", "sum")
+
+    def __init__(self) -> None:
+        self.counts = [0] * (len(LATENCY_BUCKETS) + 1)  #: per bucket, the last one above every bound
+        self.count = 0
+        self.sum = 0.0
+
+    def observe(self, seconds: float) -> None:
+        self.counts[bisect_left(LATENCY_BUCKETS, seconds)] += 1
+        self.count += 1
+        self.sum += seconds
+
+
 def _nothing(reply: Reply | None) -> None:
     """The respond of a delay whose reply was handed over already."""
 
@@ -65,6 +105,10 @@ class Line:
         self._timer: asyncio.TimerHandle | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
+        #: the replies' latency (request's last byte to reply handed over), for GET /metrics
+        self.latency = Latency()
+        #: seconds the line has been held by delayed replies (the turnaround, an injected delay)
+        self.busy_seconds = 0.0
 
     def on_baud(self, listener: Callable[[int], None]) -> Callable[[], None]:
         """Call ``listener`` with the new line speed; returns a function that detaches it."""
@@ -116,19 +160,23 @@ class Line:
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 continue
             if reply is not None and reply.delay > 0:
+                self.busy_seconds += reply.delay
                 if isinstance(respond, SelfTimed):
                     _deliver(respond, reply)
                     respond = _nothing
                 self._busy = True
                 loop = asyncio.get_running_loop()
-                self._timer = loop.call_later(reply.delay, self._release, reply, respond)
+                self._timer = loop.call_later(reply.delay, self._release, reply, respond, event.t)
                 return
+            if reply is not None:
+                self.latency.observe(time.perf_counter() - event.t)
             _deliver(respond, reply)
             self._announce_baud()
 
-    def _release(self, reply: Reply, respond: Respond) -> None:
+    def _release(self, reply: Reply, respond: Respond, asked: float) -> None:
         self._timer = None
         self._busy = False
+        self.latency.observe(time.perf_counter() - asked)
         _deliver(respond, reply)
         self._announce_baud()
         self._serve_waiting()
