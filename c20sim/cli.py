@@ -7,7 +7,9 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
+import re
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -202,11 +204,54 @@ def render_profile(profile: Profile) -> str:
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse, but a bad option is one line (what is wrong, and where the usage is) and exit 2, as every other
-    error of c20sim; ``--help`` still prints the whole usage."""
+    """argparse, but a bad option is one line (what is wrong, a "did you mean" where one is close, and the help of
+    the command it was given to) and exit 2, as every other error of c20sim; ``--help`` still prints the whole
+    usage."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"c20sim: {self.prog}: {message} (see: {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: {message}{self._suggestion(message)} (see: {self.prog} --help)\n")
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        """As argparse's, but an unknown option is reported by the (sub)command it was given to, not the top."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            chosen = self._chosen(parsed)
+            chosen.error(f"unrecognized arguments: {' '.join(extras)}{chosen._did_you_mean(extras)}")
+        return parsed
+
+    def _chosen(self, parsed: argparse.Namespace) -> OneLineParser:
+        """The deepest subcommand's parser that ``parsed`` went through (``c20sim ctl frames``)."""
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                name = getattr(parsed, action.dest, None) if action.dest != argparse.SUPPRESS else None
+                found = action.choices.get(name) if isinstance(name, str) else None
+                if isinstance(found, OneLineParser):
+                    return found._chosen(parsed)
+        return self
+
+    def _did_you_mean(self, extras: Sequence[str]) -> str:
+        known = [option for action in self._actions for option in action.option_strings]
+        for word in extras:
+            if word.startswith("-"):
+                close = difflib.get_close_matches(word.split("=", 1)[0], known, n=1, cutoff=0.6)
+                if close:
+                    return f"; did you mean {close[0]}?"
+        return ""
+
+    @staticmethod
+    def _suggestion(message: str) -> str:
+        """A "did you mean" for a mistyped value of a choice (a command, a profile kind, a clock)."""
+        found = _INVALID_CHOICE.search(message)
+        if found is None:
+            return ""
+        choices = [c.strip().strip("'") for c in found.group(2).split(",")]
+        close = difflib.get_close_matches(found.group(1), choices, n=1, cutoff=0.6)
+        return f"; did you mean {close[0]}?" if close else ""
+
+
+_INVALID_CHOICE = re.compile(r"invalid choice: '(.*?)' \(choose from (.*)\)$")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -265,11 +310,13 @@ def with_default_command(argv: Sequence[str], commands: Iterable[str]) -> list[s
     """Bare ``c20sim`` and ``c20sim --pty --link /tmp/ttyC20`` mean the dashboard: its options need no command word.
 
     ``-h``/``--help`` alone still asks for the command list.
+    A first word that is no option and no command is left where it is: a mistyped command (``c20sim serv``)
+    is said as one, with a "did you mean", rather than as an argument the dashboard does not take.
     """
     words = list(argv)
     if not words:
         return ["dashboard"]
-    if words[0] in commands or words[0] in ("-h", "--help"):
+    if words[0] in commands or words[0] in ("-h", "--help") or not words[0].startswith("-"):
         return words
     return ["dashboard", *words]
 

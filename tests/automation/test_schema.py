@@ -161,7 +161,7 @@ def test_an_unknown_schema_is_a_usage_error() -> None:
         [sys.executable, "-m", "c20sim", "schema", "drive"], capture_output=True, text=True, timeout=60, cwd=ROOT
     )
     assert done.returncode == 2 and done.stderr.startswith(
-        "c20sim: c20sim schema: argument kind: invalid choice: 'drive'"
+        "c20sim schema: argument kind: invalid choice: 'drive'"
     )
 
 
