@@ -131,6 +131,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         control=args.control,
         control_token=args.control_token,
         scenario=getattr(args, "scenario", None),
+        then=getattr(args, "then", None) or "exit",
     )
     if not options.any_endpoint:
         options.pty = pty_supported()  # no pty on Windows: TCP alone
@@ -140,6 +141,8 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     options = serve_options(args)
+    if args.then is not None and not options.scenario:
+        raise UsageError("--then: it says what follows a --scenario; give --scenario FILE too, or leave --then out")
     sim = build_simulator(args)
     return run(run_server(sim, options))  # 1 if a --scenario failed: CI sees it in the exit code
 
@@ -275,7 +278,13 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument(
         "--scenario",
         metavar="FILE",
-        help="play a TOML scenario against the served drives once ready (c20sim.scenario.timeline)",
+        help="play a TOML scenario against the served drives once ready, then stop with its exit code "
+        "(0 passed, 1 failed) unless --then serve",
+    )
+    serve.add_argument(
+        "--then",
+        choices=["exit", "serve"],
+        help="after --scenario: exit (the default: a CI job's serve ends) or serve on until SIGINT or SIGTERM",
     )
     serve.set_defaults(func=cmd_serve)
 
