@@ -31,6 +31,11 @@ from .wire.registers import BAUD_RATES, format_fcode
 __all__ = ["main"]
 
 
+#: The endpoints of a bare ``c20sim`` or ``c20sim serve``: RTU over TCP and Modbus TCP, on unprivileged ports.
+DEFAULT_TCP = "127.0.0.1:5020"
+DEFAULT_MODBUS_TCP = "127.0.0.1:1502"
+
+
 class UsageError(C20SimError):
     """A bad command line: printed as one line, exit code 2."""
 
@@ -51,7 +56,8 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
     where = parser.add_argument_group(
-        "endpoints (with none: --pty and --tcp 127.0.0.1:5020; --tcp alone where there are no ptys)"
+        f"endpoints (with none: --pty, --tcp {DEFAULT_TCP} and --modbus-tcp {DEFAULT_MODBUS_TCP}; "
+        "no --pty where there are no ptys)"
     )
     where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
     where.add_argument(
@@ -135,7 +141,8 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
     )
     if not options.any_endpoint:
         options.pty = pty_supported()  # no pty on Windows: TCP alone
-        options.tcp = "127.0.0.1:5020"
+        options.tcp = DEFAULT_TCP
+        options.modbus_tcp = DEFAULT_MODBUS_TCP  # most SCADA masters speak Modbus TCP: there is a port for them
     return options
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -179,6 +180,8 @@ class Server:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
                 self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
+            if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
+                self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)
             if opts.control:
                 from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
 
