@@ -1,0 +1,257 @@
+"""The README's first minutes, verbatim: its shell lines that talk to the simulator, run against a served drive.
+
+The lines are read from README.md itself (its ```sh blocks), so a line that changes is the line tested. Set-up
+command 1's options are served (``c20sim serve`` with the options the dashboard would pass it), and the master
+lines are run as written, with only the documented fixed addresses (the /tmp/ttyC20 link, ports 5020, 1502 and
+8020, ready.json) moved to this test's own, so that parallel runs and a simulator already running do not meet.
+mbpoll is the independent master.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import urllib.request
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import wait_for_ready_file
+from tests.tui.test_tmux import wait_for
+
+ROOT = Path(__file__).resolve().parents[2]
+README = (ROOT / "README.md").read_text()
+MBPOLL = shutil.which("mbpoll")
+TMUX = shutil.which("tmux")
+
+
+def shell_blocks(text: str) -> list[list[str]]:
+    """The lines of every ```sh block, comments and blank lines left out (a line's trailing comment kept)."""
+    blocks = re.findall(r"^```sh\n(.*?)^```", text, flags=re.M | re.S)
+    return [[line for line in block.splitlines() if line.strip() and not line.startswith("#")] for block in blocks]
+
+
+def lines_starting(prefix: str) -> list[str]:
+    return [line for block in shell_blocks(README) for line in block if line.startswith(prefix)]
+
+
+def setup_options() -> list[str]:
+    """Set-up command 1's options to c20sim (after ``.venv/bin/c20sim``)."""
+    [command] = [line for line in lines_starting("python3 -m venv .venv") if ".venv/bin/c20sim" in line]
+    return shlex.split(command.split(".venv/bin/c20sim", 1)[1])
+
+
+class Place:
+    """This test's own stand-ins for the README's fixed addresses."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.link = folder / "ttyC20"
+        self.ports: dict[str, str] = {}
+
+    def local(self, line: str) -> str:
+        line = line.replace("/tmp/ttyC20", str(self.link)).replace("ready.json", str(self.folder / "ready.json"))
+        for port in ("5020", "5021", "1502", "8020"):
+            real = self.ports.get(port, "0")
+            line = line.replace(f"127.0.0.1:{port}", f"127.0.0.1:{real}").replace(f"-p {port} ", f"-p {real} ")
+        return line
+
+
+@pytest.fixture
+def place() -> Iterator[Place]:
+    # a short folder: the link's path must fit the dashboard's title bar beside the two TCP addresses
+    folder = Path(tempfile.mkdtemp(prefix="c20-", dir="/tmp"))
+    yield Place(folder)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture
+def started() -> Iterator[list[subprocess.Popen[str]]]:
+    procs: list[subprocess.Popen[str]] = []
+    yield procs
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+
+
+def test_set_up_command_1_opens_what_the_master_lines_use() -> None:
+    """Set-up command 1 opens a fixed pty link and both TCP ports; every master line uses one of them."""
+    assert setup_options() == ["--link", "/tmp/ttyC20", "--tcp", "127.0.0.1:5020", "--modbus-tcp", "127.0.0.1:1502"]
+    masters = lines_starting("mbpoll")
+    assert len(masters) >= 4, masters
+    for line in masters:
+        words = shlex.split(line, comments=True)
+        mode = words[words.index("-m") + 1]
+        if mode == "rtu":
+            assert "/tmp/ttyC20" in words, line
+        else:
+            assert (mode, words[words.index("-p") + 1], "127.0.0.1" in words) == ("tcp", "1502", True), line
+
+
+def run_master_lines(place: Place, runs: Callable[[], None]) -> None:
+    """Every mbpoll line of the README in order, as written (addresses moved to ``place``'s); each must succeed, and
+    ``runs`` checks that the drive runs after the forward-run line."""
+    seen: list[str] = []
+    for line in lines_starting("mbpoll"):
+        done = subprocess.run(["bash", "-c", place.local(line)], capture_output=True, text=True, timeout=30)
+        assert done.returncode == 0, f"{line}\n{done.stdout}{done.stderr}"
+        writes = re.search(r"Written \d+ references?", done.stdout)
+        read = re.search(r"^\[(\d+)\]:\s+(-?\d+)", done.stdout, flags=re.M)
+        assert writes or read, f"{line}\n{done.stdout}{done.stderr}"
+        seen.append("written" if writes else f"read {read.group(1) if read else ''}")
+        if " 0x2000 " in line and line.split("#")[0].split()[-1] == "1":
+            runs()  # forward run: the drive runs at once
+    reads = [what for what in seen if what.startswith("read")]
+    assert reads == ["read 12294"] * len(reads) and len(reads) >= 2  # 3006H, the speed, over RTU and Modbus TCP
+
+
+@pytest.mark.skipif(MBPOLL is None, reason="mbpoll is not installed (apt-get install mbpoll); .ci/run installs it")
+def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, started: list[subprocess.Popen[str]]) -> None:
+    """Set-up command 1's simulator, then every mbpoll line of the README in order, as written."""
+    ready = place.folder / "served.json"
+    argv = [sys.executable, "-m", "c20sim", "serve", *shlex.split(place.local(shlex.join(setup_options())))]
+    proc = subprocess.Popen(
+        [*argv, "--control", "127.0.0.1:0", "--ready-file", str(ready)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    started.append(proc)
+    info = wait_for_ready_file(ready, proc)
+    assert info["pty"] == str(place.link)
+    place.ports = {"5020": info["tcp"].rsplit(":", 1)[1], "1502": info["modbus_tcp"].rsplit(":", 1)[1]}
+
+    def state() -> dict[str, object]:
+        with urllib.request.urlopen(info["control"] + "/drives/1", timeout=10) as response:
+            data: dict[str, object] = json.load(response)
+        return data
+
+    def runs() -> None:
+        assert state()["state"] == "forward", state()
+
+    run_master_lines(place, runs)
+    assert state()["set_speed_rpm"] == 1500
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=20)
+    assert (proc.returncode, err) == (0, "")
+
+
+@pytest.mark.parametrize("line", lines_starting("c20sim serve"))
+def test_every_serve_line_of_the_readme_serves(line: str, place: Place, started: list[subprocess.Popen[str]]) -> None:
+    """Each ``c20sim serve`` line of the README starts and stops cleanly (a serial port that is not here: one line)."""
+    words = shlex.split(place.local(line), comments=True)
+    assert words[:2] == ["c20sim", "serve"]
+    if "--serial" in words and not os.path.exists(words[words.index("--serial") + 1]):
+        done = subprocess.run([sys.executable, "-m", "c20sim", *words[1:]], capture_output=True, text=True, timeout=60)
+        assert (done.returncode, done.stdout) == (2, "")
+        assert done.stderr.startswith("c20sim: --serial ") and done.stderr.count("\n") == 1, done.stderr
+        return
+    if "--ready-file" not in words:
+        words += ["--ready-file", str(place.folder / "ready.json")]
+    ready = Path(words[words.index("--ready-file") + 1])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", *words[1:]], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    started.append(proc)
+    info = wait_for_ready_file(ready, proc)
+    assert info, line
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=20)
+    assert (proc.returncode, err) == (0, ""), line
+    assert out.startswith("c20sim ready: ")
+    assert not ready.exists()
+
+
+@pytest.mark.parametrize("line", [*lines_starting("c20sim decode"), *lines_starting("c20sim profiles")])
+def test_the_tours_decode_and_profiles_lines(line: str) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "c20sim", *shlex.split(line, comments=True)[1:]],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (done.returncode, done.stderr) == (0, ""), line
+    assert done.stdout, line
+
+
+def test_the_decode_example_prints_what_the_readme_shows() -> None:
+    [example] = re.findall(r"^```\n\$ (c20sim decode [^\n]*)\n(.*?)^```", README, flags=re.M | re.S)
+    command, shown = example
+    done = subprocess.run(
+        [sys.executable, "-m", "c20sim", *shlex.split(command)[1:]], capture_output=True, text=True, timeout=60
+    )
+    assert done.stdout == shown
+    assert done.returncode == 1  # a broken frame
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+    return port
+
+
+@pytest.mark.skipif(MBPOLL is None or TMUX is None, reason="needs mbpoll and tmux (.ci/run installs them)")
+def test_set_up_command_1_in_a_terminal_then_the_master_lines(place: Place) -> None:
+    """Set-up command 1's dashboard in a real terminal: its title bar shows where to connect, the README's master
+    lines run the drive it shows, and ``q`` closes it with the simulator (the link removed)."""
+    place.ports = {"5020": str(free_port()), "1502": str(free_port())}
+    [command] = [line for line in lines_starting("python3 -m venv .venv") if ".venv/bin/c20sim" in line]
+    dashboard = place.local(f"{shlex.quote(sys.executable)} -m c20sim" + command.split(".venv/bin/c20sim", 1)[1])
+    session = f"c20sim-readme-{uuid.uuid4().hex[:8]}"
+    status = place.folder / "status"
+    subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "240", "-y", "40"], check=True, cwd=ROOT)
+    try:
+        subprocess.run(["tmux", "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
+        subprocess.run(
+            [
+                "tmux",
+                "respawn-pane",
+                "-k",
+                "-t",
+                session,
+                "-c",
+                str(ROOT),
+                f"env -u COLUMNS -u LINES {dashboard}; echo $? > {status}",
+            ],
+            check=True,
+        )
+
+        def screen() -> str:
+            return subprocess.run(
+                ["tmux", "capture-pane", "-p", "-t", session], capture_output=True, text=True, check=False
+            ).stdout
+
+        title = (
+            f"connect: pty {place.link} · RTU/TCP 127.0.0.1:{place.ports['5020']} · "
+            f"Modbus TCP 127.0.0.1:{place.ports['1502']} │"
+        )
+        wait_for("the dashboard", lambda: "connect: " in screen(), show=screen)
+        # a pane made without a client may give the program its size late: a resize makes the screen take it
+        for width in ("239", "240"):
+            subprocess.run(["tmux", "resize-window", "-t", session, "-x", width, "-y", "40"], check=True)
+        wait_for("the title bar", lambda: title in screen(), show=screen)
+        wait_for("the drive stopped", lambda: "STOPPED" in screen(), show=screen)
+
+        def runs() -> None:
+            wait_for("the drive running on the dashboard", lambda: "FORWARD RUNNING" in screen(), show=screen)
+
+        run_master_lines(place, runs)
+        wait_for("the drive stopping on the dashboard", lambda: "FORWARD RUNNING" not in screen(), show=screen)
+        subprocess.run(["tmux", "send-keys", "-t", session, "q"], check=True)
+        wait_for("the dashboard's exit", lambda: status.exists() and status.read_text().endswith("\n"), show=screen)
+        assert status.read_text() == "0\n"
+        assert not os.path.lexists(place.link)
+    finally:
+        subprocess.run(["tmux", "kill-session", "-t", session], check=False)
