@@ -34,6 +34,8 @@ from _common import machine
 Hold = Callable[[dict[str, str]], Callable[[], None]]
 
 READ_2100 = bytes.fromhex("01 03 21 00 00 01 8E 36")
+SPEED_1500 = bytes.fromhex("01 06 20 01 05 DC D1 03")
+FORWARD_RUN = bytes.fromhex("01 06 20 00 00 01 43 CA")
 
 
 def nothing(info: dict[str, str]) -> Callable[[], None]:
@@ -41,7 +43,8 @@ def nothing(info: dict[str, str]) -> Callable[[], None]:
 
 
 def rtu_masters(info: dict[str, str]) -> Callable[[], None]:
-    """An RTU master on the pty and one on RTU over TCP, each after one exchange, both still open."""
+    """An RTU master on the pty and one on RTU over TCP, both still open; the TCP one has set the motor running
+    (1500 rpm, forward run), as the README's first minutes do."""
     fd = os.open(info["pty"], os.O_RDWR | os.O_NOCTTY)
     os.write(fd, READ_2100)
     got = b""
@@ -50,8 +53,9 @@ def rtu_masters(info: dict[str, str]) -> Callable[[], None]:
         got += os.read(fd, 64)
     host, port = info["tcp"].rsplit(":", 1)
     sock = socket.create_connection((host, int(port)), timeout=5)
-    sock.sendall(READ_2100)
-    sock.recv(64)
+    for request in (READ_2100, SPEED_1500, FORWARD_RUN):
+        sock.sendall(request)
+        sock.recv(64)
 
     def close() -> None:
         sock.close()
@@ -111,7 +115,7 @@ CASES: dict[str, tuple[list[str], Hold]] = {
         ],
         nothing,
     ),
-    "... + an RTU master on the pty and on TCP": (
+    "... + RTU masters on the pty and TCP, motor running": (
         ["--link", "{dir}/ttyC20", "--tcp", "127.0.0.1:0", *CONTROL, "--state", "{dir}/state.toml"],
         rtu_masters,
     ),
