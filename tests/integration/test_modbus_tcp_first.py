@@ -19,6 +19,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from c20sim.cli import DEFAULT_MODBUS_TCP, DEFAULT_TCP
+from c20sim.testing import C20Sim
 from tests.conftest import wait_for_ready_file
 
 
@@ -232,3 +233,28 @@ def test_the_frame_log_keeps_the_mbap_frames_and_decode_and_replay_read_them(
     replayed = subprocess.run(c20sim("replay", str(log)), capture_output=True, text=True, timeout=60)
     assert (replayed.returncode, replayed.stderr) == (0, "")
     assert replayed.stdout.splitlines()[-1] == "2 replayed: every reply matches"
+
+
+@pytest.mark.c20sim(transport="modbus-tcp")
+def test_a_reply_the_line_corrupted_is_logged_unforwarded_then_the_gateways_0x0B(c20sim: C20Sim) -> None:
+    """What the TCP connection carried, record by record: the request, nothing for the broken reply (its RTU bytes
+    beside, and why), then the gateway's own exception 0x0B."""
+    c20sim.link_faults(corrupt_crc=True)
+    client = ModbusTcpClient("127.0.0.1", port=c20sim.modbus_tcp_port, timeout=3, retries=0)
+    assert client.connect()
+    try:
+        reply = client.read_holding_registers(0x2100, count=1, device_id=1)
+    finally:
+        client.close()
+    assert (reply.isError(), reply.exception_code) == (True, 0x0B)
+    records = [r.as_dict() for r in c20sim.frames()]
+    tid = reply.transaction_id
+    header = {"transaction": tid, "unit": 1}
+    assert [(r["dir"], r["kind"], r["hex"], r["modbus_tcp"], r["rtu"] is None) for r in records] == [
+        ("rx", "request", f"{tid >> 8:02X} {tid & 0xFF:02X} 00 00 00 06 01 03 21 00 00 01", header, False),
+        ("tx", "reply", "", header, False),
+        ("tx", "exception", f"{tid >> 8:02X} {tid & 0xFF:02X} 00 00 00 03 01 83 0B", header, True),
+    ]
+    assert records[0]["rtu"] == "01 03 21 00 00 01 8E 36"
+    assert str(records[1]["rtu"]).startswith("01 03 02 00 03 ")  # the reply, with a broken CRC
+    assert records[1]["note"].endswith("the gateway forwards no broken reply: it answers 0x0B after its timeout")
