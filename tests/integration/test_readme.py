@@ -202,56 +202,149 @@ def free_port() -> int:
     return port
 
 
+class Pane:
+    """A program in a tmux pane of 240x40 that is kept when the program ends, its exit status written to a file."""
+
+    def __init__(self, command: str, folder: Path) -> None:
+        self.session = f"c20sim-readme-{uuid.uuid4().hex[:8]}"
+        self.status = folder / f"{self.session}.status"
+        subprocess.run(["tmux", "new-session", "-d", "-s", self.session, "-x", "240", "-y", "40"], check=True)
+        subprocess.run(["tmux", "set-option", "-w", "-t", self.session, "remain-on-exit", "on"], check=True)
+        # The pane's environment is the tmux server's, which may be the test run's, COLUMNS and LINES included:
+        # left out, the program asks the terminal for its size
+        wrapped = f"env -u COLUMNS -u LINES {command}; echo $? > {self.status}"
+        subprocess.run(["tmux", "respawn-pane", "-k", "-t", self.session, "-c", str(ROOT), wrapped], check=True)
+
+    def screen(self) -> str:
+        done = subprocess.run(["tmux", "capture-pane", "-p", "-t", self.session], capture_output=True, text=True)
+        return done.stdout
+
+    def wait_for(self, what: str, check: Callable[[str], bool]) -> None:
+        wait_for(what, lambda: check(self.screen()), show=self.screen)
+
+    def dashboard(self, title: str) -> None:
+        """Wait for the dashboard, its title bar showing ``title``."""
+        self.wait_for("the dashboard", lambda screen: "connect: " in screen)
+        # a pane made without a client may give the program its size late: a resize makes the screen take it
+        for width in ("239", "240"):
+            subprocess.run(["tmux", "resize-window", "-t", self.session, "-x", width, "-y", "40"], check=True)
+        self.wait_for(f"the title bar: {title}", lambda screen: title in screen)
+
+    def quit(self) -> str:
+        """Press q; the program's exit status."""
+        subprocess.run(["tmux", "send-keys", "-t", self.session, "q"], check=True)
+        wait_for("the program's exit", lambda: self.status.exists() and self.status.read_text().endswith("\n"))
+        return self.status.read_text().strip()
+
+    def close(self) -> None:
+        subprocess.run(["tmux", "kill-session", "-t", self.session], check=False)
+
+
+def python_c20sim(line: str) -> str:
+    """A README command line with ``c20sim`` (or ``.venv/bin/c20sim``) run by this interpreter."""
+    head, _, rest = line.partition("c20sim")
+    assert head in ("", ".venv/bin/"), line
+    return f"{shlex.quote(sys.executable)} -m c20sim{rest}"
+
+
 @pytest.mark.skipif(MBPOLL is None or TMUX is None, reason="needs mbpoll and tmux (.ci/run installs them)")
 def test_set_up_command_1_in_a_terminal_then_the_master_lines(place: Place) -> None:
     """Set-up command 1's dashboard in a real terminal: its title bar shows where to connect, the README's master
     lines run the drive it shows, and ``q`` closes it with the simulator (the link removed)."""
     place.ports = {"5020": str(free_port()), "1502": str(free_port())}
     [command] = [line for line in lines_starting("python3 -m venv .venv") if ".venv/bin/c20sim" in line]
-    dashboard = place.local(f"{shlex.quote(sys.executable)} -m c20sim" + command.split(".venv/bin/c20sim", 1)[1])
-    session = f"c20sim-readme-{uuid.uuid4().hex[:8]}"
-    status = place.folder / "status"
-    subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "240", "-y", "40"], check=True, cwd=ROOT)
+    pane = Pane(place.local(python_c20sim(command.split(" && ")[-1])), place.folder)
     try:
-        subprocess.run(["tmux", "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        subprocess.run(
-            [
-                "tmux",
-                "respawn-pane",
-                "-k",
-                "-t",
-                session,
-                "-c",
-                str(ROOT),
-                f"env -u COLUMNS -u LINES {dashboard}; echo $? > {status}",
-            ],
-            check=True,
-        )
-
-        def screen() -> str:
-            return subprocess.run(
-                ["tmux", "capture-pane", "-p", "-t", session], capture_output=True, text=True, check=False
-            ).stdout
-
-        title = (
+        pane.dashboard(
             f"connect: pty {place.link} · RTU/TCP 127.0.0.1:{place.ports['5020']} · "
             f"Modbus TCP 127.0.0.1:{place.ports['1502']} │"
         )
-        wait_for("the dashboard", lambda: "connect: " in screen(), show=screen)
-        # a pane made without a client may give the program its size late: a resize makes the screen take it
-        for width in ("239", "240"):
-            subprocess.run(["tmux", "resize-window", "-t", session, "-x", width, "-y", "40"], check=True)
-        wait_for("the title bar", lambda: title in screen(), show=screen)
-        wait_for("the drive stopped", lambda: "STOPPED" in screen(), show=screen)
+        pane.wait_for("the drive stopped", lambda screen: "STOPPED" in screen)
 
         def runs() -> None:
-            wait_for("the drive running on the dashboard", lambda: "FORWARD RUNNING" in screen(), show=screen)
+            pane.wait_for("the drive running on the dashboard", lambda screen: "FORWARD RUNNING" in screen)
 
         run_master_lines(place, runs)
-        wait_for("the drive stopping on the dashboard", lambda: "FORWARD RUNNING" not in screen(), show=screen)
-        subprocess.run(["tmux", "send-keys", "-t", session, "q"], check=True)
-        wait_for("the dashboard's exit", lambda: status.exists() and status.read_text().endswith("\n"), show=screen)
-        assert status.read_text() == "0\n"
+        pane.wait_for("the drive stopping on the dashboard", lambda screen: "FORWARD RUNNING" not in screen)
+        assert pane.quit() == "0"
         assert not os.path.lexists(place.link)
     finally:
-        subprocess.run(["tmux", "kill-session", "-t", session], check=False)
+        pane.close()
+
+
+def port_free(port: int) -> bool:
+    with socket.socket() as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+TOUR_DASHBOARDS = [
+    line
+    for line in lines_starting("c20sim")
+    if (words := shlex.split(line, comments=True)) == ["c20sim"] or words[1].startswith("-")
+]
+
+
+@pytest.mark.skipif(TMUX is None, reason="needs tmux (.ci/run installs it)")
+@pytest.mark.parametrize("line", TOUR_DASHBOARDS)
+def test_the_tours_dashboard_lines(line: str, place: Place) -> None:
+    """``c20sim`` and ``c20sim --link ...`` as the tour gives them: the dashboard shows where to connect; q closes it.
+    Bare ``c20sim`` takes the fixed default ports, so it is run only where they are free."""
+    words = shlex.split(line, comments=True)
+    if words == ["c20sim"]:
+        if not (port_free(5020) and port_free(1502)):
+            pytest.skip("127.0.0.1:5020 or 127.0.0.1:1502 is taken on this machine (another simulator?)")
+        title = "· RTU/TCP 127.0.0.1:5020 · Modbus TCP 127.0.0.1:1502 │"
+    else:
+        place.ports = {"5020": str(free_port())}
+        title = f"connect: pty {place.link} · RTU/TCP 127.0.0.1:{place.ports['5020']} │"
+    pane = Pane(place.local(python_c20sim(line.split("#")[0].strip())), place.folder)
+    try:
+        pane.dashboard(title)
+        if words == ["c20sim"]:
+            assert "connect: pty /dev/pts/" in pane.screen()
+        assert pane.quit() == "0"
+    finally:
+        pane.close()
+
+
+@pytest.mark.skipif(TMUX is None, reason="needs tmux (.ci/run installs it)")
+def test_the_tours_attach_lines(place: Place, started: list[subprocess.Popen[str]]) -> None:
+    """The tour's first serve line, then its ``dashboard --attach ready.json`` and ``web --attach ready.json`` on it:
+    the dashboard shows the serve's endpoints and leaves the serve running; the page answers."""
+    [serve_line] = [line for line in lines_starting("c20sim serve --pty --link")]
+    words = shlex.split(place.local(serve_line), comments=True)
+    proc = subprocess.Popen([sys.executable, "-m", *words], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    started.append(proc)
+    info = wait_for_ready_file(place.folder / "ready.json", proc)
+    [attach] = lines_starting("c20sim dashboard --attach ready.json")
+    pane = Pane(place.local(python_c20sim(attach.split("#")[0].strip())), place.folder)
+    try:
+        pane.dashboard(f"connect: pty {place.link} · RTU/TCP {info['tcp']} │")
+        assert pane.quit() == "0"
+    finally:
+        pane.close()
+    assert proc.poll() is None  # an attached dashboard leaves the serve running
+    [web_line] = lines_starting("c20sim web --attach ready.json")
+    if not port_free(8000):
+        pytest.skip("127.0.0.1:8000, c20sim web's default page port, is taken on this machine")
+    web = subprocess.Popen(
+        [sys.executable, "-m", *shlex.split(place.local(web_line), comments=True)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    started.append(web)
+    assert web.stdout is not None
+    said = web.stdout.readline()
+    assert said.startswith("c20sim web ready: http://127.0.0.1:8000"), said + (web.stderr.read() if web.poll() else "")
+    with urllib.request.urlopen(said.split()[3], timeout=10) as page:
+        assert page.status == 200 and b"<html" in page.read().lower()
+    web.send_signal(signal.SIGTERM)
+    assert web.wait(20) == 0
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=20)
+    assert (proc.returncode, err) == (0, "")
