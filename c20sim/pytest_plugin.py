@@ -14,6 +14,7 @@ random link faults.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -60,10 +61,12 @@ def settings_for(request: pytest.FixtureRequest, profile: object, transport: obj
         raise pytest.UsageError("c20sim marker: give keywords, such as @pytest.mark.c20sim(drives=(1, 2))")
     given: dict[str, Any] = {"profile": profile, "transport": transport, "drives": drives}
     if marker is not None:
-        unknown = set(marker.kwargs) - set(SETTINGS)
+        unknown = sorted(set(marker.kwargs) - set(SETTINGS))
         if unknown:
+            close = difflib.get_close_matches(unknown[0], SETTINGS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise pytest.UsageError(
-                f"c20sim marker: unknown setting {', '.join(sorted(unknown))}; use {', '.join(SETTINGS)}"
+                f"c20sim marker: unknown setting {', '.join(unknown)}{hint}; use {', '.join(SETTINGS)}"
             )
         given.update({k: v for k, v in marker.kwargs.items() if v is not None})
     try:
@@ -79,6 +82,17 @@ def c20sim(
     c20sim_transport: str | Sequence[str],
     c20sim_drives: Sequence[int],
 ) -> Iterator[C20Sim]:
-    """A running C20 simulator, clean for each test: RTU over TCP on port 0 and a virtual clock by default."""
-    with start(settings_for(request, c20sim_profile, c20sim_transport, c20sim_drives)) as running:
+    """A running C20 simulator, clean for each test: RTU over TCP on port 0 and a virtual clock by default.
+
+    A bad setting (the marker's, a fixture's) or a simulator that cannot start is the test's error in one line,
+    without the plugin's traceback: the fault is in the test, not here."""
+    try:
+        running = start(settings_for(request, c20sim_profile, c20sim_transport, c20sim_drives))
+    except (pytest.UsageError, C20SimError) as exc:
+        message = str(exc) if str(exc).startswith("c20sim") else f"c20sim: {exc}"
+    else:
+        message = ""
+    if message:  # failed outside the handler, so that no "during handling of the above exception" follows
+        pytest.fail(message, pytrace=False)
+    with running:
         yield running

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -87,6 +88,8 @@ class ServeOptions:
     metrics: str | None = None
     #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
     scenario: str | None = None
+    #: after the scenario: "exit" (serve ends with the scenario's exit code) or "serve" (until a stop signal)
+    then: str = "exit"
     extra_ready: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -180,6 +183,8 @@ class Server:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
                 self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
+            if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
+                self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)
             if opts.control:
                 from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
 
@@ -343,7 +348,8 @@ STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SI
 
 
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> int:
-    """Serve until SIGINT, SIGTERM or SIGHUP; the exit code: 1 if a played scenario failed or stopped, else 0."""
+    """Serve until SIGINT, SIGTERM or SIGHUP, or until a played scenario ends (unless ``then`` is "serve");
+    the exit code: 1 if a played scenario failed or stopped, else 0."""
     server = Server(sim, options)
     stop = asyncio.Event()
     # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
@@ -351,7 +357,14 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
     try:
         await server.start()
         print(server.ready_line(), file=out, flush=True)
-        await stop.wait()
+        stopped = asyncio.ensure_future(stop.wait())
+        ends: list[asyncio.Future[Any]] = [stopped]
+        if server.scenario_task is not None and options.then == "exit":
+            ends.append(server.scenario_task)  # a CI job's serve ends with its scenario
+        try:
+            await asyncio.wait(ends, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stopped.cancel()
     finally:
         restore()
         task = server.scenario_task

@@ -109,6 +109,7 @@ def snapshot(sim: Simulator) -> dict[str, Any]:
         "paused": clock["paused"],
         "drives": drives,
         "link": ops.link_state(sim.link_faults(None)),
+        "notices": list(sim.notices),
     }
 
 

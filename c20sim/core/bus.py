@@ -36,9 +36,11 @@ from ..wire.protocol import (
     ExceptionResponse,
     FrameEvent,
     FrameKind,
+    MbapHeader,
     ReadRequest,
     Request,
     Response,
+    crc_ok,
     decode_request,
     encode,
 )
@@ -99,6 +101,11 @@ class FrameRecord:
     request: Request | None = field(default=None, compare=False, repr=False)
     #: the wall-clock time (Unix seconds) of ``t``, where an I/O layer knows it (a record read back from JSON)
     wall: float | None = field(default=None, compare=False)
+    #: a Modbus TCP exchange: the request's MBAP header; ``data`` is then the RTU frame on the line behind the
+    #: gateway, and :attr:`wire` the Modbus TCP frame on the TCP connection
+    mbap: MbapHeader | None = field(default=None, compare=False)
+    #: the gateway's own answer (exception 0x0B after silence on the line): on the TCP connection, not on the line
+    from_gateway: bool = field(default=False, compare=False)
 
     @property
     def text(self) -> str:
@@ -106,6 +113,19 @@ class FrameRecord:
         if isinstance(self.words, str):
             return self.words
         return describe(self.words, self.registers, self.request)
+
+    @property
+    def wire(self) -> bytes:
+        """The bytes the master's connection carried: ``data`` on an RTU line; for Modbus TCP the MBAP frame (empty
+        where the gateway forwarded nothing: a broken or dropped reply on the line)."""
+        if self.mbap is None:
+            return self.data
+        forwarded = (
+            self.direction is Direction.RX
+            or self.from_gateway
+            or (self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION) and len(self.data) >= 4 and crc_ok(self.data))
+        )
+        return self.mbap.adu(self.data[1:-2]) if forwarded and len(self.data) >= 3 else b""
 
     def as_dict(self, wall_offset: float | None = None) -> dict[str, object]:
         """JSON-ready; ``wall_offset`` (Unix time minus the line's clock, from the I/O layer that stamped ``t``)
@@ -116,7 +136,15 @@ class FrameRecord:
             **({} if wall is None else {"wall": round(wall, 3)}),
             "model_t": None if self.model_t is None else round(self.model_t, 6),
             "dir": str(self.direction),
-            "hex": self.data.hex(" ").upper(),
+            "hex": self.wire.hex(" ").upper(),
+            **(
+                {}
+                if self.mbap is None
+                else {
+                    "modbus_tcp": {"transaction": self.mbap.transaction, "unit": self.mbap.unit},
+                    "rtu": None if self.from_gateway else self.data.hex(" ").upper(),
+                }
+            ),
             "kind": str(self.kind),
             "slave": self.slave,
             "text": self.text,
@@ -253,6 +281,7 @@ class Bus:
                 event.kind.value,
                 event.note,
                 t,
+                mbap=event.mbap,
             )
         )
         if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
@@ -268,7 +297,9 @@ class Bus:
             return None
         if self._offline(slave):
             return None
-        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud)
+        return self._reply(
+            slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud, event.mbap
+        )
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
         request = decode_request(event.data, check_crc=False)  # the framer checked it
@@ -276,7 +307,18 @@ class Bus:
 
         def rx(note: str = "", registers: RegisterMap | None = self.slaves[0].registers) -> None:
             self.record(
-                FrameRecord(event.t, Direction.RX, event.data, RecordKind.REQUEST, address, request, note, t, registers)
+                FrameRecord(
+                    event.t,
+                    Direction.RX,
+                    event.data,
+                    RecordKind.REQUEST,
+                    address,
+                    request,
+                    note,
+                    t,
+                    registers,
+                    mbap=event.mbap,
+                )
             )
 
         counters = self.counters_of(address)
@@ -312,7 +354,7 @@ class Bus:
             response = slave.handle(request, t)
         baud = self.line_baud
         self._follow_baud(slave)
-        return self._reply(slave, response, event.t, t, request, baud)
+        return self._reply(slave, response, event.t, t, request, baud, event.mbap)
 
     def _follow_baud(self, slave: Slave) -> None:
         """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
@@ -320,7 +362,14 @@ class Bus:
             self.line_baud = slave.baud
 
     def _reply(
-        self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None, baud: int
+        self,
+        slave: Slave,
+        response: Response,
+        t: float,
+        model_t: float,
+        request: Request | None,
+        baud: int,
+        mbap: MbapHeader | None = None,
     ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
@@ -337,7 +386,7 @@ class Bus:
                 counters = self.counters_of(response.slave)
                 counters.silences += 1
                 counters.injected += 1
-                self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request)
+                self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request, mbap)
                 return None
         assert data is not None
         counters = self.counters_of(response.slave)
@@ -347,7 +396,7 @@ class Bus:
             counters.exceptions[int(response.code)] = counters.exceptions.get(int(response.code), 0) + 1
         else:
             counters.replies += 1
-        self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
+        self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
         return Reply(data, delay, response.slave, baud)
 
     def _tx(
@@ -360,8 +409,23 @@ class Bus:
         notes: list[str],
         model_t: float,
         request: Request | None,
+        mbap: MbapHeader | None,
     ) -> None:
         note = "; ".join(notes)
+        if mbap is not None and data and kind is not RecordKind.DROPPED and not crc_ok(data):
+            note = "; ".join([*notes, "the gateway forwards no broken reply: it answers 0x0B after its timeout"])
         self.record(
-            FrameRecord(t, Direction.TX, data, kind, response.slave, response, note, model_t, slave.registers, request)
+            FrameRecord(
+                t,
+                Direction.TX,
+                data,
+                kind,
+                response.slave,
+                response,
+                note,
+                model_t,
+                slave.registers,
+                request,
+                mbap=mbap,
+            )
         )

@@ -137,7 +137,7 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "frames", "--last", "0")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
-        "c20sim: c20sim ctl frames: argument --last: 0 must be at least 1 (see: c20sim ctl frames --help)\n"
+        "c20sim ctl frames: argument --last: 0 must be at least 1 (see: c20sim ctl frames --help)\n"
     )
 
 
