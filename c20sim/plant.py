@@ -22,11 +22,11 @@ import sys
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from . import __version__
 from .core.simulator import parse_addresses
+from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .transport.probe import NoAnswer, Prober
 from .transport.tcp import parse_host_port
@@ -319,9 +319,9 @@ def to_yaml(docs: Iterable[Mapping[str, Any]], header: Sequence[str] = ()) -> st
 def cmd_plant(args: argparse.Namespace) -> int:
     profile: Profile = load_profile(args.profile)
     try:
-        profile_text = Path(profile.path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise C20SimError(f"--profile {args.profile}: cannot read {profile.path}: {exc.strerror}") from None
+        profile_text = read_text(profile.path, "profile")
+    except FileReadError as exc:
+        raise C20SimError(f"--profile {args.profile}: cannot read {exc}") from None
     spec = PlantSpec(
         buses=args.buses,
         drives=args.drives,

@@ -31,6 +31,7 @@ from typing import Any
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import format_fcode, parse_fcode
+from .files import MAX_DEPTH, FileReadError, json_depth, read_bytes
 from .profile import Profile
 
 __all__ = ["STATE_FORMAT", "ParameterStore", "StateFileError"]
@@ -146,11 +147,13 @@ class ParameterStore:
 
     def _read(self, path: Path) -> dict[int, int]:
         try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise StateFileError(path, f"cannot read: {exc.strerror}") from None
+            text = read_bytes(path, "state file").decode("utf-8")
+        except FileReadError as exc:
+            raise StateFileError(path, exc.reason) from None
         except UnicodeDecodeError:
             raise StateFileError(path, "not a c20sim state file (not UTF-8 text)") from None
+        if json_depth(text) > MAX_DEPTH:
+            raise StateFileError(path, "not a c20sim state file (JSON nested too deeply)")
         try:
             document: Any = json.loads(text)
         except json.JSONDecodeError as exc:

@@ -32,6 +32,7 @@ from ..wire.registers import (
     is_fcode,
     parse_fcode,
 )
+from .files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 
 __all__ = [
     "DEFAULT_PROFILE",
@@ -314,13 +315,9 @@ def load_profile(name_or_path: str = DEFAULT_PROFILE) -> Profile:
     """Load and check a profile by shipped name or by path."""
     path = profile_path(name_or_path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProfileError(str(path), "", "file not found") from None
-    except OSError as exc:
-        raise ProfileError(str(path), "", f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ProfileError(str(path), "", f"not a TOML profile: not UTF-8 text (byte {exc.start})") from None
+        text = read_text(path, "profile", named="TOML profile")
+    except FileReadError as exc:
+        raise ProfileError(str(path), "", "file not found" if exc.missing else exc.reason) from None
     return parse_profile(text, str(path))
 
 
@@ -474,6 +471,8 @@ _SOURCES = ("sheet", "notes", "field", "assumed")
 def parse_profile(text: str, path: str = "<profile>") -> Profile:
     """Check a profile's TOML text; ``path`` names it in errors."""
     check = _Checker(path)
+    if toml_depth(text) > MAX_DEPTH:
+        raise check.fail("", too_deep(path, "profile").reason)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import cast
 
+from ..drive.files import MAX_DEPTH, FileReadError, json_depth, read_bytes
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.decode import Piece, decode_frame, split_frames
 from ..wire.errors import C20SimError
@@ -183,6 +184,8 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
         def bad(message: str, n: int = number) -> C20SimError:
             return C20SimError(f"{where}: line {n}: {message}")
 
+        if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse
+            raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
         try:
             item = json.loads(line)
         except json.JSONDecodeError:
@@ -220,18 +223,18 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
 
 
 def _read_text(path: str) -> str:
-    if path == "-":
-        text = sys.stdin.read(MAX_INPUT + 1)
-        where = "stdin"
-    else:
+    if path != "-":  # a file: bounded, and never a FIFO or a device (stdin is the way to pipe a capture in)
         try:
-            with open(path, encoding="utf-8", errors="replace") as f:
-                text = f.read(MAX_INPUT + 1)
-        except OSError as exc:
-            raise C20SimError(f"{path}: cannot read: {exc.strerror}") from None
-        where = path
+            return read_bytes(path, "capture", MAX_INPUT).decode("utf-8", errors="replace")
+        except FileReadError as exc:
+            if exc.reason.startswith("bigger than"):
+                raise C20SimError(f"{path}: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture") from None
+            if exc.reason.startswith("is a FIFO"):
+                raise C20SimError(f"{exc}; to read a pipe, give - and pipe it to stdin") from None
+            raise
+    text = sys.stdin.read(MAX_INPUT + 1)
     if len(text) > MAX_INPUT:
-        raise C20SimError(f"{where}: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture")
+        raise C20SimError(f"stdin: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture")
     return text
 
 
