@@ -17,8 +17,10 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NoReturn, cast
 
+from .control.client import TOKEN_ENV
 from .control.ctl import add_ctl_command
 from .core.simulator import Simulator, make_clock
+from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .plant import add_plant_commands, drive_addresses
 from .scenario.schema import add_schema_command
@@ -88,7 +90,13 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--control-token",
         metavar="TOKEN",
-        help="the token the control API asks for (beyond loopback one is generated and written to the ready file)",
+        help="the token the control API asks for (beyond loopback one is generated and written to the ready file); "
+        f"visible to every local user in the process list: prefer --control-token-file or ${TOKEN_ENV}",
+    )
+    where.add_argument(
+        "--control-token-file",
+        metavar="PATH",
+        help=f"read the control API's token from this file (or give it in ${TOKEN_ENV})",
     )
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
@@ -154,7 +162,35 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
     return options
 
 
+def control_token(args: argparse.Namespace) -> str | None:
+    """The control API's token: ``--control-token`` (warned: the process list shows it to every local user),
+    ``--control-token-file``, or ``$C20SIM_CONTROL_TOKEN``; None for none."""
+    given, path = args.control_token, args.control_token_file
+    if given is not None and path is not None:
+        raise UsageError("give --control-token or --control-token-file, not both")
+    if given is not None:
+        print(
+            "c20sim: warning: --control-token: every user of this machine can read the token in the process list; "
+            f"give it in a file (--control-token-file PATH) or in the environment (${TOKEN_ENV})",
+            file=sys.stderr,
+            flush=True,
+        )
+        return str(given)
+    if path is not None:
+        try:
+            token = read_text(path, "token file").strip()
+        except FileReadError as exc:
+            raise C20SimError(f"--control-token-file {exc}") from None
+        if not token:
+            raise C20SimError(f"--control-token-file {path}: empty; put the token in it")
+        if any(c.isspace() for c in token) or not token.isprintable():
+            raise C20SimError(f"--control-token-file {path}: the token is one line of printable text, no spaces")
+        return token
+    return os.environ.get(TOKEN_ENV) or None
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
+    args.control_token = control_token(args)
     options = serve_options(args)
     if args.then is not None and not options.scenario:
         raise UsageError("--then: it says what follows a --scenario; give --scenario FILE too, or leave --then out")
@@ -165,12 +201,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_dashboard(args: argparse.Namespace) -> int:
     from .tui.session import run_dashboard  # textual loads only for the dashboard
 
+    args.control_token = control_token(args)
     return run_dashboard(args, args.serve_defaults)
 
 
 def cmd_web(args: argparse.Namespace) -> int:
     from .tui.web import run_web  # textual-serve loads only for the browser view
 
+    args.control_token = control_token(args)
     return run_web(args, args.serve_defaults)
 
 

@@ -30,13 +30,13 @@ import secrets
 import sys
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
-from pathlib import Path
 from typing import Any
 
 from aiohttp import web
 
 from ..core.bus import FrameRecord
 from ..core.simulator import Simulator
+from ..drive.files import FileReadError, read_text
 from ..transport.line import Line
 from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
@@ -252,7 +252,8 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             header = request.headers.get("Authorization", "")
             if header.startswith("Bearer "):
                 given = header.removeprefix("Bearer ").strip()
-            if not hmac.compare_digest(given.encode(), api.token.encode()):
+            # a header that is not UTF-8 comes surrogate-escaped: compared as the bytes sent, it is just wrong
+            if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), api.token.encode()):
                 why = "a wrong token" if given else "no token"
                 return reply(
                     {
@@ -311,7 +312,11 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         path = sim.profile.path
         if path is None:
             raise ControlError(f"the profile {sim.profile.name} was not loaded from a file", status=404)
-        return web.Response(text=Path(path).read_text(encoding="utf-8"), content_type="application/toml")
+        try:  # off the loop, and bounded: the file may have changed since it was loaded
+            text = await asyncio.to_thread(read_text, path, "profile")
+        except FileReadError as exc:
+            raise ControlError(f"GET /profile: {exc}", status=410) from None
+        return web.Response(text=text, content_type="application/toml")
 
     def query_number(request: web.Request, name: str, default: float, bounds: tuple[float, float]) -> float:
         if name not in request.query:
@@ -348,13 +353,13 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             reader: asyncio.Future[Any] = asyncio.ensure_future(_drain(ws))
             try:
                 await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
-            except ConnectionResetError:
-                pass  # the reader went away mid-message: it has left, nothing else to do
             finally:
                 reader.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
+                with contextlib.suppress(asyncio.CancelledError, ConnectionError):
                     await reader  # the close below reads the peer's answer itself
                 await ws.close()
+        except ConnectionError:  # reset, or gone mid-message or mid-close: the reader has left, nothing to do
+            log.debug("control API: a stream reader left (%s)", request.remote)
         finally:
             api.readers -= 1
             api.streams.discard(client)
