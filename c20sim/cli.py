@@ -169,6 +169,8 @@ def control_token(args: argparse.Namespace) -> str | None:
     if given is not None and path is not None:
         raise UsageError("give --control-token or --control-token-file, not both")
     if given is not None:
+        if not given.strip():
+            raise C20SimError("--control-token: empty; give a token, or leave the option out")
         print(
             "c20sim: warning: --control-token: every user of this machine can read the token in the process list; "
             f"give it in a file (--control-token-file PATH) or in the environment (${TOKEN_ENV})",
