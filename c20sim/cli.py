@@ -119,7 +119,7 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--log-frames-max-mb",
         type=float,
         metavar="MB",
-        help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3)",
+        help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3); default 100, 0 for no bound",
     )
     what.add_argument("--ready-file", metavar="PATH", help="write the real endpoint addresses as JSON when ready")
 

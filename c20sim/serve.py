@@ -39,6 +39,10 @@ T = TypeVar("T")
 __all__ = ["NEEDS_POSIX", "Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
 
 
+#: ``--log-frames``' bound without ``--log-frames-max-mb`` (MiB): the file is rotated at this size, keeping KEEP old
+#: ones, so the log takes at most 400 MiB of disk; ``--log-frames-max-mb 0`` for no bound.
+LOG_FRAMES_MAX_MB = 100.0
+
 #: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
 NEEDS_POSIX = (
     "--pty needs a POSIX system (Linux, macOS, BSD); on Windows use a com0com pair with --serial COMn, "
@@ -140,8 +144,10 @@ class Server:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
         opts, sim, line = self.options, self.sim, self.line
         max_mb = opts.log_frames_max_mb
-        if max_mb is not None and not 0.01 <= max_mb <= 1e6:  # also refuses nan; inf is above the range
-            raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000")
+        if max_mb is not None and max_mb != 0 and not 0.01 <= max_mb <= 1e6:  # refuses nan; inf is above the range
+            raise C20SimError(
+                f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000, or 0 for no bound"
+            )
         scenario = None
         if opts.scenario:
             from .scenario.timeline import check, load_scenario
@@ -274,7 +280,9 @@ class Server:
 
     def _open_frame_log(self, path: str) -> None:
         max_mb = self.options.log_frames_max_mb
-        self.frame_log = FrameLog(path, max_bytes=None if max_mb is None else int(max_mb * 1024 * 1024))
+        if max_mb is None:
+            max_mb = LOG_FRAMES_MAX_MB  # bounded unless asked: a busy line writes about 10 MB a minute
+        self.frame_log = FrameLog(path, max_bytes=None if max_mb == 0 else int(max_mb * 1024 * 1024))
         self.frame_log.start()
         self._unsubscribe.append(self.sim.bus.subscribe(self.frame_log.put))
 
