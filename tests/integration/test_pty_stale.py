@@ -126,3 +126,20 @@ def test_a_line_timed_reply_cut_off_by_a_close_leaves_no_byte_behind(pty: str) -
         pytest.fail(f"trial {trial}: no reply to the old master in 3 tries")
 
     next_masters_after(pty, cut_off)
+
+
+@pytest.mark.parametrize("pty", [[], ["--line-timing"]], indirect=True)
+def test_the_next_master_never_reads_replies_to_a_master_that_wrote_all_it_could_and_never_read(pty: str) -> None:
+    """The old master writes requests until the device takes no more (every buffer between it and the server
+    full, replies piling up unread) and closes: before, the next master read 3,185 bytes of its replies."""
+
+    def flood(fd: int, trial: int) -> None:
+        burst = OLD * 512
+        deadline = time.monotonic() + 0.2 + 0.01 * trial
+        while time.monotonic() < deadline:
+            try:
+                os.write(fd, burst)
+            except BlockingIOError:
+                select.select([], [fd], [], 0.01)
+
+    next_masters_after(pty, flood)
