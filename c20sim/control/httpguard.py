@@ -21,9 +21,16 @@ server's limits.
 
 Connections: :func:`site` listens like aiohttp's ``TCPSite`` but holds at
 most :func:`connection_cap` connections (a quarter of the file descriptors,
-so the wire's endpoints always have room), closes one that has not finished
-its first request's headers within :data:`HEADER_TIMEOUT` (slowloris), and
-keep-alive connections idle for :data:`IDLE_TIMEOUT` are closed by aiohttp.
+so the wire's endpoints always have room), one client (peer address) at most
+:func:`client_share` of them. A request's headers must come within
+:data:`HEADER_TIMEOUT` (from the opening, or a later request's first byte),
+its body within :data:`BODY_TIMEOUT` (else 408), and an idle keep-alive
+connection is closed after :data:`IDLE_TIMEOUT`. At the cap (or a client's
+share) the connection idle, or waiting for its request, the longest (for at
+least :data:`GRACE`) is closed for the newcomer; one being answered never
+is. A newcomer with no room is answered 503 with a sentence, then closed once
+its request has come in (not reset before it can read the answer). A client
+that leaves mid-body gets no traceback.
 
 The public surface is these functions, so the routes module installs the
 guard in a few lines.
