@@ -26,10 +26,11 @@ so the wire's endpoints always have room), one client (peer address) at most
 :data:`HEADER_TIMEOUT` (from the opening, or a later request's first byte),
 its body within :data:`BODY_TIMEOUT` (else 408), and an idle keep-alive
 connection is closed after :data:`IDLE_TIMEOUT`. At the cap (or a client's
-share) the connection idle, or waiting for its request, the longest (for at
-least :data:`GRACE`) is closed for the newcomer; one being answered never
-is. A newcomer with no room is answered 503 with a sentence, then closed once
-its request has come in (not reset before it can read the answer). A client
+share) the connection idle longest is closed for the newcomer, or else the
+one whose request has been coming longest (for at least :data:`GRACE`); one
+being answered never is. A newcomer with no room is answered 503 with a
+sentence, then closed once its request has come in (not reset before it can
+read the answer). A client
 that leaves mid-body gets no traceback.
 
 The public surface is these functions, so the routes module installs the
@@ -80,9 +81,10 @@ HEADER_TIMEOUT = 10.0
 #: Seconds a request's body may take once its headers have come.
 BODY_TIMEOUT = 10.0
 
-#: Seconds a connection is safe from being closed for a newcomer once its request has begun or it has been
-#: answered: a request takes milliseconds to send; a client that holds connections idle or half-sent, longer.
-GRACE = 2.0
+#: Seconds a connection whose request is coming (or a new one, not yet sent) is safe from being closed for a
+#: newcomer: a request takes milliseconds to send. An idle connection (between requests) has no such grace: it is
+#: closed for a newcomer first, the one idle longest first, as HTTP lets a server close one.
+GRACE = 1.0
 
 #: Refused connections kept open at once until their request has come in (so the 503 is read, not reset).
 MAX_LINGERING = 64
@@ -299,13 +301,14 @@ class _Connections:
                 del self.by_client[conn.client]
 
     def stalest(self, among: set[_Guarded], now: float) -> _Guarded | None:
-        """The connection to close for a newcomer: the one idle, or waiting for its request, the longest, and
-        for at least :data:`GRACE`; never one whose request is being answered (a stream reader included)."""
+        """The connection to close for a newcomer: the one idle the longest, else the one waiting for its request
+        the longest (for at least :data:`GRACE`); never one whose request is being answered (a stream reader
+        included)."""
         best: _Guarded | None = None
         for conn in among:
-            if conn.busy or now - conn.since < GRACE:
+            if conn.busy or (not conn.idle and now - conn.since < GRACE):
                 continue
-            if best is None or conn.since < best.since:
+            if best is None or (conn.idle, -conn.since) > (best.idle, -best.since):
                 best = conn
         return best
 
@@ -363,7 +366,7 @@ class _Guarded(asyncio.Protocol):
         self.client = "?"
         self.busy = 0
         self.since = 0.0  #: when the present phase began (loop time): the stalest is closed first
-        self._idle = False
+        self.idle = False  #: between requests (answered, the next not begun)
         self._timer: asyncio.TimerHandle | None = None
         self._transport: asyncio.BaseTransport | None = None
 
@@ -412,7 +415,7 @@ class _Guarded(asyncio.Protocol):
         self._timer = asyncio.get_running_loop().call_later(seconds, self._expire)
 
     def _request(self, now: float) -> None:
-        self._idle = False
+        self.idle = False
         self.since = now
         self._set_timer(HEADER_TIMEOUT)
 
@@ -429,7 +432,7 @@ class _Guarded(asyncio.Protocol):
     def begin(self) -> None:
         """A request's headers have come and its handler starts (called by the guard middleware)."""
         self.busy += 1
-        self._idle = False
+        self.idle = False
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -438,14 +441,17 @@ class _Guarded(asyncio.Protocol):
         """The handler has answered: the connection is idle until the next request's first byte."""
         self.busy = max(0, self.busy - 1)
         if not self.busy and self._counted:
-            self._idle = True
+            self.idle = True
             self.since = asyncio.get_running_loop().time()
             self._set_timer(IDLE_TIMEOUT)
 
     def data_received(self, data: bytes) -> None:
+        if self._refusing and self._transport is not None:
+            self._transport.close()  # its request has come and is read: closing now resets nothing unread
+            return
         if not self._counted:
-            return  # a refused connection's request: read and dropped
-        if self._idle:
+            return
+        if self.idle:
             self._request(asyncio.get_running_loop().time())
         self._inner.data_received(data)
 
