@@ -64,13 +64,13 @@ def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], s
         "--modbus-tcp 127.0.0.1:0",
         "--line-timing",
         "--control 127.0.0.1:8020",
-        "--control-token s3cret",
         "--drives 1,2",
         "--clock virtual",
         "--seed 7",
     ):
         assert part in text, text
     assert "--tcp" not in text  # serve picks its defaults itself when no endpoint is given
+    assert "s3cret" not in text  # the token goes to serve in its environment, not where ps shows it
 
 
 def test_attach_refuses_a_serve_option(capsys: pytest.CaptureFixture[str]) -> None:
