@@ -156,9 +156,12 @@ def read_text(path: str | os.PathLike[str], what: str, limit: int | None = None,
 
 
 def json_depth(text: str) -> int:
-    """The deepest nesting of ``[`` and ``{`` in a JSON text, strings skipped; no recursion."""
-    if text.count("[") + text.count("{") <= MAX_DEPTH:  # the common case: too few brackets to matter
-        return min(MAX_DEPTH, text.count("[") + text.count("{"))
+    """The deepest nesting of ``[`` and ``{`` in a JSON text, strings skipped; no recursion. A text with no more
+    than :data:`MAX_DEPTH` brackets is not scanned: their count is given, a bound that is within the limit
+    (a frame log has a line or millions, each with one bracket)."""
+    brackets = text.count("[") + text.count("{")
+    if brackets <= MAX_DEPTH:
+        return brackets
     depth = deepest = 0
     in_string = escaped = False
     for char in text:
@@ -181,10 +184,11 @@ def json_depth(text: str) -> int:
 
 def toml_depth(text: str) -> int:
     """The deepest nesting of arrays and inline tables in a TOML text (strings and comments skipped), or
-    of a table header's or a key's dotted parts, whichever is deeper; no recursion."""
+    of a table header's or a key's dotted parts, whichever is deeper; no recursion. A text with no more than
+    :data:`MAX_DEPTH` brackets and dots is not scanned: their count is given, a bound within the limit."""
     brackets = text.count("[") + text.count("{")
     if brackets <= MAX_DEPTH and text.count(".") <= MAX_DEPTH:
-        return 0  # too few brackets and dots to nest deeply whatever they are
+        return max(brackets, text.count("."))
     deepest = depth = dots = 0
     i, n = 0, len(text)
     while i < n:
