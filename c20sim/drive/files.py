@@ -33,7 +33,6 @@ __all__ = [
     "LIMITS",
     "MAX_DEPTH",
     "FileReadError",
-    "data_depth",
     "json_depth",
     "read_bytes",
     "read_text",
@@ -219,23 +218,6 @@ def toml_depth(text: str) -> int:
             dots = 0
         deepest = max(deepest, depth, dots)
         i += 1
-    return deepest
-
-
-def data_depth(data: object) -> int:
-    """The deepest nesting of lists and dicts in parsed data, without recursion."""
-    deepest = 0
-    stack: list[tuple[object, int]] = [(data, 1)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, dict):
-            children: list[object] = list(item.values())
-        elif isinstance(item, list):
-            children = list(item)
-        else:
-            continue
-        deepest = max(deepest, depth)
-        stack.extend((child, depth + 1) for child in children)
     return deepest
 
 
