@@ -226,6 +226,18 @@ def test_a_body_that_never_finishes_is_answered_408_and_closed(served: Served) -
     assert answer == {"error": "POST /time/advance: the body did not come within 10 s"}
 
 
+def test_a_later_requests_headers_have_their_deadline_too(served: Served) -> None:
+    """A keep-alive connection asks once, then sends the start of a second request and no more: before, only the
+    first request's headers had a deadline and this one held its connection until the idle timeout (30 s);
+    now the server closes it at the header deadline (10 s), well within the 20 s this test waits."""
+    with polling(served), socket.create_connection(("127.0.0.1", served.control), timeout=10) as sock:
+        sock.sendall(f"GET /time HTTP/1.1\r\nHost: {served.host}\r\n\r\n".encode())
+        assert read_response(sock)[0] == 200
+        sock.sendall(f"GET /time HTTP/1.1\r\nHost: {served.host}\r\nX-Slow: ".encode())
+        sock.settimeout(20)
+        assert sock.recv(1) == b""
+
+
 def test_a_client_that_leaves_mid_body_is_no_traceback(served: Served) -> None:
     """Before: the guard's read logged a traceback for each. The fixture checks the server's log."""
     with polling(served):
