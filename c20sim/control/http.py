@@ -431,9 +431,9 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
                 name: address(request) if name == "address" else request.match_info[name] for name in row.parameters
             }
             data = await body(request) if row.method != "GET" else {}
-            if row.call is ops.reset and "setup" in data:  # a state file is read in a worker thread, off the loop
-                data["setup"] = await asyncio.to_thread(ops.read_setup, sim, data["setup"])
-            return reply(routes.invoke(sim, row, parameters, data, request.path))
+            if row.offload is not None:  # what may block (a file read) runs in a worker thread, off the loop
+                data = await asyncio.to_thread(row.offload, sim, data)
+            return reply(routes.invoke(sim, row, parameters, data, request.path, offloaded=True))
 
         return handle
 

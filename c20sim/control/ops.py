@@ -17,7 +17,6 @@ Pure: no I/O, no clock of its own; time is the simulator's.
 
 from __future__ import annotations
 
-import asyncio
 import difflib
 import itertools
 import json
@@ -72,7 +71,6 @@ __all__ = [
     "register_address",
     "registers",
     "reset",
-    "reset_async",
     "restore_defaults",
     "resume",
     "set_conditions",
@@ -782,7 +780,7 @@ class Setup:
 def read_setup(sim: Simulator, setup: object) -> Setup:
     """What :func:`reset` takes from ``setup``: ``"defaults"``, or the state file at that path, read (bounded,
     never a FIFO or a device) and checked against the served profile. Touches no drive, so it may run in a
-    worker thread, off the serving loop (:func:`reset_async`, and the API's ``POST /reset``)."""
+    worker thread, off the serving loop (the ``POST /reset`` row's offload in :mod:`.routes`)."""
     if isinstance(setup, Setup):
         return setup
     if not isinstance(setup, str) or not setup:
@@ -809,9 +807,3 @@ def reset(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
     found = read_setup(sim, setup)
     sim.reset(found.values)
     return {"setup": found.name, "drives": [drive_state(sim, a) for a in sim.drives]}
-
-
-async def reset_async(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
-    """:func:`reset` for the serving loop: the state file is read in a worker thread, so a slow disk or a big
-    file never holds the wire; the drives are reset on the loop, as every other operation."""
-    return reset(sim, await asyncio.to_thread(read_setup, sim, setup))
