@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import socket
 import struct
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+import tty
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -41,6 +43,19 @@ RTU_BURST_READ = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))
 def mbap_read(transaction: int, register: int) -> bytes:
     pdu = struct.pack(">BHH", 3, register, 1)
     return struct.pack(">HHHB", transaction & 0xFFFF, 0, len(pdu) + 1, 1) + pdu
+
+
+#: Requests a connection may have on the line at once: one for an RTU master (on a pty or RTU over TCP), four
+#: for a pipelining Modbus TCP client (README). Written out here, not imported, so a changed constant fails.
+LIMIT = {"pty": 1, "tcp": 1, "modbus_tcp": 4}
+
+
+async def until(check: Callable[[], bool], what: str, timeout: float = 20.0) -> None:
+    """Poll ``check`` on the test's loop (the served simulator runs on it too) until it holds."""
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        await asyncio.sleep(0.005)
 
 
 def burst_served(records: list[FrameRecord]) -> int:
@@ -82,6 +97,66 @@ async def test_a_closed_burst_is_dropped_and_a_fresh_client_is_answered(serve: S
     assert served.server.line.waiting == 0
     count = burst_served(seen)
     assert count < 50, f"{count} of the closed connection's {BURST} requests were served"
+
+
+@pytest.mark.parametrize("transport", ["pty", "tcp", "modbus_tcp"])
+async def test_a_connection_that_pipelines_lets_another_in_after_its_share(serve: ServeFactory, transport: str) -> None:
+    """A sends ten requests at once; each reply holds the line 0.5 s. B, on RTU over TCP, asks once while A's
+    first is on the line: the line serves B after A's share (one request, four on Modbus TCP), not after all ten.
+    Told from the frame log's order, not from times: a busier machine only makes it slower."""
+    served = await serve()
+    served.sim.link_faults(1).delay = 0.5
+    seen: list[FrameRecord] = []
+    served.sim.bus.subscribe(seen.append)
+    closers: list[Callable[[], object]] = []
+    try:
+        if transport == "pty":
+            fd = os.open(served.pty, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            closers.append(lambda: os.close(fd))
+            tty.setraw(fd)
+            os.write(fd, RTU_READ * 10)
+        else:
+            port = served.tcp_port if transport == "tcp" else served.modbus_tcp_port
+            _ra, a = await asyncio.open_connection("127.0.0.1", port)
+            closers.append(a.close)
+            a.write(RTU_READ * 10 if transport == "tcp" else b"".join(mbap_read(i, Reg.STATUS1) for i in range(10)))
+            await a.drain()
+        await until(lambda: served.server.line.busy, "A's first request on the line")
+        _rb, b = await asyncio.open_connection("127.0.0.1", served.tcp_port)
+        closers.append(b.close)
+        b.write(RTU_BURST_READ)
+        await b.drain()
+        await until(lambda: burst_served(seen) == 1, "B's request to be served")
+    finally:
+        for close in closers:
+            close()
+    requests = [r.data for r in seen if r.direction == "rx" and r.kind == "request"]
+    before_b = requests.index(RTU_BURST_READ)
+    assert before_b == LIMIT[transport], f"B was served after {before_b} of A's requests; expected {LIMIT[transport]}"
+
+
+@pytest.mark.parametrize("protocol", ["tcp", "modbus_tcp"])
+async def test_a_connection_with_its_share_on_the_line_is_not_read(serve: ServeFactory, protocol: str) -> None:
+    """Ten requests at once, the first reply held for the whole test: the line holds the connection's share (one
+    request; four on Modbus TCP), no more, and its socket is not read (the rest waits in the kernel)."""
+    served = await serve()
+    served.sim.link_faults(1).delay = 30.0
+    line = served.server.line
+    limit = LIMIT[protocol]
+    port = served.tcp_port if protocol == "tcp" else served.modbus_tcp_port
+    tcp_server = served.server.endpoints.tcp if protocol == "tcp" else served.server.endpoints.modbus_tcp
+    assert tcp_server is not None
+    _reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(RTU_READ * 10 if protocol == "tcp" else b"".join(mbap_read(i, Reg.STATUS1) for i in range(10)))
+        await writer.drain()
+        # Once the share is on the line, nothing can take any of it off for 30 s.
+        await until(lambda: line.busy and line.waiting >= limit - 1, "the connection's requests on the line")
+        (connection,) = tcp_server.connections
+        assert connection.transport is not None
+        assert (line.waiting + 1, connection.transport.is_reading()) == (limit, False)
+    finally:
+        writer.close()
 
 
 def rss_kib(pid: int) -> int:
