@@ -105,6 +105,26 @@ async def test_password_error_on_the_wire(serve: ServeFactory) -> None:
         client.close()
 
 
+async def test_a_wrong_password_locks_again_on_the_pty(serve: ServeFactory) -> None:
+    """Unlocked by the right password, a wrong one (written to F07.00) is refused with 0x05 and locks the function
+    codes again until the right one comes: through the pty, by pymodbus's serial master."""
+    base = load_profile()
+    locked = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, password=4321))
+    served = await serve(profile=locked)
+    client = await served.serial_client(timeout=2.0)
+    try:
+        assert not (await client.write_register(0x200E, 1, device_id=1)).isError()
+        assert not (await client.write_register(0x0700, 4321, device_id=1)).isError()
+        assert not (await client.write_register(0x000A, 2500, device_id=1)).isError()  # unlocked
+        assert await exception_of_write(client, 0x0700, 1234) == X.PASSWORD_ERROR  # a wrong password ...
+        assert await exception_of_write(client, 0x000A, 2600) == X.PASSWORD_ERROR  # ... locks again
+        assert await read(client, 0x000A) == 2500
+        assert not (await client.write_register(0x0700, 4321, device_id=1)).isError()
+        assert not (await client.write_register(0x000A, 2600, device_id=1)).isError()
+    finally:
+        client.close()
+
+
 async def test_bad_crc_gets_exception_06(serve: ServeFactory) -> None:
     corrupt = {"on": False}
 
