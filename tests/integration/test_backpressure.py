@@ -4,7 +4,10 @@ Through real sockets: a raw client sends a burst of 5,000 read requests and
 closes, then a fresh pymodbus client must be answered, and the burst must not
 have been served behind its back. A client that sends without ever reading
 must not grow the server's memory while another client's polls are answered.
-``bench/abuse.py`` measures the reply times; tests count, they do not time.
+A connection has its share of the line (one request; four on Modbus TCP) and
+no more while another waits. ``bench/abuse.py`` measures the reply times;
+tests count, they do not time: every wait is for a condition, with deadlines
+a busy machine does not reach, so load makes these tests slower, not red.
 """
 
 from __future__ import annotations
@@ -80,7 +83,7 @@ async def test_a_closed_burst_is_dropped_and_a_fresh_client_is_answered(serve: S
     writer.close()
     await writer.wait_closed()
 
-    client = AsyncModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=1.0, retries=0)
+    client = AsyncModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=10.0, retries=0)
     assert await client.connect()
     try:
         result = await client.read_holding_registers(Reg.STATUS1, count=1, device_id=1)
@@ -90,13 +93,12 @@ async def test_a_closed_burst_is_dropped_and_a_fresh_client_is_answered(serve: S
     # Both connections gone and nothing waiting on the line: no more of the burst can be served.
     tcp_server = served.server.endpoints.tcp if protocol == "tcp" else served.server.endpoints.modbus_tcp
     assert tcp_server is not None
-    deadline = time.monotonic() + 5.0
-    while tcp_server.connections:
-        assert time.monotonic() < deadline, f"{len(tcp_server.connections)} connections still open"
-        await asyncio.sleep(0.01)
+    await until(lambda: not tcp_server.connections, "both connections to be gone")
     assert served.server.line.waiting == 0
     count = burst_served(seen)
-    assert count < 50, f"{count} of the closed connection's {BURST} requests were served"
+    # Served one at a time, 2 ms each, until the server sees the close (milliseconds; a busy machine may take
+    # longer): 500 is a second of serving, a tenth of the burst.
+    assert count < BURST // 10, f"{count} of the closed connection's {BURST} requests were served"
 
 
 @pytest.mark.parametrize("transport", ["pty", "tcp", "modbus_tcp"])
@@ -180,22 +182,41 @@ def server(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], dict[str, 
         proc.stderr.close()
 
 
+#: What the flooder sends at most: far more than the kernel holds for one connection (its send buffer and the
+#: server's receive buffer), so that a server which reads it all shows it in its memory.
+FLOOD_CAP = 64 * 1024 * 1024
+#: The flooder has been held this long at a stretch: the server has stopped reading it.
+HELD = 0.5
+
+
 def flood_without_reading(port: int, payload: bytes, stop: threading.Event, sent: list[int]) -> None:
-    """Send ``payload`` over and over, never read a byte back, until ``stop``."""
+    """Send ``payload`` over and over, never read a byte back, until the server has held it for :data:`HELD`
+    seconds at a stretch after ``stop`` (the polls are done), or :data:`FLOOD_CAP` bytes went."""
     with socket.create_connection(("127.0.0.1", port)) as sock:
         sock.setblocking(False)
         chunk = payload * 512
-        while not stop.is_set():
+        held_since: float | None = None
+        while sent[0] < FLOOD_CAP:
             try:
                 sent[0] += sock.send(chunk)
-            except BlockingIOError:
-                stop.wait(0.01)  # the server stopped reading: exactly what it should do
+                held_since = None
+            except BlockingIOError:  # the server stopped reading: exactly what it should do
+                now = time.monotonic()
+                held_since = now if held_since is None else held_since
+                if stop.is_set() and now - held_since >= HELD:
+                    return
+                time.sleep(0.01)
 
 
 @pytest.mark.parametrize("protocol", ["tcp", "modbus_tcp"])
 def test_a_client_that_never_reads_costs_no_memory_and_locks_no_one_out(
     server: tuple[subprocess.Popen[bytes], dict[str, str]], protocol: str
 ) -> None:
+    """A client floods requests and never reads a reply; another polls 20 times meanwhile. Every poll is answered
+    (each may take up to 10 s: a busy machine is slower, not wrong), the flood ends once the server has stopped
+    reading it (held half a second at a stretch) or 64 MiB went, and the server's memory has not grown by more
+    than 20 MiB: what the server has not read stays in the kernel. A server that never stops reading takes all
+    64 MiB into its memory, however fast or slow the machine."""
     proc, info = server
     port = int(info[protocol].rsplit(":", 1)[1])
     payload = RTU_READ if protocol == "tcp" else mbap_read(1, Reg.STATUS1)
@@ -206,43 +227,47 @@ def test_a_client_that_never_reads_costs_no_memory_and_locks_no_one_out(
     flooder.start()
     answered = asked = 0
     peak = before
-    poller = ModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=2.0, retries=0)
+    poller = ModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=10.0, retries=0)
     try:
         assert poller.connect()
-        end = time.monotonic() + 10.0
-        while time.monotonic() < end:
+        for _ in range(20):
             asked += 1
             with contextlib.suppress(ModbusIOException):  # unanswered: counted by asked - answered
                 answered += not poller.read_holding_registers(Reg.STATUS1, count=1, device_id=1).isError()
             peak = max(peak, rss_kib(proc.pid))
-            stop.wait(0.1)
     finally:
         poller.close()
         stop.set()
-        flooder.join(5)
+    flooder.join(120)
+    assert not flooder.is_alive(), "the flood did not end in 120 s"
+    peak = max(peak, rss_kib(proc.pid))
     grown_mib = (peak - before) / 1024
     assert sent[0] > 0
     assert answered == asked, f"{asked - answered} of {asked} polls unanswered while a client flooded"
-    assert grown_mib < 20, f"RSS grew by {grown_mib:.1f} MiB ({before} KiB -> {peak} KiB) in 10 s of flooding"
+    assert grown_mib < 20, (
+        f"RSS grew by {grown_mib:.1f} MiB ({before} KiB -> {peak} KiB) while a client sent {sent[0] >> 20} MiB"
+    )
 
 
 async def test_a_pipelined_frame_split_across_reads_is_not_broken_while_the_connection_waits(
     serve: ServeFactory,
 ) -> None:
-    """RTU over TCP, a reply delayed 100 ms: a second request sent meanwhile in two pieces is not read until the
-    first is answered, and its first piece must not be timed out as a broken frame (20 ms of silence) while
-    the second waits in the kernel's buffer."""
+    """RTU over TCP, a reply delayed 1 s: a second request sent meanwhile in two pieces, 50 ms apart, is not read
+    until the first is answered, and its first piece must not be timed out as a broken frame (20 ms of silence)
+    while the second waits in the kernel's buffer. The 50 ms are a silence the test makes (more than the 20 ms);
+    a busy machine may lengthen them, by up to 0.95 s, and the test still holds."""
     served = await serve()
-    served.sim.link_faults(1).delay = 0.1
+    served.sim.link_faults(1).delay = 1.0
     first, second = RTU_READ, RTU_BURST_READ
     reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
     try:
         writer.write(first + second[:3])
         await writer.drain()
+        await until(lambda: served.server.line.busy, "the first request on the line")
         await asyncio.sleep(0.05)  # the rest of the second frame comes later, while the first is on the line
         writer.write(second[3:])
         await writer.drain()
-        replies = await asyncio.wait_for(reader.readexactly(14), timeout=2.0)
+        replies = await asyncio.wait_for(reader.readexactly(14), timeout=10.0)
     finally:
         writer.close()
     assert replies[:7] == encode(ReadResponse(1, (3,))), replies.hex(" ")
