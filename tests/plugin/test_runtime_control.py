@@ -47,7 +47,7 @@ def test_pause_stops_model_time_and_the_drive_still_answers(c20sim: C20Sim, clie
     client.write_register(0x2001, 1500, device_id=1)
     client.write_register(0x2000, 1, device_id=1)
     c20sim.pause()
-    frozen = c20sim.core.clock()
+    frozen = c20sim.clock()
     assert frozen["paused"] is True and frozen["clock"] == "realtime"
     speed = read(client, 0x3006)  # the drive answers while paused ...
     for _ in range(5):
@@ -55,13 +55,13 @@ def test_pause_stops_model_time_and_the_drive_still_answers(c20sim: C20Sim, clie
     assert c20sim.now() == frozen["t"]
     c20sim.resume()
     wait_until(lambda: c20sim.now() > frozen["t"], "model time to run on after resume")
-    assert c20sim.core.clock()["paused"] is False
+    assert c20sim.clock()["paused"] is False
 
 
 @pytest.mark.c20sim(clock="realtime")
 def test_speed_factor_is_set_at_runtime(c20sim: C20Sim) -> None:
     c20sim.set_speed(50)
-    assert c20sim.core.clock()["speed"] == 50.0
+    assert c20sim.clock()["speed"] == 50.0
     with pytest.raises(C20SimError, match=r"^speed: 5000 is outside 0.001-1000$"):
         c20sim.set_speed(5000)
 
