@@ -156,3 +156,20 @@ def test_the_gateway_answers_0x0b_for_an_absent_unit_and_a_dropped_reply(c20sim:
         c20sim.link_faults(1, drop_next=1)
         assert ask(0x1236, 1).hex(" ") == "12 36 00 00 00 03 01 83 0b"  # drive 1's reply lost on the line
         assert ask(0x1237, 1).hex(" ") == "12 37 00 00 00 05 01 03 02 00 20"
+
+
+def test_the_ramps_run_at_the_set_rates_seen_over_the_wire(c20sim: C20Sim, client: ModbusTcpClient) -> None:
+    """Acceleration and deceleration times of 5.0 s (2003H, 2004H: 0 to 3000 rpm and back), the speed read over
+    RTU over TCP in the plugin's virtual time: half way at half the time, up and down."""
+    for register, value in ((0x2003, 50), (0x2004, 50), (0x2001, 3000), (0x2000, 1)):
+        assert not client.write_register(register, value, device_id=1).isError()
+    # Within a model step or two of the ideal (the ramp moves in steps); 10 % fast would be 150 rpm (75 rpm) off.
+    c20sim.advance(2.5)
+    assert read(client, 0x3006) == pytest.approx(1500, abs=3)
+    c20sim.advance(2.5)
+    assert read(client, 0x3006) == 3000
+    assert not client.write_register(0x2001, 1500, device_id=1).isError()
+    c20sim.advance(1.25)  # 1500 rpm down takes 2.5 s at 3000 rpm in 5 s
+    assert read(client, 0x3006) == pytest.approx(2250, abs=3)
+    c20sim.advance(1.25)
+    assert read(client, 0x3006) == 1500
