@@ -245,11 +245,11 @@ def test_overridden_fixtures_and_the_marker(pytester: pytest.Pytester) -> None:
             assert c20sim.addresses == (3, 4)
             assert c20sim.port and c20sim.modbus_tcp_port and c20sim.pty is None
             assert c20sim.read("address", drive=4) == 4
-            assert c20sim.drive.profile.name == "c20-400hr"
+            assert c20sim.profile.name == "c20-400hr"
 
         @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(7,))
         def test_marker(c20sim):
-            assert (c20sim.addresses, c20sim.drive.profile.name, c20sim.port) == ((7,), "c20-2200hv", None)
+            assert (c20sim.addresses, c20sim.profile.name, c20sim.port) == ((7,), "c20-2200hv", None)
             assert os.path.exists(c20sim.pty)
             client = ModbusSerialClient(c20sim.pty, timeout=2, retries=0)
             assert client.connect()
@@ -335,7 +335,7 @@ def test_none_in_the_marker_leaves_the_setting_to_the_fixture(pytester: pytest.P
 
         @pytest.mark.c20sim(profile=None, transport=None, drives=None, clock=None, speed=None, seed=None)
         def test_defaults(c20sim):
-            assert (c20sim.drive.profile.name, c20sim.addresses, c20sim.port is not None) == ("c20-400hr", (4,), True)
+            assert (c20sim.profile.name, c20sim.addresses, c20sim.port is not None) == ("c20-400hr", (4,), True)
             assert c20sim.advance(1) == 1.0
         """,
     )
