@@ -6,14 +6,14 @@ kernel, and its bytes reach the simulator together) and chooses the silences
 between pieces so that a busy machine can only make a test slower, never fail
 it:
 
-- what must be discarded has a silence well over t1.5 inside it: a master or
-  a pty running late lengthens a silence, and a longer one is discarded as
-  surely (beyond t3.5 + a character it splits the request into two pieces of
-  noise, discarded too). Only the first piece reaching the simulator late and
-  the second on time could shorten it, and the margin (11.5 ms at 1200 baud)
-  is far above the pty's measured lateness (up to 2 ms: docs/line-timing.md);
-- what must be answered is written whole, or after a silence of three times
-  what it needs;
+- a silence that must split a request, or split a request off garbage, is
+  200 ms at 1200 baud (t3.5 and a character: 37.5 ms): a master running late
+  only lengthens it, and only the pty delivering the piece before it 160 ms
+  late, together with the piece after, could join them (its lateness is
+  milliseconds: up to 2 ms idle, p99 2-5 ms loaded, docs/line-timing.md; a
+  silence between t1.5 and t3.5, 24 ms at most, was once joined so at load 5,
+  and is left to the bench and the framer's unit tests);
+- what must be answered is written whole;
 - times are lower bounds: a reply never starts before t3.5 and one character
   (or the turnaround, if longer) after the request, and its k-th byte never
   comes before k characters more. Load only delays replies.
@@ -200,24 +200,21 @@ def test_garbage_glued_in_front_of_a_frame_spoils_it(m1200: Master) -> None:
 
 
 def test_a_frame_after_a_long_silence_is_a_frame_of_its_own(m1200: Master) -> None:
-    # Garbage, then 100 ms of silence (more than three times t3.5 + a character: 37.5 ms), then a request.
-    replies = [m1200.ask(b"\xff\x00", READ, silence=0.100)[0] for _ in range(5)]
+    # Garbage, then 200 ms of silence (five times t3.5 + a character: 37.5 ms), then a request.
+    replies = [m1200.ask(b"\xff\x00", READ, silence=0.200)[0] for _ in range(5)]
     assert replies == [ID_REPLY] * 5, [r.hex(" ") for r in replies]
 
 
-# --- t1.5: a silence inside a frame discards it
+# --- a silence inside a request splits it: never served
 
 
-@pytest.mark.parametrize(
-    ("silence", "answer"), [(0.024, b""), (0.100, FRAME_ERROR)], ids=["between t1.5 and t3.5", "beyond t3.5"]
-)
-def test_a_request_with_a_silence_inside_is_never_served(m1200: Master, silence: float, answer: bytes) -> None:
-    # t1.5 = 12.5 ms at 1200 8N1. 24 ms before the last byte: one frame broken by the gap, discarded in silence;
-    # 100 ms: two frames, the first 7 bytes answered 0x06 (a frame of drive 1 of the wrong length), the last byte
-    # noise. A late master only lengthens the silence: 24 ms may become the second case, never a served request.
-    assert m1200.t15 < silence
-    replies = [m1200.ask(READ[:-1], READ[-1:], silence=silence)[0] for _ in range(5)]
-    assert all(r in (answer, FRAME_ERROR) for r in replies), [r.hex(" ") for r in replies]
+def test_a_request_with_a_long_silence_inside_is_never_served(m1200: Master) -> None:
+    # 200 ms before the last byte: two frames, the first 7 bytes answered 0x06 (a frame of drive 1 of the wrong
+    # length), the last byte noise. A silence between t1.5 and t3.5 (a broken frame, discarded in silence) is
+    # judged by the bench and the framer's unit tests, not here: a pty can deliver two pieces written up to
+    # ~12 ms apart together on a loaded machine (seen once in 50 trials at load 5 on 2 cores), joining them.
+    replies = [m1200.ask(READ[:-1], READ[-1:], silence=0.200)[0] for _ in range(5)]
+    assert replies == [FRAME_ERROR] * 5, [r.hex(" ") for r in replies]
     assert m1200.ask(READ)[0] == ID_REPLY  # the line is not left broken
 
 
