@@ -5,7 +5,10 @@ temperature, the two I^2 t budgets, the stalled and braking step counters)
 and advances it by one :data:`~c20sim.drive.physics.STEP` for a drive in a
 given state. A speed loop of finite bandwidth (the ramp's torque fed forward,
 a PI on the rest) drives a current clamped at the current limit; what it asks
-is what overcurrent trips on. Overvoltage stall prevention (F11.03/F11.04)
+is what overcurrent trips on. Current limiting (F11.05/F11.06, on by default as
+INVT ships it) cuts the ramp's step so the loop asks no more than its level:
+a heavy start or stop stretches instead of tripping; with it off, a ramp that
+asks more than the trip level trips OC1/OC2. Overvoltage stall prevention (F11.03/F11.04)
 holds the ramp while braking would lift the bus above its level; the motor
 and the drive each have an inverse-time overload curve with thermal memory
 (F02.27 scales the motor's); losses and so heating come from the current;
@@ -117,7 +120,12 @@ class Integrator:
             ramp, phase = physics.ramp_toward(self.ramp, target, cfg.up, cfg.down)
             if phase == DECEL and cfg.stall_v and self.bus > cfg.stall_v:
                 ramp = self.ramp  # overvoltage stall prevention: hold the output frequency, stretching the ramp
+            asked = ramp
             ramp, current, new_speed, integ, limited, wanted = self.control(state, ramp, target, speed, emf)
+            if cfg.limit_a and phase != CONSTANT and asked != self.ramp:
+                ramp, current, new_speed, integ, limited, wanted = self.current_limited(
+                    state, (ramp, current, new_speed, integ, limited, wanted), asked, target, speed, emf
+                )
             if phase == DECEL and cfg.stall_v and ramp != self.ramp:
                 ramp, current, new_speed, integ, limited, wanted = self.stall_limited(
                     state, (ramp, current, new_speed, integ, limited, wanted), target, speed, emf
@@ -172,6 +180,29 @@ class Integrator:
             integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
             current = integ / kt
         return ramp, current, new_speed, integ, limited, wanted
+
+    def current_limited(
+        self, state: State, full: Control, asked: float, target: float, speed: float, emf: float
+    ) -> Control:
+        """Current limiting (F11.05/F11.06): the ramp's step is cut so the loop asks no more than the level.
+
+        The demand is affine in the ramp's step (the step's acceleration torque is fed forward), so the
+        step that asks exactly the level is found in one division: the output frequency advances as fast
+        as the current allows and holds where the loop already asks the level, accelerating and
+        decelerating alike, and the ramp stretches instead of tripping (INVT GD20 P11.05-P11.07).
+        """
+        limit = self.cfg.limit_a
+        held = self.control(state, self.ramp, target, speed, emf)
+        push = full[5] - held[5]  # what the step adds to the demand
+        if push == 0.0:
+            return full
+        bound = limit if push > 0.0 else -limit
+        if (full[5] - bound) * push <= 0.0:
+            return full  # the full step stays within the level on the side it pushes
+        share = (bound - held[5]) / push
+        if share <= 0.0:
+            return held
+        return self.control(state, self.ramp + share * (asked - self.ramp), target, speed, emf)
 
     def stall_limited(self, state: State, full: Control, target: float, speed: float, emf: float) -> Control:
         """Overvoltage stall prevention, looking one step ahead as the drive's fast stall loop does.

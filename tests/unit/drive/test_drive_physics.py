@@ -17,6 +17,7 @@ import pytest
 from c20sim.drive.model import (
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
+    F_CURRENT_LIMITING,
     F_OV_STALL,
     STEP,
     Drive,
@@ -147,6 +148,7 @@ def test_read_noise_is_seeded_and_does_not_depend_on_polling(profile: Profile) -
 def test_a_held_load_at_standstill_heats_the_inverter(profile: Profile) -> None:
     th = profile.thermal
     drive = running(profile, 0)
+    drive.write(F_CURRENT_LIMITING, 0)  # off: 19 A is above the limiting level (17.6 A), under the clamp
     drive.set_active_load(19.0 * profile.motor.kt_nm_per_a)  # held at zero speed: 19 A, just under the limit
     drive.advance_to(5.0)
     tel = drive.telemetry()
@@ -182,6 +184,7 @@ def test_undervoltage_has_a_recover_level(profile: Profile) -> None:
 
 def test_too_short_an_accel_of_a_heavy_load_trips_oc1(profile: Profile) -> None:
     drive = Drive(profile)
+    drive.write(F_CURRENT_LIMITING, 0)  # off: today's trip (on, the ramp stretches: see section 8)
     drive.set_load_inertia(0.01)
     drive.write(cell(profile, Reg.ACCEL_TIME), 5)  # 0.5 s: 6000 rpm/s x 0.0103 kg m^2 asks 51 A
     drive.write(Reg.SPEED_SETPOINT, 3000)
