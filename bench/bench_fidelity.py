@@ -327,6 +327,8 @@ def active_load(profile: Profile) -> list[Row]:
     fast = run(profile, 3000)
     fast.set_active_load(pulling)
     tripped = until(fast, lambda d: d.read(Reg.STATUS1) == 4, 13.0)
+    fast.advance_to(60.0)  # tripped: the output off, the load's characteristic and the friction bound the rotor
+    free = fast.telemetry().speed_rpm
     held = run(profile, 0)
     held.set_active_load(-0.5 * rated)
     held.advance_to(8.0)
@@ -340,6 +342,12 @@ def active_load(profile: Profile) -> list[Row]:
             f"the same at 3000 rpm, {pulling:.2f} N m (90 % of the current limit)",
             "OV3 once the regenerated power passes the chopper's",
             f"{fault_name(fast)}" + (f" after {tripped - 3.0:.2f} s" if tripped else ""),
+        ),
+        (
+            "the tripped drive's rotor, 60 s on: speed / 3006H",
+            f"settles where the load's pull (full to {m.rated_speed_rpm:g} rpm, none at "
+            f"{m.active_load_free_rpm:g} rpm; assumed) meets the friction / the sheet's top, 3000",
+            f"{free:.1f} rpm / {fast.read(Reg.MOTOR_SPEED)}",
         ),
         (
             f"held at 0 rpm against {0.5 * rated:.2f} N m",

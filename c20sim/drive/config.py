@@ -105,6 +105,8 @@ class Config:
     hold: float  #: Coulomb friction plus load torque, N m
     viscous: float  #: N m per rpm
     active: float  #: signed load torque, N m, positive pushing forward
+    active_knee_rpm: float  #: the active load pulls fully up to this speed (the motor's rated speed)
+    active_free_rpm: float  #: and falls to nothing at this one (its own drag): [motor] active_load_free_rpm
     inputs: int  #: effective input terminals
     kp: float  #: speed loop, N m per rad/s
     ki: float  #: speed loop, N m per rad
@@ -171,6 +173,8 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         hold=m.friction_nm + bench.load,
         viscous=m.viscous_nm_per_krpm / 1000.0,
         active=bench.active,
+        active_knee_rpm=m.rated_speed_rpm,
+        active_free_rpm=m.active_load_free_rpm,
         inputs=inputs,
         kp=inertia * bandwidth,
         ki=inertia * bandwidth * bandwidth / 4.0,

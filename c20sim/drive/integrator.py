@@ -12,7 +12,8 @@ asks more than the trip level trips OC1/OC2. Overvoltage stall prevention (F11.0
 holds the ramp while braking would lift the bus above its level; the motor
 and the drive each have an inverse-time overload curve with thermal memory
 (F02.27 scales the motor's); losses and so heating come from the current;
-loads are passive (opposing motion) or active (signed, a hoist's weight).
+loads are passive (opposing motion) or active (signed, a hoist's weight, with
+its own speed-torque characteristic: :func:`~c20sim.drive.physics.active_torque`).
 
 A settled drive with constant inputs enters a :class:`~c20sim.drive.physics.Segment`:
 its closed forms give the state at any later step directly, bit for bit as if
@@ -59,7 +60,19 @@ class Integrator:
     """What moves with time in one drive, and the step that moves it."""
 
     __slots__ = (
-        *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0", "k"),
+        *(
+            "active_now",
+            "bench",
+            "capacitance",
+            "cfg",
+            "hall",
+            "inv_bleed",
+            "inv_brake",
+            "inv_source",
+            "profile",
+            "t0",
+            "k",
+        ),
         *("brake_steps", "bus", "bus_settled", "current", "demand", "drive_i2t", "integ", "limited", "loss"),
         *("motor_i2t", "phase", "power", "ramp", "segment", "speed", "speed_before", "stall_steps", "temp"),
         *("temp_decay", "temp_rate"),
@@ -82,7 +95,7 @@ class Integrator:
     def power_up(self) -> None:
         """At rest, the bus at the level the supply gives a stopped drive, the overload budgets full."""
         self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
-        self.integ = self.demand = 0.0
+        self.integ = self.demand = self.active_now = 0.0
         self.bus = self.bus_rest(self.bench.supply)
         self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
@@ -115,6 +128,9 @@ class Integrator:
         speed = self.speed
         limited = False
         emf = kt * speed * RPM
+        self.active_now = (
+            physics.active_torque(cfg.active, speed, cfg.active_knee_rpm, cfg.active_free_rpm) if cfg.active else 0.0
+        )
         if state in DRIVEN:
             target = target_rpm(state, cfg)
             ramp, phase = physics.ramp_toward(self.ramp, target, cfg.up, cfg.down)
@@ -135,7 +151,9 @@ class Integrator:
             target, ramp, phase = 0.0, 0.0, CONSTANT
             # Output off: only the freewheeling diodes conduct, once the back-EMF exceeds the bus.
             current = 0.0 if abs(emf) <= self.bus else -math.copysign(abs(emf) - self.bus, emf) / resistance
-            new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+            new_speed = physics.free_motion(
+                speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP
+            )
         bus, power, loss = self.bus_after(new_speed, current)
         self.bus_settled = abs(bus - self.bus) <= 1e-9  # a chopper at its threshold never settles
         temp_ss = self.bench.ambient + loss * th.resistance_k_per_w
@@ -171,13 +189,14 @@ class Integrator:
             current = high if wanted > high else low
         else:
             current = wanted
-        new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        new_speed = physics.free_motion(speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP)
         if limited:
             ramp = new_speed  # the current limit holds the ramp back
         elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < settled_rpm(state):
             # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
             new_speed = ramp
-            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
+            active = physics.active_torque(cfg.active, ramp, cfg.active_knee_rpm, cfg.active_free_rpm)
+            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - active
             current = integ / kt
         return ramp, current, new_speed, integ, limited, wanted
 
@@ -266,10 +285,12 @@ class Integrator:
                 return
             if self.ramp != target_rpm(state, self.cfg) or self.speed != self.ramp:
                 return
-        elif self.speed != 0.0:
-            return
         elif self.current != 0.0:
             return  # the diodes still conduct
+        elif self.speed != 0.0 and self.hall.fault is not None:
+            return  # a broken sensor on a turning rotor glitches
+        # Output off, the rotor at rest or where an active load and the friction balance (a fixed point: the
+        # same speed from one step to the next, every input constant).
         watch = state not in (State.FAULT, State.OFF)
         thermal = self.profile.thermal
         temp_ss = self.bench.ambient + self.loss * thermal.resistance_k_per_w
