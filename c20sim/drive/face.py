@@ -100,7 +100,7 @@ def check_write(d: Drive, address: int, value: int) -> None:
             )
 
 
-def write(d: Drive, address: int, value: int) -> None:
+def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None:
     """Store a checked value: 2000H is a command, 200AH the virtual inputs, 200FH = 1 restores the defaults.
 
     2000H reads back the command in force (**assumed**; the sheet says only that it can be read and written
@@ -123,6 +123,8 @@ def write(d: Drive, address: int, value: int) -> None:
     elif address == Reg.RESTORE_DEFAULTS:
         if value == 1:
             d.parameters.restore_defaults()
+    elif ram_only:  # a function code written at its RAM-only address: acts now, never saved
+        d.parameters.set_ram(address, value)
     else:
         d.parameters.set(address, value)
     d._reconfigure()

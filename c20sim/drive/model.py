@@ -140,6 +140,9 @@ class Drive:
     def write(self, address: int, value: int) -> None:
         face.write(self, address, value)
 
+    def write_ram(self, address: int, value: int) -> None:
+        face.write(self, address, value, ram_only=True)
+
     # --- Local controls and injection.
 
     def keypad(self, command: int) -> bool:
@@ -287,6 +290,7 @@ class Drive:
 
     def _power_up(self) -> None:
         self.ram = dict.fromkeys(face.RAM_REGISTERS, 0)
+        self.parameters.power_up()  # RAM-only function-code writes are lost
         self._reconfigure()
         self.motion.power_up()
         self.hall.reset()

@@ -103,6 +103,13 @@ class ProtocolParams:
     simple_plc: bool = field(
         default=False, metadata={"doc": "the model runs a simple PLC program (2007H = 6); false: refused"}
     )
+    ram_only_alias: bool = field(
+        default=False,
+        metadata={
+            "doc": "a write at a function code's address | 8000H changes it in RAM only (not saved, lost at "
+            "power-off; write-only: reads there get 0x02), as the INVT family does"
+        },
+    )
     password: int = field(default=0, metadata=_num(0, 65535, "", "user password; 0 = none"))
     password_register: str = field(default="F07.00", metadata={"doc": "function code where the password is written"})
 
