@@ -37,9 +37,7 @@ async def served(tmp_path: Path) -> AsyncIterator[tuple[Simulator, Server, Path]
 
 
 @pytest.mark.parametrize("transport", ["pty", "rtu-over-tcp"])
-async def test_a_master_writes_the_ram_only_address(
-    served: tuple[Simulator, Server, Path], transport: str
-) -> None:
+async def test_a_master_writes_the_ram_only_address(served: tuple[Simulator, Server, Path], transport: str) -> None:
     sim, server, state = served
     client: AsyncModbusSerialClient | AsyncModbusTcpClient
     if transport == "pty":

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from c20sim import cli
 from c20sim.cli import main
 
 
@@ -88,3 +89,10 @@ def test_python_dash_m_runs_the_cli() -> None:
     )
     assert result.returncode == 0
     assert "write 2000H = 0005: stop; CRC ok" in result.stdout
+
+
+def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to() -> None:
+    parser = cli.build_parser()
+    assert cli.serve_options(parser.parse_args(["serve", "--tcp", "127.0.0.1:0"])).bus_timing is True
+    off = parser.parse_args(["serve", "--tcp", "127.0.0.1:0", "--no-bus-timing"])
+    assert cli.serve_options(off).bus_timing is False
