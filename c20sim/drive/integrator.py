@@ -60,22 +60,10 @@ class Integrator:
     """What moves with time in one drive, and the step that moves it."""
 
     __slots__ = (
-        *(
-            "active_now",
-            "bench",
-            "capacitance",
-            "cfg",
-            "hall",
-            "inv_bleed",
-            "inv_brake",
-            "inv_source",
-            "profile",
-            "t0",
-            "k",
-        ),
+        *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0", "k"),
         *("brake_steps", "bus", "bus_settled", "current", "demand", "drive_i2t", "integ", "limited", "loss"),
         *("motor_i2t", "phase", "power", "ramp", "segment", "speed", "speed_before", "stall_steps", "temp"),
-        *("temp_decay", "temp_rate"),
+        *("temp_decay", "temp_rate", "active_now"),
     )
     cfg: Config
     segment: Segment | None
@@ -208,7 +196,9 @@ class Integrator:
         The demand is affine in the ramp's step (the step's acceleration torque is fed forward), so the
         step that asks exactly the level is found in one division: the output frequency advances as fast
         as the current allows and holds where the loop already asks the level, accelerating and
-        decelerating alike, and the ramp stretches instead of tripping (INVT GD20 P11.05-P11.07).
+        decelerating alike, and the ramp stretches instead of tripping (INVT GD20 P11.05, P11.06). At
+        constant speed a load beyond the level meets the clamp as before (GD20 P11.07's frequency decrease
+        there is not modelled: the clamp holds the ramp back to the rotor, which comes to the same).
         """
         limit = self.cfg.limit_a
         held = self.control(state, self.ramp, target, speed, emf)
