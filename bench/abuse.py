@@ -425,6 +425,7 @@ def serve(workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, str], int]:
     read_end, write_end = os.pipe()  # the frame log's reader: never reads
     command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]
     (workdir / "token").write_text(TOKEN + "\n")
+    command.append("--no-bus-timing")  # the server's own limits, as recorded before bus timing (issue 27)
     command += ["--pty", "--control", "127.0.0.1:0", "--log-frames", "/dev/stdout", "--ready-file", str(ready)]
     command += ["--control-token-file", str(workdir / "token"), "--drives", ",".join(map(str, range(1, 33)))]
     proc = subprocess.Popen(command, stdout=write_end, stderr=subprocess.PIPE, cwd=ROOT)

@@ -80,6 +80,13 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--modbus-tcp", metavar="HOST:PORT", help="Modbus TCP (MBAP), as an Ethernet gateway")
     where.add_argument("--line-timing", action="store_true", help="pace replies at the baud and enforce t1.5/t3.5")
     where.add_argument(
+        "--bus-timing",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="each transaction holds the shared line for its RS485 time at the drives' baud and --parity/--stopbits, "
+        "on every transport, as behind a serial device server (default on; --no-bus-timing: only the turnaround)",
+    )
+    where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
     where.add_argument(
@@ -146,6 +153,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         tcp=args.tcp,
         modbus_tcp=args.modbus_tcp,
         line_timing=args.line_timing,
+        bus_timing=args.bus_timing,
         log_frames=args.log_frames,
         log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,

@@ -4,12 +4,14 @@ The handle itself, usable without pytest, is :class:`c20sim.testing.C20Sim`.
 Settings come from three overridable fixtures, ``c20sim_profile``,
 ``c20sim_transport`` and ``c20sim_drives``, and per test from the marker::
 
-    @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(1, 2), clock="virtual", speed=1.0, seed=1)
+    @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(1, 2), clock="virtual", speed=1.0, seed=1,
+                        bus_timing=True)
 
 The marker wins over the fixtures; a setting given as None is left to the
 fixture. ``clock`` is ``virtual`` (the default: time stands still until the
 test calls ``advance``) or ``realtime`` (times ``speed``); ``seed`` seeds the
-random link faults.
+random link faults; ``bus_timing`` (on by default, as ``c20sim serve``) holds the line for each
+transaction's RS485 time, so a master meets the real line's throughput.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ __all__ = ["c20sim", "c20sim_drives", "c20sim_profile", "c20sim_transport", "set
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
-        "c20sim(profile=None, transport=None, drives=None, clock='virtual', speed=1.0, seed=1): "
+        "c20sim(profile=None, transport=None, drives=None, clock='virtual', speed=1.0, seed=1, bus_timing=True): "
         "settings of the c20sim fixture for this test",
     )
 

@@ -26,6 +26,7 @@ from .transport.framelog import FrameLog
 from .transport.line import Line
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 from .wire.errors import C20SimError
+from .wire.protocol import char_bits
 
 if TYPE_CHECKING:
     # Imported where used: pty needs tty/termios and pyserial needs them on POSIX, which Windows lacks.
@@ -80,6 +81,9 @@ class ServeOptions:
     tcp: str | None = None
     modbus_tcp: str | None = None
     line_timing: bool = False
+    #: hold the shared line for each transaction's RS485 time at the drive's serial settings, whatever the
+    #: transport (the command line's default is on: see docs/line-timing.md); off here for the building block
+    bus_timing: bool = False
     log_frames: str | None = None
     #: rotate the frame log when it reaches this many MiB (None: no limit)
     log_frames_max_mb: float | None = None
@@ -131,7 +135,10 @@ class Server:
     def __init__(self, sim: Simulator, options: ServeOptions) -> None:
         self.sim = sim
         self.options = options
-        self.line = Line(sim)
+        self.line = Line(sim, bus_timing=options.bus_timing)
+        # The line's character: the serial settings (the serial port's, or those a serial device server in
+        # front of the TCP endpoints would have).
+        sim.bus.char_bits = char_bits(8, options.parity, options.stopbits)
         self.endpoints = Endpoints()
         self.frame_log: FrameLog | None = None
         self._unsubscribe: list[Callable[[], None]] = []

@@ -106,7 +106,9 @@ class SimulatorCollector(Collector):
             sum_value=latency.sum,
         )
         yield CounterMetricFamily(
-            "c20sim_line_busy_seconds", "Seconds the line was held by delayed replies", value=self.line.busy_seconds
+            "c20sim_line_busy_seconds",
+            "Seconds the line was held (each transaction's RS485 time with bus timing; else delayed replies)",
+            value=self.line.busy_seconds,
         )
         yield GaugeMetricFamily("c20sim_line_waiting", "Requests waiting for the line", value=self.line.waiting)
 

@@ -18,6 +18,13 @@ deaf, as it would on a real multi-drop line.
 
 Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
 and is passed to each listener (the JSON-lines writer, the dashboard).
+
+Every event also has its time on a real RS485 line
+(:func:`~c20sim.wire.protocol.transaction_time` at the line's baud and
+character size, :attr:`Bus.char_bits`): the request, the turnaround and the
+reply, each frame after its t3.5. It is added to the line's busy time and the
+addressed drive's (:class:`Counters`), whatever transport carried the frame,
+and the line scheduler holds the line for it under bus timing.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from dataclasses import dataclass, field
 from ..wire.decode import describe
 from ..wire.protocol import (
     BROADCAST,
+    SHEET_CHAR_BITS,
     ExceptionCode,
     ExceptionResponse,
     FrameEvent,
@@ -43,6 +51,8 @@ from ..wire.protocol import (
     crc_ok,
     decode_request,
     encode,
+    frame_time,
+    transaction_time,
 )
 from ..wire.registers import RegisterMap
 from .linkfaults import LinkFaults
@@ -163,6 +173,18 @@ class Counters:
     length_errors: int = 0  #: frames with its address and the wrong length
     silences: int = 0  #: requests left unanswered (absent, offline, reply dropped); not broadcasts
     injected: int = 0  #: requests and replies a link fault acted on
+    #: seconds its transactions held an RS485 line at the line's settings (request, turnaround, reply)
+    line_busy_s: float = 0.0
+    #: the line's time (seconds) from the start of its first transaction to the end of its last
+    first_t: float | None = None
+    last_t: float | None = None
+
+    @property
+    def line_share(self) -> float:
+        """Its share of the line's capacity: busy time over the time from its first transaction to its last."""
+        if self.first_t is None or self.last_t is None or self.last_t <= self.first_t:
+            return 0.0
+        return min(1.0, self.line_busy_s / (self.last_t - self.first_t))
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -173,6 +195,8 @@ class Counters:
             "length_errors": self.length_errors,
             "silences": self.silences,
             "injected": self.injected,
+            "line_busy_s": round(self.line_busy_s, 6),
+            "line_share": round(self.line_share, 4),
         }
 
 
@@ -205,6 +229,13 @@ class Bus:
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
         self.counters: dict[int, Counters] = {}
         self.noise = 0
+        #: bits per character on the line (10 for 8N1, 11 with parity or 2 stop bits): the serial settings
+        self.char_bits = SHEET_CHAR_BITS
+        #: seconds the last event held the line (request, turnaround, reply), and its request's share of it
+        self.last_line_time = 0.0
+        self.last_request_time = 0.0
+        #: seconds every event so far held the line
+        self.line_busy_s = 0.0
 
     def counters_of(self, address: int) -> Counters:
         """The traffic counters of ``address`` (zeros until a frame names it)."""
@@ -266,7 +297,27 @@ class Bus:
         return None
 
     def handle(self, event: FrameEvent, now: float | None = None) -> Reply | None:
-        """Serve one framing event; ``now`` is model time (default: the event's time)."""
+        """Serve one framing event; ``now`` is model time (default: the event's time).
+
+        Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
+        line and to the addressed drive."""
+        baud = self.line_baud  # the request and its reply go at the baud before a 2009H write takes effect
+        reply = self._handle(event, now)
+        request = frame_time(len(event.data), baud, self.char_bits)
+        spent = request
+        if reply is not None:
+            spent = transaction_time(len(event.data), len(reply.data), baud, self.char_bits, reply.delay)
+        self.last_line_time, self.last_request_time = spent, request
+        self.line_busy_s += spent
+        if event.kind is not FrameKind.NOISE and len(event.data) >= 2:  # an addressed frame (noise is the line's)
+            counters = self.counters_of(reply.slave if reply is not None else event.data[0])
+            counters.line_busy_s += spent
+            if counters.first_t is None:
+                counters.first_t = event.t - request
+            counters.last_t = event.t + spent - request
+        return reply
+
+    def _handle(self, event: FrameEvent, now: float | None) -> Reply | None:
         t = event.t if now is None else now
         if event.kind is FrameKind.FRAME:
             return self._handle_frame(event, t)

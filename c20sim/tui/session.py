@@ -47,6 +47,7 @@ SERVE_OPTIONS = {
     "tcp": "--tcp",
     "modbus_tcp": "--modbus-tcp",
     "line_timing": "--line-timing",
+    "bus_timing": "--bus-timing",
     "control": "--control",
     "profile": "--profile",
     "drives": "--drives",
@@ -70,6 +71,10 @@ def serve_argv(args: argparse.Namespace, ready_file: str) -> list[str]:
             value = "127.0.0.1:0"
         if dest == "ready_file":
             value = ready_file
+        if dest == "bus_timing":
+            if value is False:
+                argv.append("--no-bus-timing")  # on is serve's default: only off needs saying
+            continue
         if value is None or value is False:
             continue
         argv += [option] if value is True else [option, str(value)]

@@ -18,6 +18,7 @@ from pymodbus.exceptions import ModbusIOException
 
 from c20sim.control.ctl import call
 from c20sim.wire.errors import C20SimError
+from c20sim.wire.protocol import frame_time, transaction_time
 from tests.conftest import wait_for_ready_file
 
 
@@ -184,6 +185,12 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         client.send(bytes.fromhex("01 03 21 00 00 01 00 00"))  # a bad CRC: the drive answers 0x06
         assert client.recv(5) == bytes.fromhex("01 83 06 C1 32")
     counters = json.loads(ctl(ready, "counters").stdout)
+    # The line's time of those frames at 19200 8N1 with the 2 ms turnaround: 3 reads, 3 exception replies,
+    # the silent read's request alone; the share is against the wall time they were spread over.
+    read_time, refused_time = transaction_time(8, 7, 19200, 10, 0.002), transaction_time(8, 5, 19200, 10, 0.002)
+    busy = 3 * read_time + 3 * refused_time + frame_time(8, 19200, 10)
+    assert counters.pop("line_busy_s") == round(busy, 3)  # ctl prints 3 decimals
+    assert 0.0 < counters.pop("line_share") <= 1.0
     assert counters == {
         "requests": 6,
         "replies": 3,

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from c20sim import cli
 from c20sim.cli import main
 
 
@@ -129,3 +130,10 @@ def test_a_mistyped_option_is_one_line_naming_the_command_and_what_was_meant(arg
         [sys.executable, "-m", "c20sim", *argv], capture_output=True, text=True, check=False, timeout=60
     )
     assert (result.returncode, result.stdout, result.stderr) == (2, "", said + "\n")
+
+
+def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to() -> None:
+    parser = cli.build_parser()
+    assert cli.serve_options(parser.parse_args(["serve", "--tcp", "127.0.0.1:0"])).bus_timing is True
+    off = parser.parse_args(["serve", "--tcp", "127.0.0.1:0", "--no-bus-timing"])
+    assert cli.serve_options(off).bus_timing is False
