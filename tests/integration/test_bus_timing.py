@@ -14,7 +14,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 from pymodbus import FramerType
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
@@ -71,10 +71,25 @@ async def client(server: Server, framer: FramerType) -> AsyncModbusTcpClient:
     return master
 
 
-async def reads(master: AsyncModbusTcpClient, n: int) -> None:
+async def reads(master: AsyncModbusTcpClient | AsyncModbusSerialClient, n: int) -> None:
     for _ in range(n):
         reply = await master.read_holding_registers(Reg.STATUS1, count=1, device_id=1)
         assert reply.registers == [3]
+
+
+async def test_a_master_on_the_pty_meets_the_lines_time_too(started: list[Server]) -> None:
+    server = await serve(started, pty=True)
+    assert server.endpoints.pty is not None
+    master = AsyncModbusSerialClient(server.endpoints.pty.path, framer=FramerType.RTU, timeout=5.0, retries=0)
+    assert await master.connect()
+    try:
+        began = time.monotonic()
+        await reads(master, N)
+        took = time.monotonic() - began
+    finally:
+        master.close()
+    assert took >= N * one_read_time(server)
+    assert server.sim.bus.counters_of(1).line_busy_s == pytest.approx(N * one_read_time(server), rel=1e-9)
 
 
 @pytest.mark.parametrize(("framer", "parity"), [(FramerType.RTU, "N"), (FramerType.RTU, "E"), (FramerType.SOCKET, "N")])
