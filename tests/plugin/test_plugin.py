@@ -339,7 +339,7 @@ def setup_error(result: pytest.RunResult) -> list[str]:
         (
             "@pytest.mark.c20sim(profil='c20-2200hv')",
             "c20sim marker: unknown setting profil (did you mean 'profile'?); "
-            "use profile, transport, drives, clock, speed, seed",
+            "use profile, transport, drives, clock, speed, seed, bus_timing",
         ),
         (
             "@pytest.mark.c20sim(profile='c20-400hx')",
