@@ -14,6 +14,18 @@ attacks run one after the other, each for ``--seconds``:
   the server takes them and never read a reply;
 - ``http``: 1,100 HTTP requests left unfinished (headers never ended), plus
   text/plain and form POSTs that try to trip the drive;
+- ``reset-files``: ``POST /reset`` of a 3 GiB sparse file, a FIFO and a link
+  to /dev/zero, over and over;
+- ``held``: 256 keep-alive connections that asked once and hold on, renewed
+  as the server closes them, while a legitimate HTTP client asks ``GET /time``
+  every 50 ms on a connection of its own each time (its answers and worst
+  time are in the load column);
+- ``slow-body``: 64 POSTs whose bodies stop half-way, renewed as they are
+  answered 408;
+- ``stream-reset``: stream readers that stop reading and reset their
+  connection while the server waits to send, one after the other;
+- ``bad-auth``: requests with a non-UTF-8 ``Authorization`` header (the
+  server has a token, from ``--control-token-file``);
 - ``quiet``: no attack, for reference.
 
 Then, the master stopped: 20 times a burst of 5,000 requests and close, and
@@ -21,7 +33,9 @@ at once a fresh client's first request, timed.
 
 For each phase: the load held (requests sent by the attackers, connections
 held), the server's RSS at its start and peak, and the master's polls asked,
-answered, median and worst reply time. Exit 1 if a poll went unanswered.
+answered, median and worst reply time (the worst is the figure each attack is
+judged by: how long the wire went unanswered). Exit 1 if a poll went
+unanswered, or the server's log has a traceback.
 
     .venv/bin/python bench/abuse.py --seconds 10
 """
@@ -233,6 +247,171 @@ def http_attack(control: int, stop: threading.Event) -> tuple[int, str]:
     return forms, load
 
 
+TOKEN = "abuse-bench-token"
+
+
+def http_request(control: int, method: str, path: str, body: bytes = b"", headers: bytes = b"") -> tuple[int, bytes]:
+    """One request with the token on a connection of its own; (status, body), (0, b"") if none came."""
+    auth = b"" if b"Authorization" in headers else f"Authorization: Bearer {TOKEN}\r\n".encode()
+    kind = b"Content-Type: application/json\r\n" if body else b""
+    head = f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{control}\r\nContent-Length: {len(body)}\r\n"
+    try:
+        with socket.create_connection(("127.0.0.1", control), timeout=30) as sock:
+            sock.sendall(head.encode() + auth + kind + headers + b"Connection: close\r\n\r\n" + body)
+            data = b""
+            while chunk := sock.recv(65536):
+                data += chunk
+        return int(data.split(b" ", 2)[1]), data.partition(b"\r\n\r\n")[2]
+    except (OSError, IndexError, ValueError):
+        return 0, b""
+
+
+def reset_files(control: int, workdir: Path, stop: threading.Event) -> tuple[int, str]:
+    sparse, fifo, zero = workdir / "sparse", workdir / "fifo", workdir / "zero"
+    with open(sparse, "wb") as f:
+        f.truncate(3 * 1024**3)
+    if not fifo.exists():
+        os.mkfifo(fifo)
+    if not zero.exists():
+        zero.symlink_to("/dev/zero")
+    statuses: dict[int, int] = {}
+    sent = 0
+    while not stop.is_set():
+        for path in (sparse, fifo, zero):
+            status, _ = http_request(control, "POST", "/reset", json.dumps({"setup": str(path)}).encode())
+            statuses[status] = statuses.get(status, 0) + 1
+            sent += 1
+        stop.wait(0.02)
+    answers = ", ".join(f"{n} x {s or 'no answer'}" for s, n in sorted(statuses.items()))
+    return sent, f"POST /reset of a 3 GiB sparse file, a FIFO, a link to /dev/zero: {answers}"
+
+
+def held(control: int, stop: threading.Event) -> tuple[int, str]:
+    holders: list[socket.socket] = []
+    opened = 0
+    request = f"GET /time HTTP/1.1\r\nHost: 127.0.0.1:{control}\r\nAuthorization: Bearer {TOKEN}\r\n\r\n"
+    legit: list[float] = []
+    legit_status: dict[int, int] = {}
+
+    def legitimate() -> None:
+        while not stop.is_set():
+            start = time.perf_counter()
+            status, _ = http_request(control, "GET", "/time")
+            legit.append(time.perf_counter() - start)
+            legit_status[status] = legit_status.get(status, 0) + 1
+            stop.wait(0.05)
+
+    client = threading.Thread(target=legitimate, daemon=True)
+    client.start()
+    while not stop.is_set():
+        alive = []
+        for sock in holders:  # those the server closed are opened again
+            try:
+                sock.setblocking(False)
+                gone = sock.recv(65536) == b""
+            except BlockingIOError:
+                gone = False
+            except OSError:
+                gone = True
+            if gone:
+                sock.close()
+            else:
+                alive.append(sock)
+        holders = alive
+        while len(holders) < 256 and not stop.is_set():
+            try:
+                sock = socket.create_connection(("127.0.0.1", control), timeout=2)
+                sock.sendall(request.encode())
+                holders.append(sock)
+                opened += 1
+            except OSError:
+                break
+        stop.wait(0.2)
+    client.join(30)
+    for sock in holders:
+        sock.close()
+    ordered = sorted(legit)
+    answers = ", ".join(f"{n} x {s or 'no answer'}" for s, n in sorted(legit_status.items()))
+    worst = ordered[-1] * 1000 if ordered else float("nan")
+    return opened, (
+        f"256 keep-alive holders ({opened} opened in all); a legitimate client: {answers}, "
+        f"median {percentile(ordered, 50) * 1000:.1f} ms, worst {worst:.1f} ms"
+    )
+
+
+def slow_body(control: int, stop: threading.Event) -> tuple[int, str]:
+    held_now: list[socket.socket] = []
+    sent = 0
+    answered: dict[bytes, int] = {}
+    head = (
+        f"POST /time/advance HTTP/1.1\r\nHost: 127.0.0.1:{control}\r\nAuthorization: Bearer {TOKEN}\r\n"
+        'Content-Type: application/json\r\nContent-Length: 100\r\n\r\n{"seconds": '
+    ).encode()
+    while not stop.is_set():
+        alive = []
+        for sock in held_now:
+            try:
+                sock.setblocking(False)
+                data = sock.recv(65536)
+                status = data[9:12] if data else b"closed"
+                answered[status] = answered.get(status, 0) + 1
+                sock.close()
+            except BlockingIOError:
+                alive.append(sock)
+            except OSError:
+                sock.close()
+        held_now = alive
+        while len(held_now) < 64:
+            try:
+                sock = socket.create_connection(("127.0.0.1", control), timeout=2)
+                sock.sendall(head)
+                held_now.append(sock)
+                sent += 1
+            except OSError:
+                break
+        stop.wait(0.2)
+    for sock in held_now:
+        sock.close()
+    answers = ", ".join(f"{n} x {s.decode()}" for s, n in sorted(answered.items()))
+    return sent, f"64 bodies that stop half-way held at a time ({sent} in all); answered: {answers or 'none yet'}"
+
+
+def stream_reset(control: int, stop: threading.Event) -> tuple[int, str]:
+    readers = 0
+    while not stop.is_set():
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        try:
+            sock.settimeout(5)
+            sock.connect(("127.0.0.1", control))
+            key = "dGhlIHNhbXBsZSBub25jZQ=="
+            sock.sendall(
+                f"GET /stream?hz=50&token={TOKEN} HTTP/1.1\r\nHost: 127.0.0.1:{control}\r\n"
+                "Upgrade: websocket\r\nConnection: Upgrade\r\n"
+                f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+            )
+            stop.wait(1.5)  # unread: the server's sends pile up until it waits
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            readers += 1
+        except OSError:
+            pass
+        finally:
+            sock.close()
+    return readers, f"{readers} stream readers that stopped reading, then reset their connection"
+
+
+def bad_auth(control: int, stop: threading.Event) -> tuple[int, str]:
+    statuses: dict[int, int] = {}
+    sent = 0
+    while not stop.is_set():
+        status, _ = http_request(control, "GET", "/time", headers=b"Authorization: Bearer \xff\xfe\r\n")
+        statuses[status] = statuses.get(status, 0) + 1
+        sent += 1
+        stop.wait(0.01)
+    answers = ", ".join(f"{n} x {s or 'no answer'}" for s, n in sorted(statuses.items()))
+    return sent, f"non-UTF-8 Authorization headers: {answers}"
+
+
 def quiet(stop: threading.Event) -> tuple[int, str]:
     stop.wait()
     return 0, "none"
@@ -245,7 +424,10 @@ def serve(workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, str], int]:
     ready = workdir / "ready.json"
     read_end, write_end = os.pipe()  # the frame log's reader: never reads
     command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0"]
+    (workdir / "token").write_text(TOKEN + "\n")
+    command.append("--no-bus-timing")  # the server's own limits, as recorded before bus timing (issue 27)
     command += ["--pty", "--control", "127.0.0.1:0", "--log-frames", "/dev/stdout", "--ready-file", str(ready)]
+    command += ["--control-token-file", str(workdir / "token"), "--drives", ",".join(map(str, range(1, 33)))]
     proc = subprocess.Popen(command, stdout=write_end, stderr=subprocess.PIPE, cwd=ROOT)
     os.close(write_end)
     deadline = time.monotonic() + 20
@@ -303,6 +485,11 @@ def main() -> int:
                 run_phase("pty-burst", lambda s: pty_burst(info["pty"], s), args.seconds, proc.pid, parent),
                 run_phase("never-reads", lambda s: never_reads(ports, s), args.seconds, proc.pid, parent),
                 run_phase("http", lambda s: http_attack(control, s), args.seconds, proc.pid, parent),
+                run_phase("reset-files", lambda s: reset_files(control, Path(tmp), s), args.seconds, proc.pid, parent),
+                run_phase("held", lambda s: held(control, s), args.seconds, proc.pid, parent),
+                run_phase("slow-body", lambda s: slow_body(control, s), args.seconds, proc.pid, parent),
+                run_phase("stream-reset", lambda s: stream_reset(control, s), args.seconds, proc.pid, parent),
+                run_phase("bad-auth", lambda s: bad_auth(control, s), args.seconds, proc.pid, parent),
             ]
             parent.send("stop")
             parent.recv()

@@ -132,6 +132,7 @@ def with_stream(profile: Path, tmp: Path) -> Iterator[tuple[dict[str, str], list
 def headless(profile: Path, tmp: Path) -> Iterator[tuple[dict[str, str], list[int]]]:
     ready = tmp / f"ready-{uuid.uuid4().hex[:6]}.json"
     argv = [sys.executable, "-m", "c20sim", "serve", "--profile", str(profile), "--tcp", "127.0.0.1:0"]
+    argv.append("--no-bus-timing")  # the traffic as recorded before bus timing (issue 27)
     argv += ["--control", "127.0.0.1:0", "--ready-file", str(ready)]
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, cwd=ROOT)
     try:

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from c20sim.drive.model import (
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
+    F_CURRENT_LIMITING,
     F_MOTOR_OVERLOAD_COEFFICIENT,
     F_OV_STALL,
     STEP,
@@ -100,6 +101,7 @@ def overload_seconds(profile: Profile, amps: float, coefficient_raw: int) -> tup
     m = profile.motor
     drive = Drive(profile)
     drive.write(F_MOTOR_OVERLOAD_COEFFICIENT, coefficient_raw)
+    drive.write(F_CURRENT_LIMITING, 0)  # a start carrying 180 % of the drive's rating passes the 160 % level
     drive.write(cell(profile, Reg.ACCEL_TIME), 50)
     drive.set_load_torque(amps * m.kt_nm_per_a - m.friction_nm - m.viscous_nm_per_krpm * 1.5)
     drive.write(Reg.SPEED_SETPOINT, 1500)
@@ -129,7 +131,7 @@ def overload(profile: Profile) -> list[Row]:
         seconds, name = overload_seconds(profile, drive_amps * multiple, 1000)
         rows.append(
             (
-                f"drive overload at {multiple:.0%} of the drive's {drive_amps:g} A",
+                f"drive overload at {multiple:.0%} of the drive's {drive_amps:g} A (F11.05 = 0)",
                 f"{published} (INVT G type, GD20 specifications)",
                 f"{name} after {seconds:.1f} s",
             )
@@ -171,6 +173,7 @@ def heating(profile: Profile) -> list[Row]:
     th, m = profile.thermal, profile.motor
     amps = 0.95 * profile.protection.current_limit_a
     drive = run(profile, 0)
+    drive.write(F_CURRENT_LIMITING, 0)  # 95 % of the clamp is above the limiting level
     drive.set_active_load(amps * m.kt_nm_per_a)
     drive.advance_to(5.0)
     before = drive.telemetry().temperature_c
@@ -181,7 +184,7 @@ def heating(profile: Profile) -> list[Row]:
     expected = gap * (1 - math.exp(-3.0 / th.time_constant_s))
     return [
         (
-            f"inverter heating, 3 s holding {amps:g} A at standstill",
+            f"inverter heating, 3 s holding {amps:g} A at standstill (F11.05 = 0)",
             f"assumed losses {loss:.0f} W (I^2 R + W/A): +{expected:.2f} K",
             f"+{rise:.2f} K",
         )
@@ -214,33 +217,66 @@ def undervoltage(profile: Profile) -> list[Row]:
     ]
 
 
-def overcurrent(profile: Profile) -> list[Row]:
+def start_stop(
+    profile: Profile, inertia: float, limiting: int, stall: int = 1, stop_limiting: int = -1
+) -> tuple[str, str]:
+    """Run to 3000 rpm on the 0.5 s ramp, then stop with a 0.1 s decel (2004H = 1): what each did, in words.
+
+    ``stop_limiting`` (F11.05 for the stop; -1: as for the start) lets a stop be measured after a start that
+    limiting off would have tripped."""
+    drive = run(profile, 3000, inertia=inertia, t=0.0)
+    drive.write(F_CURRENT_LIMITING, limiting)
+    peak = 0.0
+
+    def watch(d: Drive) -> bool:
+        nonlocal peak
+        peak = max(peak, abs(d.telemetry().current_a))
+        return d.read(Reg.STATUS1) == 4 or d.read(Reg.MOTOR_SPEED) == 3000
+
+    end = until(drive, watch, 30.0) or 30.0
+    if drive.read(Reg.STATUS1) == 4:
+        return f"{fault_name(drive)} at {end * 1000:.0f} ms", "-"
+    started = f"{end:.2f} s, at most {peak:.1f} A"
+    drive.write(F_OV_STALL, stall)
+    if stop_limiting >= 0:
+        drive.write(F_CURRENT_LIMITING, stop_limiting)
+    drive.write(cell(profile, Reg.DECEL_TIME), 1)
+    drive.write(Reg.COMMAND, 5)
+    began = drive.t
+    stop = until(drive, lambda d: d.read(Reg.STATUS1) in (4, 6), began + 60.0) or began + 60.0
+    if drive.read(Reg.STATUS1) == 4:
+        return started, f"{fault_name(drive)} at {(stop - began) * 1000:.0f} ms"
+    return started, f"{stop - began:.2f} s"
+
+
+def current_limiting(profile: Profile) -> list[Row]:
+    """Start (0.5 s ramp) and stop (0.1 s ramp) times against the coupled inertia, with and without limiting."""
+    m, p = profile.motor, profile.protection
+    level = p.drive_rated_current_a * 1.6
     rows = []
-    inertia = 32 * profile.motor.inertia_kg_m2
-    for accel_raw in (5, 10):
-        drive = run(profile, 3000, accel_raw=accel_raw, inertia=inertia, t=0.0)
-        peak = 0.0
-
-        def watch(d: Drive) -> bool:
-            nonlocal peak
-            peak = max(peak, abs(d.telemetry().current_a))
-            return d.read(Reg.STATUS1) == 4 or d.read(Reg.MOTOR_SPEED) == 3000
-
-        end = until(drive, watch, 10.0) or 10.0
-        asks = 33 * profile.motor.inertia_kg_m2 * 3000 * RPM / (accel_raw / 10) / profile.motor.kt_nm_per_a
-        outcome = (
-            f"{fault_name(drive)} at {end * 1000:.0f} ms"
-            if drive.read(Reg.STATUS1) == 4
-            else f"no fault; at 3000 rpm after {end:.2f} s, current at most {peak:.1f} A"
-        )
+    for times in (0, 3, 10, 30, 100, 170):
+        inertia = times * m.inertia_kg_m2
+        asks = (m.inertia_kg_m2 + inertia) * 3000 * RPM / 0.5 / m.kt_nm_per_a
+        on_start, on_stop = start_stop(profile, inertia, 1)
+        off_start, _ = start_stop(profile, inertia, 0)
+        _, off_stop = start_stop(profile, inertia, 1, stop_limiting=0)
         rows.append(
             (
-                f"{accel_raw / 10:g} s accel to 3000 rpm, 33x rotor inertia (asks {asks:.0f} A)",
-                f"OC1 above the {profile.protection.overcurrent_a:g} A trip, else held at the "
-                f"{profile.protection.current_limit_a:g} A limit",
-                outcome,
+                f"{inertia:.4f} kg m^2 coupled ({times}x rotor): start 0.5 s ramp (asks {asks:.0f} A) / stop 0.1 s",
+                f"limiting on (F11.05 = 1, GD20 P11.05): no trip, held at {level:.1f} A (160 %); "
+                f"off: OC1/OC2 above the {p.overcurrent_a:g} A trip",
+                f"on: start {on_start}, stop {on_stop}; off: start {off_start}, stop {off_stop}",
             )
         )
+    inertia = 0.05 * m.inertia_kg_m2 / 0.0003  # 0.05 kg m^2 on the 400 W rotor, scaled by the rotor
+    _, stall_off = start_stop(profile, inertia, 1, stall=0)
+    rows.append(
+        (
+            f"{inertia:.3f} kg m^2: the same stop, F11.03 = 0 (stall prevention off)",
+            "OV2: the regenerated energy pumps the bus up",
+            f"stop {stall_off}",
+        )
+    )
     return rows
 
 
@@ -291,6 +327,8 @@ def active_load(profile: Profile) -> list[Row]:
     fast = run(profile, 3000)
     fast.set_active_load(pulling)
     tripped = until(fast, lambda d: d.read(Reg.STATUS1) == 4, 13.0)
+    fast.advance_to(60.0)  # tripped: the output off, the load's characteristic and the friction bound the rotor
+    free = fast.telemetry().speed_rpm
     held = run(profile, 0)
     held.set_active_load(-0.5 * rated)
     held.advance_to(8.0)
@@ -304,6 +342,12 @@ def active_load(profile: Profile) -> list[Row]:
             f"the same at 3000 rpm, {pulling:.2f} N m (90 % of the current limit)",
             "OV3 once the regenerated power passes the chopper's",
             f"{fault_name(fast)}" + (f" after {tripped - 3.0:.2f} s" if tripped else ""),
+        ),
+        (
+            "the tripped drive's rotor, 60 s on: speed / 3006H",
+            f"settles where the load's pull (full to {m.rated_speed_rpm:g} rpm, none at "
+            f"{m.active_load_free_rpm:g} rpm; assumed) meets the friction / the sheet's top, 3000",
+            f"{free:.1f} rpm / {fast.read(Reg.MOTOR_SPEED)}",
         ),
         (
             f"held at 0 rpm against {0.5 * rated:.2f} N m",
@@ -338,7 +382,7 @@ def main() -> None:
             speed_loop,
             heating,
             undervoltage,
-            overcurrent,
+            current_limiting,
             hall,
             comm_actions,
             active_load,

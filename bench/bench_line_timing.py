@@ -19,7 +19,12 @@ It reports:
   master sleeps between bytes and spins the last 0.15 ms, so that the pty's
   kernel worker can pass each byte on: see docs/line-timing.md) with one
   silence inside it, ``--gap-trials`` times each: 1.28 x t1.5 (1.0 ms at
-  19200), which the drive discards, and 0.64 x t1.5, which it answers.
+  19200), which the drive discards, and 0.64 x t1.5, which it answers;
+- t3.5 judged the same way: two garbage bytes, a silence, the request, written
+  at the line's pace: 0.9 x t3.5 of silence leaves one spoilt frame (no
+  reply), 1.1 x t3.5 splits the request off (answered). The tests
+  (tests/integration/test_line_timing.py) assert only what load cannot
+  break; these fine figures are recorded here.
 
 ``--load`` runs every baud again with load on the machine: one CPU burner per
 core, and an RTU-over-TCP client polling the same server as fast as it answers
@@ -60,6 +65,10 @@ REPLY = encode(ReadResponse(1, (0x0020,)))  # 2103H: the drive ID
 #: The silences inside a request for the t1.5 trials, in t1.5: over it (discarded), under it (answered).
 GAP_OVER = 1.28
 GAP_UNDER = 0.64
+#: The silences between garbage and a request for the t3.5 trials, in t3.5: under it (joined), over it (split).
+SILENCE_JOINED = 0.9
+SILENCE_SPLIT = 1.1
+GARBAGE = b"\xff\x00"  # FF: a reserved address, so a spoilt frame gets silence
 #: The master sleeps until this long before a byte's time and spins the rest (seconds).
 SPIN = 0.00015
 #: The master's SCHED_FIFO priority where allowed: above the simulator's timing threads (10), so that the
@@ -77,6 +86,8 @@ class Result:
     gap_trials: int = 0
     over_answered: int = 0  #: requests with a silence of GAP_OVER x t1.5 inside that were answered (should be 0)
     under_answered: int = 0  #: the same with GAP_UNDER x t1.5 (should be all)
+    joined_answered: int = 0  #: garbage, SILENCE_JOINED x t3.5, a request: answered (should be none)
+    split_answered: int = 0  #: the same with SILENCE_SPLIT x t3.5 (should be all)
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -87,6 +98,7 @@ def percentile(values: list[float], q: float) -> float:
 def start_server(baud: int, extra: list[str]) -> tuple[subprocess.Popen[bytes], dict[str, object]]:
     ready = Path(tempfile.mkdtemp()) / "ready.json"
     cmd = [sys.executable, "-m", "c20sim", "serve", "--pty", "--line-timing", "--baud", str(baud)]
+    cmd.append("--no-bus-timing")  # the --load client polls as fast as the server answers, as before issue 27
     cmd += [*extra, "--ready-file", str(ready)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 20
@@ -182,6 +194,16 @@ def measure(pty: str, baud: int, requests: int, turnaround: float, gap_trials: i
                     else:
                         result.under_answered += 1
                 pause((stamps[-1] if stamps else time.perf_counter()) + t35 * 1.5)
+            for factor in (SILENCE_JOINED, SILENCE_SPLIT):
+                drain(fd)
+                send_paced(fd, GARBAGE + REQUEST, char, len(GARBAGE), factor * t35)
+                data, stamps = receive(fd, time.perf_counter() + timeout)
+                if data == REPLY:
+                    if factor == SILENCE_JOINED:
+                        result.joined_answered += 1
+                    else:
+                        result.split_answered += 1
+                pause((stamps[-1] if stamps else time.perf_counter()) + t35 * 1.5)
     finally:
         instrument_priority(False)  # else the next baud's server and load helpers would inherit it
         os.close(fd)
@@ -240,7 +262,12 @@ def report(result: Result, turnaround: float) -> str:
     earliest = (t35 + max(turnaround, char_time(result.baud))) * 1000
     share = 100.0 * result.answered / result.requests
     n = result.gap_trials
-    gaps = f"{result.over_answered}/{n} | {result.under_answered}/{n} |" if n else "- | - |"
+    gaps = (
+        f"{result.over_answered}/{n} | {result.under_answered}/{n} | {result.joined_answered}/{n} | "
+        f"{result.split_answered}/{n} |"
+        if n
+        else "- | - | - | - |"
+    )
     if not result.spacing_ms:
         return (
             f"| {result.baud:>5} | {char:.3f} | - | - | - | - | {ideal_start:.3f} / {earliest:.3f} | - | - | "
@@ -297,7 +324,9 @@ def main() -> None:
     parser.add_argument("--requests", type=int, default=1000, help="requests per baud rate (default 1000)")
     parser.add_argument("--bauds", default=",".join(map(str, BAUDS)), help="comma-separated baud rates")
     parser.add_argument("--load", action="store_true", help="with CPU burners and an RTU-over-TCP poller")
-    parser.add_argument("--gap-trials", type=int, default=200, help="t1.5 trials per gap and baud (default 200)")
+    parser.add_argument(
+        "--gap-trials", type=int, default=200, help="t1.5 and t3.5 trials per silence and baud (default 200)"
+    )
     args = parser.parse_args()
     turnaround = load_profile().protocol.turnaround_ms / 1000
     print(f"line timing on a pty, {args.requests} requests per baud, {'under load' if args.load else 'idle'}")
@@ -312,9 +341,10 @@ def main() -> None:
         "| baud | ideal spacing ms | median | p5 | p95 | within +-0.1 char | ideal start ms (t3.5 + turnaround / "
         "earliest the framing allows) | "
         f"start median | start p5-p95 | answered | {GAP_OVER} x t1.5 gap answered (drive: none) | "
-        f"{GAP_UNDER} x t1.5 gap answered (drive: all) |"
+        f"{GAP_UNDER} x t1.5 gap answered (drive: all) | garbage, {SILENCE_JOINED} x t3.5, request: answered "
+        f"(drive: none) | garbage, {SILENCE_SPLIT} x t3.5, request: answered (drive: all) |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for baud in (int(b) for b in args.bauds.split(",")):
         result = run(baud, args.requests, args.load, turnaround, args.gap_trials)
         print(report(result, turnaround), flush=True)

@@ -108,6 +108,7 @@ def idle_serve(seconds: float) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         ready = Path(tmp) / "ready.json"
         command = [sys.executable, "-m", "c20sim", "serve", "--pty", "--tcp", "127.0.0.1:0"]
+        command.append("--no-bus-timing")  # the process's own cost, as recorded before bus timing (issue 27)
         command += ["--modbus-tcp", "127.0.0.1:0", "--drives", "1-247", "--clock", "realtime"]
         command += ["--ready-file", str(ready)]
         proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

@@ -7,14 +7,20 @@ do, and exit code 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import difflib
+import logging
 import os
+import re
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NoReturn, cast
 
+from .control.client import TOKEN_ENV
 from .control.ctl import add_ctl_command
 from .core.simulator import Simulator, make_clock
+from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .plant import add_plant_commands, drive_addresses
 from .scenario.schema import add_schema_command
@@ -28,6 +34,11 @@ from .wire.errors import C20SimError
 from .wire.registers import BAUD_RATES, format_fcode
 
 __all__ = ["main"]
+
+
+#: The endpoints of a bare ``c20sim`` or ``c20sim serve``: RTU over TCP and Modbus TCP, on unprivileged ports.
+DEFAULT_TCP = "127.0.0.1:5020"
+DEFAULT_MODBUS_TCP = "127.0.0.1:1502"
 
 
 class UsageError(C20SimError):
@@ -50,7 +61,8 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
     where = parser.add_argument_group(
-        "endpoints (with none: --pty and --tcp 127.0.0.1:5020; --tcp alone where there are no ptys)"
+        f"endpoints (with none: --pty, --tcp {DEFAULT_TCP} and --modbus-tcp {DEFAULT_MODBUS_TCP}; "
+        "no --pty where there are no ptys)"
     )
     where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
     where.add_argument(
@@ -69,12 +81,30 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--modbus-tcp", metavar="HOST:PORT", help="Modbus TCP (MBAP), as an Ethernet gateway")
     where.add_argument("--line-timing", action="store_true", help="pace replies at the baud and enforce t1.5/t3.5")
     where.add_argument(
+        "--bus-timing",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="each transaction holds the shared line for its RS485 time at the drives' baud and --parity/--stopbits, "
+        "on every transport, as behind a serial device server (default on; --no-bus-timing: only the turnaround)",
+    )
+    where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
+    )
+    where.add_argument(
+        "--metrics",
+        metavar="HOST:PORT",
+        help="serve GET /metrics alone (Prometheus, read-only, no token), such as 0.0.0.0:9120",
     )
     where.add_argument(
         "--control-token",
         metavar="TOKEN",
-        help="the token the control API asks for (beyond loopback one is generated and written to the ready file)",
+        help="the token the control API asks for (beyond loopback one is generated and written to the ready file); "
+        f"visible to every local user in the process list: prefer --control-token-file or ${TOKEN_ENV}",
+    )
+    where.add_argument(
+        "--control-token-file",
+        metavar="PATH",
+        help=f"read the control API's token from this file (or give it in ${TOKEN_ENV})",
     )
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
@@ -97,7 +127,7 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "--log-frames-max-mb",
         type=float,
         metavar="MB",
-        help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3)",
+        help="rotate the frame log at this size, keeping 3 old files (PATH.1 to PATH.3); default 100, 0 for no bound",
     )
     what.add_argument("--ready-file", metavar="PATH", help="write the real endpoint addresses as JSON when ready")
     what.add_argument(
@@ -130,22 +160,58 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         tcp=args.tcp,
         modbus_tcp=args.modbus_tcp,
         line_timing=args.line_timing,
+        bus_timing=args.bus_timing,
         log_frames=args.log_frames,
         log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,
         control=args.control,
         control_token=args.control_token,
+        metrics=args.metrics,
         scenario=getattr(args, "scenario", None),
         audit=getattr(args, "audit", True),
+        then=getattr(args, "then", None) or "exit",
     )
     if not options.any_endpoint:
         options.pty = pty_supported()  # no pty on Windows: TCP alone
-        options.tcp = "127.0.0.1:5020"
+        options.tcp = DEFAULT_TCP
+        options.modbus_tcp = DEFAULT_MODBUS_TCP  # most SCADA masters speak Modbus TCP: there is a port for them
     return options
 
 
+def control_token(args: argparse.Namespace) -> str | None:
+    """The control API's token: ``--control-token`` (warned: the process list shows it to every local user),
+    ``--control-token-file``, or ``$C20SIM_CONTROL_TOKEN``; None for none."""
+    given, path = args.control_token, args.control_token_file
+    if given is not None and path is not None:
+        raise UsageError("give --control-token or --control-token-file, not both")
+    if given is not None:
+        if not given.strip():
+            raise C20SimError("--control-token: empty; give a token, or leave the option out")
+        print(
+            "c20sim: warning: --control-token: every user of this machine can read the token in the process list; "
+            f"give it in a file (--control-token-file PATH) or in the environment (${TOKEN_ENV})",
+            file=sys.stderr,
+            flush=True,
+        )
+        return str(given)
+    if path is not None:
+        try:
+            token = read_text(path, "token file").strip()
+        except FileReadError as exc:
+            raise C20SimError(f"--control-token-file {exc}") from None
+        if not token:
+            raise C20SimError(f"--control-token-file {path}: empty; put the token in it")
+        if any(c.isspace() for c in token) or not token.isprintable():
+            raise C20SimError(f"--control-token-file {path}: the token is one line of printable text, no spaces")
+        return token
+    return os.environ.get(TOKEN_ENV) or None
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
+    args.control_token = control_token(args)
     options = serve_options(args)
+    if args.then is not None and not options.scenario:
+        raise UsageError("--then: it says what follows a --scenario; give --scenario FILE too, or leave --then out")
     sim = build_simulator(args)
     return run(run_server(sim, options))  # 1 if a --scenario failed: CI sees it in the exit code
 
@@ -153,12 +219,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_dashboard(args: argparse.Namespace) -> int:
     from .tui.session import run_dashboard  # textual loads only for the dashboard
 
+    args.control_token = control_token(args)
     return run_dashboard(args, args.serve_defaults)
 
 
 def cmd_web(args: argparse.Namespace) -> int:
     from .tui.web import run_web  # textual-serve loads only for the browser view
 
+    args.control_token = control_token(args)
     return run_web(args, args.serve_defaults)
 
 
@@ -210,11 +278,54 @@ def render_profile(profile: Profile) -> str:
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse, but a bad option is one line (what is wrong, and where the usage is) and exit 2, as every other
-    error of c20sim; ``--help`` still prints the whole usage."""
+    """argparse, but a bad option is one line (what is wrong, a "did you mean" where one is close, and the help of
+    the command it was given to) and exit 2, as every other error of c20sim; ``--help`` still prints the whole
+    usage."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"c20sim: {self.prog}: {message} (see: {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: {message}{self._suggestion(message)} (see: {self.prog} --help)\n")
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        """As argparse's, but an unknown option is reported by the (sub)command it was given to, not the top."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            chosen = self._chosen(parsed)
+            chosen.error(f"unrecognized arguments: {' '.join(extras)}{chosen._did_you_mean(extras)}")
+        return parsed
+
+    def _chosen(self, parsed: argparse.Namespace) -> OneLineParser:
+        """The deepest subcommand's parser that ``parsed`` went through (``c20sim ctl frames``)."""
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                name = getattr(parsed, action.dest, None) if action.dest != argparse.SUPPRESS else None
+                found = action.choices.get(name) if isinstance(name, str) else None
+                if isinstance(found, OneLineParser):
+                    return found._chosen(parsed)
+        return self
+
+    def _did_you_mean(self, extras: Sequence[str]) -> str:
+        known = [option for action in self._actions for option in action.option_strings]
+        for word in extras:
+            if word.startswith("-"):
+                close = difflib.get_close_matches(word.split("=", 1)[0], known, n=1, cutoff=0.6)
+                if close:
+                    return f"; did you mean {close[0]}?"
+        return ""
+
+    @staticmethod
+    def _suggestion(message: str) -> str:
+        """A "did you mean" for a mistyped value of a choice (a command, a profile kind, a clock)."""
+        found = _INVALID_CHOICE.search(message)
+        if found is None:
+            return ""
+        choices = [c.strip().strip("'") for c in found.group(2).split(",")]
+        close = difflib.get_close_matches(found.group(1), choices, n=1, cutoff=0.6)
+        return f"; did you mean {close[0]}?" if close else ""
+
+
+_INVALID_CHOICE = re.compile(r"invalid choice: '(.*?)' \(choose from (.*)\)$")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,7 +350,13 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument(
         "--scenario",
         metavar="FILE",
-        help="play a TOML scenario against the served drives once ready (c20sim.scenario.timeline)",
+        help="play a TOML scenario against the served drives once ready, then stop with its exit code "
+        "(0 passed, 1 failed) unless --then serve",
+    )
+    serve.add_argument(
+        "--then",
+        choices=["exit", "serve"],
+        help="after --scenario: exit (the default: a CI job's serve ends) or serve on until SIGINT or SIGTERM",
     )
     serve.set_defaults(func=cmd_serve)
 
@@ -274,11 +391,13 @@ def with_default_command(argv: Sequence[str], commands: Iterable[str]) -> list[s
     """Bare ``c20sim`` and ``c20sim --pty --link /tmp/ttyC20`` mean the dashboard: its options need no command word.
 
     ``-h``/``--help`` alone still asks for the command list.
+    A first word that is no option and no command is left where it is: a mistyped command (``c20sim serv``)
+    is said as one, with a "did you mean", rather than as an argument the dashboard does not take.
     """
     words = list(argv)
     if not words:
         return ["dashboard"]
-    if words[0] in commands or words[0] in ("-h", "--help"):
+    if words[0] in commands or words[0] in ("-h", "--help") or not words[0].startswith("-"):
         return words
     return ["dashboard", *words]
 
@@ -289,6 +408,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(with_default_command(sys.argv[1:] if argv is None else argv, commands or ()))
     try:
         result: int = args.func(args)
+        if argv is None and args.func is cmd_serve:
+            _leave(result)  # a process of its own (the c20sim command, python -m c20sim): nothing else runs after
         return result
     except C20SimError as exc:
         print(f"c20sim: {exc}", file=sys.stderr)
@@ -304,6 +425,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
         return 0
+
+
+def _leave(code: int) -> NoReturn:
+    """End a ``serve`` process now that it has closed everything it opened, skipping the interpreter's teardown.
+
+    By the time serve returns, its ports and link are closed, the ready file and the link are removed, the frame
+    log's writer has written what it had and stopped, and the state file was saved at each write (c20sim registers
+    no atexit handler and no finalizer). What the interpreter would do next is tear down some 400 modules, which
+    took 0.1-0.3 s after a SIGTERM on an idle server (more on a loaded machine): a service manager, the dashboard
+    and CI wait for that. Buffered output is written first.
+    """
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a reader that has gone: nothing more to say to it
+            stream.flush()
+    os._exit(code)
 
 
 def _stdout_gone() -> bool:

@@ -15,17 +15,18 @@ library; the tests read the output back with an independent parser.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from . import __version__
 from .core.simulator import parse_addresses
+from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .transport.probe import NoAnswer, Prober
 from .transport.tcp import parse_host_port
@@ -38,6 +39,8 @@ __all__ = ["PlantSpec", "add_plant_commands", "check_bus", "plant_manifests", "t
 #: the ports inside every bus's container (the image EXPOSEs them)
 RTU_PORT = 5020
 MODBUS_PORT = 1502
+#: Each pod's read-only GET /metrics listener (serve --metrics), for Prometheus' scrape annotations.
+METRICS_PORT = 9120
 #: the environment variable that carries the drives list (from the ConfigMap) to serve and to the probe
 DRIVES_ENV = "C20SIM_DRIVES"
 #: the image's user (deploy/Containerfile)
@@ -58,6 +61,7 @@ class PlantSpec:
     name: str = "c20sim"
     rtu_port_base: int = RTU_PORT
     modbus_port_base: int = MODBUS_PORT
+    metrics_port_base: int = METRICS_PORT
 
     def bus_name(self, bus: int) -> str:
         return f"{self.name}-bus-{bus}"
@@ -79,15 +83,17 @@ def check_spec(spec: PlantSpec) -> None:
             f"--name {spec.name!r}: give lower-case letters, digits and '-', starting with a letter, "
             f"at most {longest} characters"
         )
-    for option, base in (("--rtu-port-base", spec.rtu_port_base), ("--modbus-port-base", spec.modbus_port_base)):
+    bases = {
+        "--rtu-port-base": spec.rtu_port_base,
+        "--modbus-port-base": spec.modbus_port_base,
+        "--metrics-port-base": spec.metrics_port_base,
+    }
+    for option, base in bases.items():
         if not 1 <= base <= 65536 - spec.buses:
             raise C20SimError(f"{option} {base}: give 1-{65536 - spec.buses} (bus i is published at BASE+i)")
-    rtu = set(range(spec.rtu_port_base, spec.rtu_port_base + spec.buses))
-    if rtu & set(range(spec.modbus_port_base, spec.modbus_port_base + spec.buses)):
-        raise C20SimError(
-            f"--rtu-port-base {spec.rtu_port_base} and --modbus-port-base {spec.modbus_port_base}: "
-            f"the host ports of {spec.buses} buses overlap; move one base"
-        )
+    for (one, a), (other, b) in itertools.combinations(bases.items(), 2):
+        if set(range(a, a + spec.buses)) & set(range(b, b + spec.buses)):
+            raise C20SimError(f"{one} {a} and {other} {b}: the host ports of {spec.buses} buses overlap; move one base")
     if not spec.image or any(c.isspace() for c in spec.image):
         raise C20SimError(f"--image {spec.image!r}: give an image name such as localhost/c20sim:{__version__}")
 
@@ -136,6 +142,8 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
             f"0.0.0.0:{MODBUS_PORT}",
             "--profile",
             "/etc/c20sim/profile.toml",
+            "--metrics",
+            f"0.0.0.0:{METRICS_PORT}",
         ],
         # serve and the readiness probe both take the drives from $C20SIM_DRIVES, so the ConfigMap is
         # their one source (podman kube play does not expand $(VAR) in args, a cluster would)
@@ -158,6 +166,12 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
                 "hostPort": spec.modbus_port_base + bus,
                 "protocol": "TCP",
             },
+            {
+                "name": "metrics",
+                "containerPort": METRICS_PORT,
+                "hostPort": spec.metrics_port_base + bus,
+                "protocol": "TCP",
+            },
         ],
         # ready when every drive of the bus answers a Modbus read (the drives come from $C20SIM_DRIVES)
         "readinessProbe": {
@@ -176,7 +190,15 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
             "replicas": 1,
             "selector": {"matchLabels": labels},
             "template": {
-                "metadata": {"labels": labels},
+                "metadata": {
+                    "labels": labels,
+                    # the annotations Prometheus' usual kubernetes_sd relabelling looks for
+                    "annotations": {
+                        "prometheus.io/scrape": "true",
+                        "prometheus.io/port": str(METRICS_PORT),
+                        "prometheus.io/path": "/metrics",
+                    },
+                },
                 "spec": {
                     "securityContext": {"runAsNonRoot": True, "runAsUser": IMAGE_UID, "runAsGroup": IMAGE_UID},
                     "containers": [container],
@@ -297,9 +319,9 @@ def to_yaml(docs: Iterable[Mapping[str, Any]], header: Sequence[str] = ()) -> st
 def cmd_plant(args: argparse.Namespace) -> int:
     profile: Profile = load_profile(args.profile)
     try:
-        profile_text = Path(profile.path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise C20SimError(f"--profile {args.profile}: cannot read {profile.path}: {exc.strerror}") from None
+        profile_text = read_text(profile.path, "profile")
+    except FileReadError as exc:
+        raise C20SimError(f"--profile {args.profile}: cannot read {exc}") from None
     spec = PlantSpec(
         buses=args.buses,
         drives=args.drives,
@@ -309,6 +331,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
         name=args.name,
         rtu_port_base=args.rtu_port_base,
         modbus_port_base=args.modbus_port_base,
+        metrics_port_base=args.metrics_port_base,
     )
     docs = plant_manifests(spec)
     last = spec.buses - 1
@@ -350,6 +373,8 @@ def command_line(spec: PlantSpec, profile: str) -> str:
         words += ["--rtu-port-base", str(spec.rtu_port_base)]
     if spec.modbus_port_base != MODBUS_PORT:
         words += ["--modbus-port-base", str(spec.modbus_port_base)]
+    if spec.metrics_port_base != METRICS_PORT:
+        words += ["--metrics-port-base", str(spec.metrics_port_base)]
     return " ".join(words)
 
 
@@ -461,6 +486,12 @@ def add_plant_commands(sub: Any) -> None:
         type=int,
         default=MODBUS_PORT,
         help=f"hostPort of bus 0's Modbus TCP (default {MODBUS_PORT})",
+    )
+    plant.add_argument(
+        "--metrics-port-base",
+        type=int,
+        default=METRICS_PORT,
+        help=f"hostPort of bus 0's GET /metrics for Prometheus (default {METRICS_PORT})",
     )
     plant.add_argument("-o", "--output", metavar="FILE", help="write here instead of standard output")
     plant.set_defaults(func=cmd_plant)

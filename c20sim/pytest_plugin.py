@@ -4,16 +4,19 @@ The handle itself, usable without pytest, is :class:`c20sim.testing.C20Sim`.
 Settings come from three overridable fixtures, ``c20sim_profile``,
 ``c20sim_transport`` and ``c20sim_drives``, and per test from the marker::
 
-    @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(1, 2), clock="virtual", speed=1.0, seed=1)
+    @pytest.mark.c20sim(profile="c20-2200hv", transport="pty", drives=(1, 2), clock="virtual", speed=1.0, seed=1,
+                        bus_timing=True)
 
 The marker wins over the fixtures; a setting given as None is left to the
 fixture. ``clock`` is ``virtual`` (the default: time stands still until the
 test calls ``advance``) or ``realtime`` (times ``speed``); ``seed`` seeds the
-random link faults.
+random link faults; ``bus_timing`` (on by default, as ``c20sim serve``) holds the line for each
+transaction's RS485 time, so a master meets the real line's throughput.
 """
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -29,7 +32,7 @@ __all__ = ["c20sim", "c20sim_drives", "c20sim_profile", "c20sim_transport", "set
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
-        "c20sim(profile=None, transport=None, drives=None, clock='virtual', speed=1.0, seed=1): "
+        "c20sim(profile=None, transport=None, drives=None, clock='virtual', speed=1.0, seed=1, bus_timing=True): "
         "settings of the c20sim fixture for this test",
     )
 
@@ -60,10 +63,12 @@ def settings_for(request: pytest.FixtureRequest, profile: object, transport: obj
         raise pytest.UsageError("c20sim marker: give keywords, such as @pytest.mark.c20sim(drives=(1, 2))")
     given: dict[str, Any] = {"profile": profile, "transport": transport, "drives": drives}
     if marker is not None:
-        unknown = set(marker.kwargs) - set(SETTINGS)
+        unknown = sorted(set(marker.kwargs) - set(SETTINGS))
         if unknown:
+            close = difflib.get_close_matches(unknown[0], SETTINGS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise pytest.UsageError(
-                f"c20sim marker: unknown setting {', '.join(sorted(unknown))}; use {', '.join(SETTINGS)}"
+                f"c20sim marker: unknown setting {', '.join(unknown)}{hint}; use {', '.join(SETTINGS)}"
             )
         given.update({k: v for k, v in marker.kwargs.items() if v is not None})
     try:
@@ -79,6 +84,17 @@ def c20sim(
     c20sim_transport: str | Sequence[str],
     c20sim_drives: Sequence[int],
 ) -> Iterator[C20Sim]:
-    """A running C20 simulator, clean for each test: RTU over TCP on port 0 and a virtual clock by default."""
-    with start(settings_for(request, c20sim_profile, c20sim_transport, c20sim_drives)) as running:
+    """A running C20 simulator, clean for each test: RTU over TCP on port 0 and a virtual clock by default.
+
+    A bad setting (the marker's, a fixture's) or a simulator that cannot start is the test's error in one line,
+    without the plugin's traceback: the fault is in the test, not here."""
+    try:
+        running = start(settings_for(request, c20sim_profile, c20sim_transport, c20sim_drives))
+    except (pytest.UsageError, C20SimError) as exc:
+        message = str(exc) if str(exc).startswith("c20sim") else f"c20sim: {exc}"
+    else:
+        message = ""
+    if message:  # failed outside the handler, so that no "during handling of the above exception" follows
+        pytest.fail(message, pytrace=False)
+    with running:
         yield running

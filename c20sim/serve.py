@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -25,6 +26,7 @@ from .transport.framelog import FrameLog
 from .transport.line import Line
 from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
 from .wire.errors import C20SimError
+from .wire.protocol import char_bits
 
 if TYPE_CHECKING:
     # Imported where used: pty needs tty/termios and pyserial needs them on POSIX, which Windows lacks.
@@ -37,6 +39,10 @@ T = TypeVar("T")
 
 __all__ = ["NEEDS_POSIX", "Endpoints", "ServeOptions", "Server", "pty_supported", "run", "run_server"]
 
+
+#: ``--log-frames``' bound without ``--log-frames-max-mb`` (MiB): the file is rotated at this size, keeping KEEP old
+#: ones, so the log takes at most 400 MiB of disk; ``--log-frames-max-mb 0`` for no bound.
+LOG_FRAMES_MAX_MB = 100.0
 
 #: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
 NEEDS_POSIX = (
@@ -75,6 +81,9 @@ class ServeOptions:
     tcp: str | None = None
     modbus_tcp: str | None = None
     line_timing: bool = False
+    #: hold the shared line for each transaction's RS485 time at the drive's serial settings, whatever the
+    #: transport (the command line's default is on: see docs/line-timing.md); off here for the building block
+    bus_timing: bool = False
     log_frames: str | None = None
     #: rotate the frame log when it reaches this many MiB (None: no limit)
     log_frames_max_mb: float | None = None
@@ -83,10 +92,14 @@ class ServeOptions:
     control: str | None = None
     #: the token the control API asks for; None: none on loopback, a generated one beyond it
     control_token: str | None = None
+    #: HOST:PORT of a read-only listener serving GET /metrics alone (Prometheus), or None
+    metrics: str | None = None
     #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
     scenario: str | None = None
     #: the live audit (c20sim.control.liveaudit, docs/audit.md): on unless --no-audit
     audit: bool = True
+    #: after the scenario: "exit" (serve ends with the scenario's exit code) or "serve" (until a stop signal)
+    then: str = "exit"
     extra_ready: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -124,11 +137,15 @@ class Server:
     def __init__(self, sim: Simulator, options: ServeOptions) -> None:
         self.sim = sim
         self.options = options
-        self.line = Line(sim)
+        self.line = Line(sim, bus_timing=options.bus_timing)
+        # The line's character: the serial settings (the serial port's, or those a serial device server in
+        # front of the TCP endpoints would have).
+        sim.bus.char_bits = char_bits(8, options.parity, options.stopbits)
         self.endpoints = Endpoints()
         self.frame_log: FrameLog | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self.control: ControlApi | None = None
+        self.metrics: ControlApi | None = None  #: the --metrics listener: GET /metrics alone, no token
         self._ready: tuple[Path, str] | None = None  #: the ready file written, and what it says
         self.scenario_task: asyncio.Task[Report] | None = None
 
@@ -136,8 +153,10 @@ class Server:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
         opts, sim, line = self.options, self.sim, self.line
         max_mb = opts.log_frames_max_mb
-        if max_mb is not None and not 0.01 <= max_mb <= 1e6:  # also refuses nan; inf is above the range
-            raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000")
+        if max_mb is not None and max_mb != 0 and not 0.01 <= max_mb <= 1e6:  # refuses nan; inf is above the range
+            raise C20SimError(
+                f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000, or 0 for no bound"
+            )
         scenario = None
         if opts.scenario:
             from .scenario.timeline import check, load_scenario
@@ -183,6 +202,8 @@ class Server:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
                 self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
                 await self.endpoints.modbus_tcp.start()
+            if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
+                self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)
             if opts.control:
                 from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
 
@@ -194,7 +215,17 @@ class Server:
                     token = new_token()  # beyond loopback, never without one
                 self.control = ControlApi(sim, token=token, endpoints=self.endpoints.addresses)
                 self.control.frame_log = self.frame_log
+                self.control.line = line
                 await self.control.start(host, port)
+            if opts.metrics:
+                from .control import routes
+                from .control.http import ControlApi
+
+                host, port = parse_host_port(opts.metrics, "--metrics")
+                self.metrics = ControlApi(sim, endpoints=self.endpoints.addresses)
+                self.metrics.line = line
+                only = routes.Table([routes.table().named("metrics")])
+                await self.metrics.start(host, port, table=only, option="--metrics")
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
             if self.control is not None:
@@ -214,12 +245,17 @@ class Server:
         control = {"control": self.control.url} if self.control is not None and self.control.url else {}
         if self.control is not None and self.control.token is not None:
             control["token"] = self.control.token
+        if self.metrics is not None and self.metrics.url:
+            control["metrics"] = f"{self.metrics.url}/metrics"
         return {**self.endpoints.addresses(), **control, **self.options.extra_ready}
 
     async def _close_control(self) -> None:
         if self.control is not None:
             await self.control.close()
             self.control = None
+        if self.metrics is not None:
+            await self.metrics.close()
+            self.metrics = None
 
     def ready_line(self) -> str:
         parts = [f"{key} {value}" for key, value in self.addresses().items() if key != "token"]
@@ -257,7 +293,9 @@ class Server:
 
     def _open_frame_log(self, path: str) -> None:
         max_mb = self.options.log_frames_max_mb
-        self.frame_log = FrameLog(path, max_bytes=None if max_mb is None else int(max_mb * 1024 * 1024))
+        if max_mb is None:
+            max_mb = LOG_FRAMES_MAX_MB  # bounded unless asked: a busy line writes about 10 MB a minute
+        self.frame_log = FrameLog(path, max_bytes=None if max_mb == 0 else int(max_mb * 1024 * 1024))
         self.frame_log.start()
         self._unsubscribe.append(self.sim.bus.subscribe(self.frame_log.put))
 
@@ -331,7 +369,8 @@ STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SI
 
 
 async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sys.stdout) -> int:
-    """Serve until SIGINT, SIGTERM or SIGHUP; the exit code: 1 if a played scenario failed or stopped, else 0."""
+    """Serve until SIGINT, SIGTERM or SIGHUP, or until a played scenario ends (unless ``then`` is "serve");
+    the exit code: 1 if a played scenario failed or stopped, else 0."""
     server = Server(sim, options)
     stop = asyncio.Event()
     # Handlers first: a signal that comes as soon as the ready file exists still closes everything.
@@ -339,7 +378,14 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
     try:
         await server.start()
         print(server.ready_line(), file=out, flush=True)
-        await stop.wait()
+        stopped = asyncio.ensure_future(stop.wait())
+        ends: list[asyncio.Future[Any]] = [stopped]
+        if server.scenario_task is not None and options.then == "exit":
+            ends.append(server.scenario_task)  # a CI job's serve ends with its scenario
+        try:
+            await asyncio.wait(ends, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stopped.cancel()
     finally:
         restore()
         task = server.scenario_task

@@ -63,6 +63,9 @@ class Settings:
     clock: str = "virtual"
     speed: float = 1.0
     seed: int = 1
+    #: each transaction holds the line for its RS485 time (19200 8N1: about 86 one-register reads a second),
+    #: as ``c20sim serve`` does by default; False: only the turnaround
+    bus_timing: bool = True
 
 
 class _LoopThread:
@@ -145,13 +148,22 @@ class C20Sim:
         clock: str = "virtual",
         speed: float = 1.0,
         seed: int = 1,
+        bus_timing: bool = True,
     ) -> C20Sim:
         """Start a simulator; use it as a context manager (``with C20Sim.start() as sim:``) or call :meth:`close`.
 
         Works from any script or unittest, no pytest needed. Bad settings raise C20SimError saying what is wrong.
         """
         settings = check_settings(
-            {"profile": profile, "transport": transport, "drives": drives, "clock": clock, "speed": speed, "seed": seed}
+            {
+                "profile": profile,
+                "transport": transport,
+                "drives": drives,
+                "clock": clock,
+                "speed": speed,
+                "seed": seed,
+                "bus_timing": bus_timing,
+            }
         )
         return start(settings)
 
@@ -529,7 +541,7 @@ def _profile(value: object) -> Profile:
 
 
 #: The settings a marker or :meth:`C20Sim.start` may give.
-SETTINGS = ("profile", "transport", "drives", "clock", "speed", "seed")
+SETTINGS = ("profile", "transport", "drives", "clock", "speed", "seed", "bus_timing")
 
 
 def check_settings(given: Mapping[str, Any]) -> Settings:
@@ -546,6 +558,9 @@ def check_settings(given: Mapping[str, Any]) -> Settings:
     seed = given.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise C20SimError(f"c20sim: seed {seed!r}: give a whole number")
+    bus_timing = given.get("bus_timing", True)
+    if not isinstance(bus_timing, bool):
+        raise C20SimError(f"c20sim: bus_timing {bus_timing!r}: give True or False")
     return Settings(
         profile=_profile(given.get("profile", DEFAULT_PROFILE)),
         transport=_transports(given.get("transport", "tcp")),
@@ -553,6 +568,7 @@ def check_settings(given: Mapping[str, Any]) -> Settings:
         clock=clock,
         speed=float(speed),
         seed=seed,
+        bus_timing=bus_timing,
     )
 
 
@@ -564,6 +580,7 @@ def start(settings: Settings) -> C20Sim:
         pty="pty" in settings.transport,
         tcp="127.0.0.1:0" if "tcp" in settings.transport else None,
         modbus_tcp="127.0.0.1:0" if "modbus-tcp" in settings.transport else None,
+        bus_timing=settings.bus_timing,
     )
     thread = _LoopThread()
 

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 from ..core.simulator import Simulator
 from ..drive.model import Drive
+from ..drive.physics import STEP
 from ..drive.profile import FaultCause, Profile
 from ..drive.terminals import Input
-from ..wire.registers import fcode_address
 from . import ops
 
 __all__ = [
@@ -79,15 +79,16 @@ def _load_levels(p: Profile) -> dict[str, float]:
     }
 
 
-def _overcurrent_inertia(p: Profile) -> float:
-    """A coupled inertia whose acceleration at the profile's default ramp needs 125 % of the overcurrent trip.
+def _shock_load(p: Profile) -> float:
+    """A load torque step that the speed loop answers, within one step, with 125 % of the overcurrent trip.
 
-    A load torque cannot do it: the drive holds the current at its limit and the rotor stalls (a stall trip);
-    what an INVT-family drive trips OC on is the current its speed loop asks for, as on a fast ramp of a heavy load.
+    A heavy ramp cannot do it while current limiting is on (the default, as INVT ships it): the ramp holds at
+    the limiting level. What still trips OC is a load step faster than the limit can act (a jam hit at speed):
+    the loop answers the speed lost in one step with kp = inertia x 2 pi x the loop's bandwidth, so a step of
+    T N m asks T x 2 pi f x STEP / kt amps, whatever the inertia.
     """
-    ramp_s = min(p.defaults[fcode_address(0, 11)], p.defaults[fcode_address(0, 12)]) / 10.0  # F00.11/F00.12, 0.1 s
-    alpha = p.motor.rated_speed_rpm * 2 * math.pi / 60 / max(ramp_s, 0.1)
-    return round(1.25 * p.protection.overcurrent_a * p.motor.kt_nm_per_a / alpha, 4)
+    per_nm = 2 * math.pi * p.control.speed_loop_hz * STEP / p.motor.kt_nm_per_a
+    return round(1.25 * p.protection.overcurrent_a / per_nm, 1)
 
 
 def _load(name: str, key: str, label: str, how: str, faults: tuple[FaultCause, ...]) -> Cause:
@@ -137,10 +138,10 @@ CAUSES: Mapping[str, Cause] = {
             "overcurrent",
             "c",
             "overcurrent",
-            "a heavy coupled inertia: the next start or stop at the default ramp asks more than the trip (OC1, OC2)",
+            "a shock load: a load torque step faster than the current limit can act (OC3 running, OC1/OC2 on a ramp)",
             (FaultCause.OVERCURRENT_ACCEL, FaultCause.OVERCURRENT_DECEL, FaultCause.OVERCURRENT_CONSTANT),
-            lambda p, c: {"load_inertia_kg_m2": _overcurrent_inertia(p)},
-            lambda p, c: {"load_inertia_kg_m2": 0.0},
+            lambda p, c: {"load_torque_nm": _shock_load(p)},
+            lambda p, c: {"load_torque_nm": 0.0},
         ),
         _load(
             "overload",

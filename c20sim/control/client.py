@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from ..drive.files import FileReadError, read_bytes
 from ..drive.model import Telemetry
 from ..drive.profile import Profile, load_profile
 from ..wire.errors import C20SimError
@@ -36,7 +37,11 @@ from ..wire.registers import Reg
 from . import routes
 from .ops import ControlError
 
-__all__ = ["ControlClient", "RemoteOps", "attach_target"]
+#: The environment variable that may carry the control API's token: to serve (instead of --control-token, which
+#: the process list shows), to a dashboard's ``--attach`` (``c20sim web`` sets it for its dashboards).
+TOKEN_ENV = "C20SIM_CONTROL_TOKEN"
+
+__all__ = ["TOKEN_ENV", "ControlClient", "RemoteOps", "attach_target"]
 
 #: Seconds a call may take before the server counts as unreachable.
 TIMEOUT = 5.0
@@ -58,10 +63,10 @@ def attach_target(target: str, token: str | None = None) -> tuple[str, str | Non
         return f"http://{parts.netloc}", token
     path = Path(target)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise C20SimError(f"--attach {target}: cannot read the ready file: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
+        data = json.loads(read_bytes(path, "ready file"))
+    except FileReadError as exc:
+        raise C20SimError(f"--attach {target}: cannot read the ready file: {exc.reason}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise C20SimError(f"--attach {target}: not a ready file (not JSON: {exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("control"), str):
         raise C20SimError(

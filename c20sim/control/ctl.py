@@ -24,6 +24,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from ..drive.files import FileReadError, read_bytes
 from ..wire.errors import C20SimError
 from . import routes
 
@@ -56,10 +57,10 @@ def _ctl_url(args: argparse.Namespace) -> tuple[str, str | None]:
         return given, None
     if args.ready_file:
         try:
-            data = json.loads(Path(args.ready_file).read_text())
-        except OSError as exc:
-            raise C20SimError(f"--ready-file {args.ready_file}: cannot read: {exc.strerror}") from None
-        except json.JSONDecodeError:
+            data = json.loads(read_bytes(args.ready_file, "ready file"))
+        except FileReadError as exc:
+            raise C20SimError(f"--ready-file {exc}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
             raise C20SimError(f"--ready-file {args.ready_file}: not JSON; is it the file serve wrote?") from None
         url = data.get("control") if isinstance(data, dict) else None
         if not isinstance(url, str):

@@ -30,13 +30,14 @@ import secrets
 import sys
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
-from pathlib import Path
 from typing import Any
 
 from aiohttp import web
 
 from ..core.bus import FrameRecord
 from ..core.simulator import Simulator
+from ..drive.files import FileReadError, read_text
+from ..transport.line import Line
 from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
@@ -110,6 +111,7 @@ def snapshot(sim: Simulator) -> dict[str, Any]:
         "drives": drives,
         "link": ops.link_state(sim.link_faults(None)),
         "audit": None if audit is None else audit.summary(),
+        "notices": list(sim.notices),
     }
 
 
@@ -144,6 +146,7 @@ class ControlApi:
         self.url = ""
         self.host = ""  #: the HOST the API is bound to, for the guard's Host check
         self.frame_log: Any = None  #: serve's --log-frames writer (transport.framelog.FrameLog), for its drop count
+        self.line: Line | None = None  #: serve's line, for its latency and busy time in GET /metrics
         #: the token every request must carry, or None (loopback without --control-token)
         self.token = token
         #: where masters connect (the ready file's endpoints), shown by GET / for a dashboard's title
@@ -176,12 +179,16 @@ class ControlApi:
     def first_seq(self) -> int:
         return self._seen - len(self.sim.bus.records)
 
-    async def start(self, host: str, port: int) -> None:
+    async def start(
+        self, host: str, port: int, *, table: routes.Table | None = None, option: str = "--control"
+    ) -> None:
+        """Listen on ``host``:``port``, serving ``table`` (the whole control surface by default; serve's
+        ``--metrics`` listener serves its one row)."""
         self.host = host
-        if (warning := httpguard.check_bind(host)) is not None:
+        if option == "--control" and (warning := httpguard.check_bind(host)) is not None:
             print(f"c20sim: {warning}", file=sys.stderr, flush=True)
         httpguard.quiet_logs()
-        runner = web.AppRunner(make_app(self), access_log=None, **httpguard.run_app_kwargs())
+        runner = web.AppRunner(make_app(self, table), access_log=None, **httpguard.run_app_kwargs())
         await runner.setup()
         site = httpguard.site(runner, host, port)  # a TCPSite with a connection cap and a header timeout
         try:
@@ -189,7 +196,7 @@ class ControlApi:
         except OSError as exc:
             await runner.cleanup()
             raise C20SimError(
-                f"--control {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
+                f"{option} {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
             ) from None
         self._runner = runner
         bound_port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), port)
@@ -247,7 +254,8 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             header = request.headers.get("Authorization", "")
             if header.startswith("Bearer "):
                 given = header.removeprefix("Bearer ").strip()
-            if not hmac.compare_digest(given.encode(), api.token.encode()):
+            # a header that is not UTF-8 comes surrogate-escaped: compared as the bytes sent, it is just wrong
+            if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), api.token.encode()):
                 why = "a wrong token" if given else "no token"
                 return reply(
                     {
@@ -306,7 +314,11 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         path = sim.profile.path
         if path is None:
             raise ControlError(f"the profile {sim.profile.name} was not loaded from a file", status=404)
-        return web.Response(text=Path(path).read_text(encoding="utf-8"), content_type="application/toml")
+        try:  # off the loop, and bounded: the file may have changed since it was loaded
+            text = await asyncio.to_thread(read_text, path, "profile")
+        except FileReadError as exc:
+            raise ControlError(f"GET /profile: {exc}", status=410) from None
+        return web.Response(text=text, content_type="application/toml")
 
     def query_number(request: web.Request, name: str, default: float, bounds: tuple[float, float]) -> float:
         if name not in request.query:
@@ -343,13 +355,13 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             reader: asyncio.Future[Any] = asyncio.ensure_future(_drain(ws))
             try:
                 await _serve_stream(api, ws, client, 1.0 / hz, frame_period, reader)
-            except ConnectionResetError:
-                pass  # the reader went away mid-message: it has left, nothing else to do
             finally:
                 reader.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
+                with contextlib.suppress(asyncio.CancelledError, ConnectionError):
                     await reader  # the close below reads the peer's answer itself
                 await ws.close()
+        except ConnectionError:  # reset, or gone mid-message or mid-close: the reader has left, nothing to do
+            log.debug("control API: a stream reader left (%s)", request.remote)
         finally:
             api.readers -= 1
             api.streams.discard(client)
@@ -395,6 +407,14 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
     async def openapi(request: web.Request) -> web.Response:
         return reply(document(table))
 
+    async def metrics(request: web.Request) -> web.Response:
+        from .metrics import exposition  # imports prometheus_client: only when scraped
+
+        body, content_type = exposition(sim, api.line, request.headers.get("Accept", ""))
+        response = web.Response(body=body)
+        response.headers["Content-Type"] = content_type
+        return response
+
     own: dict[str, Callable[[web.Request], Awaitable[web.StreamResponse]]] = {
         "index": index,
         "telemetry": get_telemetry,
@@ -404,6 +424,7 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         "clear_frames": delete_frames,
         "health": health,
         "openapi": openapi,
+        "metrics": metrics,
     }
 
     def generic(row: routes.Route) -> Callable[[web.Request], Awaitable[web.StreamResponse]]:
@@ -412,7 +433,9 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
                 name: address(request) if name == "address" else request.match_info[name] for name in row.parameters
             }
             data = await body(request) if row.method != "GET" else {}
-            return reply(routes.invoke(sim, row, parameters, data, request.path))
+            if row.offload is not None:  # what may block (a file read) runs in a worker thread, off the loop
+                data = await asyncio.to_thread(row.offload, sim, data)
+            return reply(routes.invoke(sim, row, parameters, data, request.path, offloaded=True))
 
         return handle
 

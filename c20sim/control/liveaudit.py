@@ -56,6 +56,8 @@ class LiveAudit:
     def _feed(self, record: FrameRecord) -> None:
         """The bus's listener, called while a request is served: on an event loop it only queues the record,
         and the audit runs once the reply has gone (``call_soon``), so it never delays one."""
+        if record.from_gateway:
+            return  # the Modbus TCP gateway's own answer (0x0B after silence): never on the line
         self._queue.append((record.t, record.direction.value, record.data, self.sim.bus.line_baud))
         if self._scheduled:
             if len(self._queue) >= MAX_QUEUE:

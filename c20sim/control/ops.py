@@ -31,7 +31,7 @@ from ..core.generators import GeneratorError, parse_generator
 from ..core.linkfaults import KNOBS, LinkFaults
 from ..core.simulator import Simulator, set_address
 from ..drive.model import Drive, HallFault, Telemetry
-from ..drive.params import ParameterStore
+from ..drive.params import ParameterStore, StateFileError
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
 from ..wire.registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
@@ -43,6 +43,7 @@ __all__ = [
     "MAX_ADVANCE",
     "Condition",
     "ControlError",
+    "Setup",
     "advance",
     "check_conditions",
     "check_fault",
@@ -66,6 +67,7 @@ __all__ = [
     "power_cycle",
     "press_key",
     "read_register",
+    "read_setup",
     "register_address",
     "registers",
     "reset",
@@ -766,22 +768,42 @@ def set_speed(sim: Simulator, factor: object) -> dict[str, Any]:
     return clock_state(sim)
 
 
-def reset(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
-    """Every drive anew without restarting (:meth:`Simulator.reset`), set up from ``setup``: ``"defaults"``
-    (the profile's function codes) or the path of a c20sim state file (``--state``) to take them from.
-    The file is only read. Returns ``{"setup": ..., "drives": [...]}``."""
+@dataclass(frozen=True)
+class Setup:
+    """A set-up for :func:`reset`, read already: its name (``"defaults"`` or the state file's path) and the
+    function codes it gives (None: the profile's defaults)."""
+
+    name: str
+    values: dict[int, int] | None
+
+
+def read_setup(sim: Simulator, setup: object) -> Setup:
+    """What :func:`reset` takes from ``setup``: ``"defaults"``, or the state file at that path, read (bounded,
+    never a FIFO or a device) and checked against the served profile. Touches no drive, so it may run in a
+    worker thread, off the serving loop (the ``POST /reset`` row's offload in :mod:`.routes`)."""
+    if isinstance(setup, Setup):
+        return setup
     if not isinstance(setup, str) or not setup:
         raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {json.dumps(setup)}')
-    values: dict[int, int] | None = None
-    if setup != DEFAULTS:
-        path = Path(setup)
-        if not path.is_file():
+    if setup == DEFAULTS:
+        return Setup(setup, None)
+    try:
+        return Setup(setup, ParameterStore(sim.profile)._read(Path(setup)))  # read only: no save, no tidying
+    except StateFileError as exc:
+        if not Path(setup).exists():
             raise ControlError(
                 f'setup {setup!r}: no such state file; give "{DEFAULTS}" or the path of a file written by --state'
-            )
-        try:
-            values = ParameterStore(sim.profile)._read(path)  # read only: no save, no tidying beside the file
-        except C20SimError as exc:
-            raise ControlError(f"setup: {exc}") from None
-    sim.reset(values)
-    return {"setup": setup, "drives": [drive_state(sim, a) for a in sim.drives]}
+            ) from None
+        raise ControlError(f"setup: {exc}") from None
+    except C20SimError as exc:
+        raise ControlError(f"setup: {exc}") from None
+
+
+def reset(sim: Simulator, setup: object = DEFAULTS) -> dict[str, Any]:
+    """Every drive anew without restarting (:meth:`Simulator.reset`), set up from ``setup``: ``"defaults"``
+    (the profile's function codes), the path of a c20sim state file (``--state``) to take them from, or a
+    :class:`Setup` read already (by :func:`read_setup`, off the loop). The file is only read. Returns
+    ``{"setup": ..., "drives": [...]}``."""
+    found = read_setup(sim, setup)
+    sim.reset(found.values)
+    return {"setup": found.name, "drives": [drive_state(sim, a) for a in sim.drives]}

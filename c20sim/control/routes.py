@@ -68,6 +68,10 @@ class Route:
     listed: bool = True
     #: what it does, in one line (ctl's help); the doc where empty
     help: str = ""
+    #: work that may block (a file read), done before the call on the fields as given: ``(sim, fields) ->
+    #: fields``; the API runs it in a worker thread, off the serving loop. It may read the simulator, never
+    #: change it.
+    offload: Callable[[Simulator, dict[str, Any]], dict[str, Any]] | None = None
 
     @property
     def key(self) -> str:
@@ -154,8 +158,19 @@ class Table(Mapping[str, Route]):
         return {key: row.doc for key, row in self._rows.items() if row.listed}
 
 
-def invoke(sim: Simulator, row: Route, parameters: Mapping[str, Any], data: Mapping[str, Any], path: str = "") -> Any:
-    """Check ``data`` against ``row``'s fields and do the operation; ControlError says what is wrong."""
+def invoke(
+    sim: Simulator,
+    row: Route,
+    parameters: Mapping[str, Any],
+    data: Mapping[str, Any],
+    path: str = "",
+    *,
+    offloaded: bool = False,
+) -> Any:
+    """Check ``data`` against ``row``'s fields and do the operation; ControlError says what is wrong.
+    ``offloaded``: the row's :attr:`~Route.offload` has been run on ``data`` already (in a worker thread)."""
+    if row.offload is not None and not offloaded:
+        data = row.offload(sim, dict(data))
     if row.call is None:
         raise ControlError(f"{row.key} is served by the API itself", status=404)
     if "address" in parameters:
@@ -282,6 +297,13 @@ def _set_link(sim: Simulator, values: Mapping[str, object], address: int | None 
 
 def _clear_link(sim: Simulator, address: int | None = None) -> dict[str, Any]:
     return ops.link_state(ops.clear_link_faults(sim, address))
+
+
+def _read_setup(sim: Simulator, fields: dict[str, Any]) -> dict[str, Any]:
+    """The state file a reset names, read (bounded) before the reset: the blocking part, off the loop."""
+    if "setup" in fields:
+        fields["setup"] = ops.read_setup(sim, fields["setup"])
+    return fields
 
 
 def _generators(sim: Simulator, address: int) -> dict[str, Any]:
@@ -599,6 +621,13 @@ TABLE = Table(
         # the service routes: health, the document, the clock, set-ups, generators
         Route(
             "GET",
+            "/metrics",
+            "metrics",
+            "- (Prometheus text format: each drive's counters, state and telemetry, the line's reply latency)",
+            cli=None,
+        ),
+        Route(
+            "GET",
             "/health",
             "health",
             "- (200 once serving, 503 before; for orchestrators)",
@@ -652,6 +681,7 @@ TABLE = Table(
             (Field("setup", {"type": "string", "description": '"defaults", or the path of a state file (--state)'}),),
             changes=True,
             help="every drive anew, no restart: defaults, or a state file's function codes",
+            offload=_read_setup,
         ),
         Route(
             "GET",

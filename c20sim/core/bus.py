@@ -18,6 +18,13 @@ deaf, as it would on a real multi-drop line.
 
 Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
 and is passed to each listener (the JSON-lines writer, the dashboard).
+
+Every event also has its time on a real RS485 line
+(:func:`~c20sim.wire.protocol.transaction_time` at the line's baud and
+character size, :attr:`Bus.char_bits`): the request, the turnaround and the
+reply, each frame after its t3.5. It is added to the line's busy time and the
+addressed drive's (:class:`Counters`), whatever transport carried the frame,
+and the line scheduler holds the line for it under bus timing.
 """
 
 from __future__ import annotations
@@ -32,15 +39,20 @@ from dataclasses import dataclass, field
 from ..wire.decode import describe
 from ..wire.protocol import (
     BROADCAST,
+    SHEET_CHAR_BITS,
     ExceptionCode,
     ExceptionResponse,
     FrameEvent,
     FrameKind,
+    MbapHeader,
     ReadRequest,
     Request,
     Response,
+    crc_ok,
     decode_request,
     encode,
+    frame_time,
+    transaction_time,
 )
 from ..wire.registers import RegisterMap
 from .linkfaults import LinkFaults
@@ -99,6 +111,11 @@ class FrameRecord:
     request: Request | None = field(default=None, compare=False, repr=False)
     #: the wall-clock time (Unix seconds) of ``t``, where an I/O layer knows it (a record read back from JSON)
     wall: float | None = field(default=None, compare=False)
+    #: a Modbus TCP exchange: the request's MBAP header; ``data`` is then the RTU frame on the line behind the
+    #: gateway, and :attr:`wire` the Modbus TCP frame on the TCP connection
+    mbap: MbapHeader | None = field(default=None, compare=False)
+    #: the gateway's own answer (exception 0x0B after silence on the line): on the TCP connection, not on the line
+    from_gateway: bool = field(default=False, compare=False)
 
     @property
     def text(self) -> str:
@@ -106,6 +123,19 @@ class FrameRecord:
         if isinstance(self.words, str):
             return self.words
         return describe(self.words, self.registers, self.request)
+
+    @property
+    def wire(self) -> bytes:
+        """The bytes the master's connection carried: ``data`` on an RTU line; for Modbus TCP the MBAP frame (empty
+        where the gateway forwarded nothing: a broken or dropped reply on the line)."""
+        if self.mbap is None:
+            return self.data
+        forwarded = (
+            self.direction is Direction.RX
+            or self.from_gateway
+            or (self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION) and len(self.data) >= 4 and crc_ok(self.data))
+        )
+        return self.mbap.adu(self.data[1:-2]) if forwarded and len(self.data) >= 3 else b""
 
     def as_dict(self, wall_offset: float | None = None) -> dict[str, object]:
         """JSON-ready; ``wall_offset`` (Unix time minus the line's clock, from the I/O layer that stamped ``t``)
@@ -116,7 +146,15 @@ class FrameRecord:
             **({} if wall is None else {"wall": round(wall, 3)}),
             "model_t": None if self.model_t is None else round(self.model_t, 6),
             "dir": str(self.direction),
-            "hex": self.data.hex(" ").upper(),
+            "hex": self.wire.hex(" ").upper(),
+            **(
+                {}
+                if self.mbap is None
+                else {
+                    "modbus_tcp": {"transaction": self.mbap.transaction, "unit": self.mbap.unit},
+                    "rtu": None if self.from_gateway else self.data.hex(" ").upper(),
+                }
+            ),
             "kind": str(self.kind),
             "slave": self.slave,
             "text": self.text,
@@ -135,6 +173,18 @@ class Counters:
     length_errors: int = 0  #: frames with its address and the wrong length
     silences: int = 0  #: requests left unanswered (absent, offline, reply dropped); not broadcasts
     injected: int = 0  #: requests and replies a link fault acted on
+    #: seconds its transactions held an RS485 line at the line's settings (request, turnaround, reply)
+    line_busy_s: float = 0.0
+    #: the line's time (seconds) from the start of its first transaction to the end of its last
+    first_t: float | None = None
+    last_t: float | None = None
+
+    @property
+    def line_share(self) -> float:
+        """Its share of the line's capacity: busy time over the time from its first transaction to its last."""
+        if self.first_t is None or self.last_t is None or self.last_t <= self.first_t:
+            return 0.0
+        return min(1.0, self.line_busy_s / (self.last_t - self.first_t))
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -145,6 +195,8 @@ class Counters:
             "length_errors": self.length_errors,
             "silences": self.silences,
             "injected": self.injected,
+            "line_busy_s": round(self.line_busy_s, 6),
+            "line_share": round(self.line_share, 4),
         }
 
 
@@ -177,6 +229,13 @@ class Bus:
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
         self.counters: dict[int, Counters] = {}
         self.noise = 0
+        #: bits per character on the line (10 for 8N1, 11 with parity or 2 stop bits): the serial settings
+        self.char_bits = SHEET_CHAR_BITS
+        #: seconds the last event held the line (request, turnaround, reply), and its request's share of it
+        self.last_line_time = 0.0
+        self.last_request_time = 0.0
+        #: seconds every event so far held the line
+        self.line_busy_s = 0.0
 
     def counters_of(self, address: int) -> Counters:
         """The traffic counters of ``address`` (zeros until a frame names it)."""
@@ -238,7 +297,27 @@ class Bus:
         return None
 
     def handle(self, event: FrameEvent, now: float | None = None) -> Reply | None:
-        """Serve one framing event; ``now`` is model time (default: the event's time)."""
+        """Serve one framing event; ``now`` is model time (default: the event's time).
+
+        Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
+        line and to the addressed drive."""
+        baud = self.line_baud  # the request and its reply go at the baud before a 2009H write takes effect
+        reply = self._handle(event, now)
+        request = frame_time(len(event.data), baud, self.char_bits)
+        spent = request
+        if reply is not None:
+            spent = transaction_time(len(event.data), len(reply.data), baud, self.char_bits, reply.delay)
+        self.last_line_time, self.last_request_time = spent, request
+        self.line_busy_s += spent
+        if event.kind is not FrameKind.NOISE and len(event.data) >= 2:  # an addressed frame (noise is the line's)
+            counters = self.counters_of(reply.slave if reply is not None else event.data[0])
+            counters.line_busy_s += spent
+            if counters.first_t is None:
+                counters.first_t = event.t - request
+            counters.last_t = event.t + spent - request
+        return reply
+
+    def _handle(self, event: FrameEvent, now: float | None) -> Reply | None:
         t = event.t if now is None else now
         if event.kind is FrameKind.FRAME:
             return self._handle_frame(event, t)
@@ -253,6 +332,7 @@ class Bus:
                 event.kind.value,
                 event.note,
                 t,
+                mbap=event.mbap,
             )
         )
         if event.kind is FrameKind.NOISE or slave_address is None or len(event.data) < 2:
@@ -268,7 +348,9 @@ class Bus:
             return None
         if self._offline(slave):
             return None
-        return self._reply(slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud)
+        return self._reply(
+            slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud, event.mbap
+        )
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
         request = decode_request(event.data, check_crc=False)  # the framer checked it
@@ -276,7 +358,18 @@ class Bus:
 
         def rx(note: str = "", registers: RegisterMap | None = self.slaves[0].registers) -> None:
             self.record(
-                FrameRecord(event.t, Direction.RX, event.data, RecordKind.REQUEST, address, request, note, t, registers)
+                FrameRecord(
+                    event.t,
+                    Direction.RX,
+                    event.data,
+                    RecordKind.REQUEST,
+                    address,
+                    request,
+                    note,
+                    t,
+                    registers,
+                    mbap=event.mbap,
+                )
             )
 
         counters = self.counters_of(address)
@@ -312,7 +405,7 @@ class Bus:
             response = slave.handle(request, t)
         baud = self.line_baud
         self._follow_baud(slave)
-        return self._reply(slave, response, event.t, t, request, baud)
+        return self._reply(slave, response, event.t, t, request, baud, event.mbap)
 
     def _follow_baud(self, slave: Slave) -> None:
         """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
@@ -320,7 +413,14 @@ class Bus:
             self.line_baud = slave.baud
 
     def _reply(
-        self, slave: Slave, response: Response, t: float, model_t: float, request: Request | None, baud: int
+        self,
+        slave: Slave,
+        response: Response,
+        t: float,
+        model_t: float,
+        request: Request | None,
+        baud: int,
+        mbap: MbapHeader | None = None,
     ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
@@ -337,7 +437,7 @@ class Bus:
                 counters = self.counters_of(response.slave)
                 counters.silences += 1
                 counters.injected += 1
-                self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request)
+                self._tx(t + delay, b"", RecordKind.DROPPED, slave, response, notes, model_t, request, mbap)
                 return None
         assert data is not None
         counters = self.counters_of(response.slave)
@@ -347,7 +447,7 @@ class Bus:
             counters.exceptions[int(response.code)] = counters.exceptions.get(int(response.code), 0) + 1
         else:
             counters.replies += 1
-        self._tx(t + delay, data, kind, slave, response, notes, model_t, request)
+        self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
         return Reply(data, delay, response.slave, baud)
 
     def _tx(
@@ -360,8 +460,23 @@ class Bus:
         notes: list[str],
         model_t: float,
         request: Request | None,
+        mbap: MbapHeader | None,
     ) -> None:
         note = "; ".join(notes)
+        if mbap is not None and data and kind is not RecordKind.DROPPED and not crc_ok(data):
+            note = "; ".join([*notes, "the gateway forwards no broken reply: it answers 0x0B after its timeout"])
         self.record(
-            FrameRecord(t, Direction.TX, data, kind, response.slave, response, note, model_t, slave.registers, request)
+            FrameRecord(
+                t,
+                Direction.TX,
+                data,
+                kind,
+                response.slave,
+                response,
+                note,
+                model_t,
+                slave.registers,
+                request,
+                mbap=mbap,
+            )
         )

@@ -9,6 +9,7 @@ I/O beyond what the drives do with their state files.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,9 @@ from .clock import Clock, RealtimeClock, VirtualClock
 from .generators import TICK, Generator, clamp
 from .linkfaults import LinkFaults
 from .slave import Slave
+
+#: Notices a simulator keeps (the newest): each is a different thing to say, so a few are plenty.
+MAX_NOTICES = 16
 
 __all__ = [
     "Simulator",
@@ -132,6 +136,16 @@ class Simulator:
             self._place(address, drive)
         self.slaves = {address: Slave(profile, self.ports[address]) for address in self.drives}
         self.bus = Bus(self.slaves.values(), log_size=log_size, seed=seed)
+        #: what a user should know about the way a master talks to the simulator (a Modbus TCP master on an
+        #: RTU port), each said once; the control API's telemetry carries them to the dashboard
+        self.notices: deque[str] = deque(maxlen=MAX_NOTICES)
+
+    def notice(self, text: str) -> bool:
+        """Keep ``text`` for the front ends to show, unless it was said already; True if it is new."""
+        if text in self.notices:
+            return False
+        self.notices.append(text)
+        return True
 
     def _place(self, address: int, drive: Drive) -> None:
         """Put ``drive`` at ``address``: the command line's address and baud, the profile's behaviours."""

@@ -15,7 +15,13 @@ profile's code, 0x06 by default (the sheet's "length of data frame is
 incorrect"), 0x03 where the profile says so.
 
 A 0x10 write is checked whole against the state before the frame, then
-applied whole: all or nothing. The drive behind it is any
+applied whole: all or nothing.
+
+Where the profile says so (``protocol.ram_only_alias``), a function code's
+address with bit 15 set (F00.10 at 800AH) is its RAM-only address, as in the
+INVT family: a write there meets every rule a write to the code meets, then
+changes the value in RAM only (not saved, lost at power-off); a read there
+gets 0x02, as the address is write-only. The drive behind it is any
 :class:`~c20sim.drive.base.DrivePort`.
 """
 
@@ -38,7 +44,7 @@ from ..wire.protocol import (
     WriteSingleRequest,
     WriteSingleResponse,
 )
-from ..wire.registers import BAUD_RATES, Access, Reg, RegisterSpec, is_fcode
+from ..wire.registers import BAUD_RATES, Access, Reg, RegisterSpec, is_fcode, ram_alias_of
 
 #: 2000H values that run or jog the motor (sheet: 1 forward, 2 reverse, 3 forward jog, 4 reverse jog).
 RUN_COMMAND_VALUES = frozenset({1, 2, 3, 4})
@@ -147,14 +153,31 @@ class Slave:
                 continue
             spec = self.registers.get(address)
             if spec is None:
+                base = self._ram_alias(address)
+                if base is not None:
+                    raise ModbusError(
+                        ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is {base:04X}H's RAM-only address: write-only"
+                    )
                 raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is not in the map")
             values.append(self.drive.read(spec.storage) & 0xFFFF)
         return tuple(values)
 
+    def _ram_alias(self, address: int) -> int | None:
+        """The function code whose RAM-only address ``address`` is, where the profile has them, else None."""
+        if not self.profile.protocol.ram_only_alias:
+            return None
+        base = ram_alias_of(address)
+        return base if base is not None and base in self.registers and base != self._password_address else None
+
     def _write(self, writes: dict[int, int]) -> None:
-        for address in writes:
+        ram_only: set[int] = set()
+        for address in list(writes):
             if address != self._password_address and address not in self.registers:
-                raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is not in the map")
+                base = self._ram_alias(address)
+                if base is None:
+                    raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, f"{address:04X}H is not in the map")
+                writes[base] = writes.pop(address)
+                ram_only.add(base)
         unlocked = self._unlocked
         if self._password_address in writes:
             if writes.pop(self._password_address) != self._password:
@@ -167,7 +190,10 @@ class Slave:
         # All checked: now the unlock and the writes take effect together.
         self._unlocked = unlocked
         for spec, value in checked:
-            self.drive.write(spec.storage, value)
+            if spec.address in ram_only:
+                self.drive.write_ram(spec.storage, value)
+            else:
+                self.drive.write(spec.storage, value)
 
     def panel_write(self, address: int, value: int) -> None:
         """A parameter set from the drive's own panel: every rule a master meets but the communication locks

@@ -35,3 +35,7 @@ class DrivePort(Protocol):
 
     def write(self, address: int, value: int) -> None:
         """Store a value that the slave has checked."""
+
+    def write_ram(self, address: int, value: int) -> None:
+        """Store a checked function-code value in RAM only (written at its RAM-only address, code | 8000H):
+        it acts at once, is not saved to EEPROM, and is lost at power-off."""

@@ -115,3 +115,8 @@ class HookedDrive:
         for hook in self._write:
             value = int(hook(self.drive, address, value)) & 0xFFFF
         self.drive.write(address, value)
+
+    def write_ram(self, address: int, value: int) -> None:
+        for hook in self._write:
+            value = int(hook(self.drive, address, value)) & 0xFFFF
+        self.drive.write_ram(address, value)

@@ -29,7 +29,11 @@ __all__ = [
     "COMM_STOP",
     "COMM_STOP_ANY",
     "COMM_TRIP",
+    "CURRENT_LIMITING_DEFAULT",
+    "CURRENT_LIMIT_LEVEL_DEFAULT_PCT",
     "DIAL_SPEED_SOURCE",
+    "F_CURRENT_LIMITING",
+    "F_CURRENT_LIMIT_LEVEL",
     "SOURCE_DIAL",
     "Conditions",
     "Config",
@@ -47,6 +51,14 @@ F_MULTI_SPEED = fcode_address(5, 0)
 F_MOTOR_OVERLOAD_COEFFICIENT = fcode_address(2, 27)
 F_OV_STALL = fcode_address(11, 3)
 F_OV_STALL_LEVEL = fcode_address(11, 4)
+F_CURRENT_LIMITING = fcode_address(11, 5)
+F_CURRENT_LIMIT_LEVEL = fcode_address(11, 6)
+
+#: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
+CURRENT_LIMITING_DEFAULT = 1
+#: The current limiting level where a profile has no F11.06, % of the drive's rated current (GD20 P11.06,
+#: G type default 160.0 %).
+CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
 
 #: F08.03, the action on a communication timeout (INVT GD20 P14.03).
 COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
@@ -93,10 +105,13 @@ class Config:
     hold: float  #: Coulomb friction plus load torque, N m
     viscous: float  #: N m per rpm
     active: float  #: signed load torque, N m, positive pushing forward
+    active_knee_rpm: float  #: the active load pulls fully up to this speed (the motor's rated speed)
+    active_free_rpm: float  #: and falls to nothing at this one (its own drag): [motor] active_load_free_rpm
     inputs: int  #: effective input terminals
     kp: float  #: speed loop, N m per rad/s
     ki: float  #: speed loop, N m per rad
     stall_v: float  #: overvoltage stall level, V; 0 = off
+    limit_a: float  #: current limiting level, A: the ramp holds while the loop would ask more; 0 = off
     motor_rated_a: float  #: rated current times the overload coefficient
     comm_action: int
 
@@ -131,6 +146,14 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     bandwidth = physics.TWO_PI * profile.control.speed_loop_hz
     stall_on = P.get(F_OV_STALL) if F_OV_STALL in P else 1
     stall_pct = P.get(F_OV_STALL_LEVEL) if F_OV_STALL_LEVEL in P else 120
+    limiting = P.get(F_CURRENT_LIMITING) if F_CURRENT_LIMITING in P else CURRENT_LIMITING_DEFAULT
+    limit_pct = (
+        P.get(F_CURRENT_LIMIT_LEVEL) * regs[F_CURRENT_LIMIT_LEVEL].scale
+        if F_CURRENT_LIMIT_LEVEL in P
+        else CURRENT_LIMIT_LEVEL_DEFAULT_PCT
+    )
+    # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
+    limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
     coefficient = (
         P.get(F_MOTOR_OVERLOAD_COEFFICIENT) * regs[F_MOTOR_OVERLOAD_COEFFICIENT].scale / 100.0
         if F_MOTOR_OVERLOAD_COEFFICIENT in P
@@ -150,10 +173,13 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         hold=m.friction_nm + bench.load,
         viscous=m.viscous_nm_per_krpm / 1000.0,
         active=bench.active,
+        active_knee_rpm=m.rated_speed_rpm,
+        active_free_rpm=m.active_load_free_rpm,
         inputs=inputs,
         kp=inertia * bandwidth,
         ki=inertia * bandwidth * bandwidth / 4.0,
         stall_v=profile.supply.voltage_v * stall_pct / 100.0 if stall_on else 0.0,
+        limit_a=limit_a if limiting else 0.0,
         motor_rated_a=m.rated_current_a * max(coefficient, 0.01),
         comm_action=P.get(F_COMM_ACTION) if F_COMM_ACTION in P else COMM_TRIP,
     )

@@ -68,6 +68,8 @@ __all__ = [
 RAM_REGISTERS = (Reg.SPEED_SETPOINT, Reg.VIRTUAL_INPUTS, Reg.VIRTUAL_OUTPUTS, Reg.WRITE_ENABLE)
 
 DRIVE_ID = 0x0020
+#: 3006H reads within the sheet's 0-3000 rpm: a rotor an overhauling load drives faster reads the top (assumed).
+MOTOR_SPEED_MAX = FIXED_REGISTERS[Reg.MOTOR_SPEED].maximum
 STATUS2_BUS = 0x0001
 STATUS2_OVERLOAD = 0x0010
 _RUN_VALUES = frozenset(e.value for e in RUN_COMMANDS)
@@ -98,7 +100,7 @@ def check_write(d: Drive, address: int, value: int) -> None:
             )
 
 
-def write(d: Drive, address: int, value: int) -> None:
+def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None:
     """Store a checked value: 2000H is a command, 200AH the virtual inputs, 200FH = 1 restores the defaults.
 
     2000H reads back the command in force (**assumed**; the sheet says only that it can be read and written
@@ -121,6 +123,8 @@ def write(d: Drive, address: int, value: int) -> None:
     elif address == Reg.RESTORE_DEFAULTS:
         if value == 1:
             d.parameters.restore_defaults()
+    elif ram_only:  # a function code written at its RAM-only address: acts now, never saved
+        d.parameters.set_ram(address, value)
     else:
         d.parameters.set(address, value)
     d._reconfigure()
@@ -170,8 +174,10 @@ def set_rpm(d: Drive) -> float:
 
 
 def hz100(d: Drive, rpm: float) -> int:
-    """A speed as an electrical frequency in 0.01 Hz."""
-    return u16(abs(rpm) * d.motion.cfg.pole_pairs * 100.0 / 60.0)
+    """A speed as an electrical frequency in 0.01 Hz, saturated at the maximum speed's (F00.03): the inverter
+    puts out no higher frequency, whatever an overhauling load does to the rotor."""
+    cfg = d.motion.cfg
+    return u16(min(abs(rpm), cfg.max_rpm) * cfg.pole_pairs * 100.0 / 60.0)
 
 
 def hall_now(d: Drive) -> int:
@@ -188,7 +194,7 @@ def speed_read(d: Drive) -> int:
     amplitude = d.profile.control.speed_noise_rpm
     if amplitude and speed:
         speed = max(0.0, speed + amplitude * noise(d.profile.control.noise_seed, motion.k))
-    return u16(speed)
+    return min(u16(speed), MOTOR_SPEED_MAX)
 
 
 def outputs(d: Drive) -> int:

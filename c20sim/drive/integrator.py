@@ -5,11 +5,15 @@ temperature, the two I^2 t budgets, the stalled and braking step counters)
 and advances it by one :data:`~c20sim.drive.physics.STEP` for a drive in a
 given state. A speed loop of finite bandwidth (the ramp's torque fed forward,
 a PI on the rest) drives a current clamped at the current limit; what it asks
-is what overcurrent trips on. Overvoltage stall prevention (F11.03/F11.04)
+is what overcurrent trips on. Current limiting (F11.05/F11.06, on by default as
+INVT ships it) cuts the ramp's step so the loop asks no more than its level:
+a heavy start or stop stretches instead of tripping; with it off, a ramp that
+asks more than the trip level trips OC1/OC2. Overvoltage stall prevention (F11.03/F11.04)
 holds the ramp while braking would lift the bus above its level; the motor
 and the drive each have an inverse-time overload curve with thermal memory
 (F02.27 scales the motor's); losses and so heating come from the current;
-loads are passive (opposing motion) or active (signed, a hoist's weight).
+loads are passive (opposing motion) or active (signed, a hoist's weight, with
+its own speed-torque characteristic: :func:`~c20sim.drive.physics.active_torque`).
 
 A settled drive with constant inputs enters a :class:`~c20sim.drive.physics.Segment`:
 its closed forms give the state at any later step directly, bit for bit as if
@@ -59,7 +63,7 @@ class Integrator:
         *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0", "k"),
         *("brake_steps", "bus", "bus_settled", "current", "demand", "drive_i2t", "integ", "limited", "loss"),
         *("motor_i2t", "phase", "power", "ramp", "segment", "speed", "speed_before", "stall_steps", "temp"),
-        *("temp_decay", "temp_rate"),
+        *("temp_decay", "temp_rate", "active_now"),
     )
     cfg: Config
     segment: Segment | None
@@ -79,7 +83,7 @@ class Integrator:
     def power_up(self) -> None:
         """At rest, the bus at the level the supply gives a stopped drive, the overload budgets full."""
         self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
-        self.integ = self.demand = 0.0
+        self.integ = self.demand = self.active_now = 0.0
         self.bus = self.bus_rest(self.bench.supply)
         self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
@@ -112,12 +116,20 @@ class Integrator:
         speed = self.speed
         limited = False
         emf = kt * speed * RPM
+        self.active_now = (
+            physics.active_torque(cfg.active, speed, cfg.active_knee_rpm, cfg.active_free_rpm) if cfg.active else 0.0
+        )
         if state in DRIVEN:
             target = target_rpm(state, cfg)
             ramp, phase = physics.ramp_toward(self.ramp, target, cfg.up, cfg.down)
             if phase == DECEL and cfg.stall_v and self.bus > cfg.stall_v:
                 ramp = self.ramp  # overvoltage stall prevention: hold the output frequency, stretching the ramp
+            asked = ramp
             ramp, current, new_speed, integ, limited, wanted = self.control(state, ramp, target, speed, emf)
+            if cfg.limit_a and phase != CONSTANT and asked != self.ramp:
+                ramp, current, new_speed, integ, limited, wanted = self.current_limited(
+                    state, (ramp, current, new_speed, integ, limited, wanted), asked, target, speed, emf
+                )
             if phase == DECEL and cfg.stall_v and ramp != self.ramp:
                 ramp, current, new_speed, integ, limited, wanted = self.stall_limited(
                     state, (ramp, current, new_speed, integ, limited, wanted), target, speed, emf
@@ -127,7 +139,9 @@ class Integrator:
             target, ramp, phase = 0.0, 0.0, CONSTANT
             # Output off: only the freewheeling diodes conduct, once the back-EMF exceeds the bus.
             current = 0.0 if abs(emf) <= self.bus else -math.copysign(abs(emf) - self.bus, emf) / resistance
-            new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+            new_speed = physics.free_motion(
+                speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP
+            )
         bus, power, loss = self.bus_after(new_speed, current)
         self.bus_settled = abs(bus - self.bus) <= 1e-9  # a chopper at its threshold never settles
         temp_ss = self.bench.ambient + loss * th.resistance_k_per_w
@@ -163,15 +177,41 @@ class Integrator:
             current = high if wanted > high else low
         else:
             current = wanted
-        new_speed = physics.free_motion(speed, kt * current + cfg.active, cfg.hold, cfg.viscous, cfg.inertia, STEP)
+        new_speed = physics.free_motion(speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP)
         if limited:
             ramp = new_speed  # the current limit holds the ramp back
         elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < settled_rpm(state):
             # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
             new_speed = ramp
-            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - cfg.active
+            active = physics.active_torque(cfg.active, ramp, cfg.active_knee_rpm, cfg.active_free_rpm)
+            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - active
             current = integ / kt
         return ramp, current, new_speed, integ, limited, wanted
+
+    def current_limited(
+        self, state: State, full: Control, asked: float, target: float, speed: float, emf: float
+    ) -> Control:
+        """Current limiting (F11.05/F11.06): the ramp's step is cut so the loop asks no more than the level.
+
+        The demand is affine in the ramp's step (the step's acceleration torque is fed forward), so the
+        step that asks exactly the level is found in one division: the output frequency advances as fast
+        as the current allows and holds where the loop already asks the level, accelerating and
+        decelerating alike, and the ramp stretches instead of tripping (INVT GD20 P11.05, P11.06). At
+        constant speed a load beyond the level meets the clamp as before (GD20 P11.07's frequency decrease
+        there is not modelled: the clamp holds the ramp back to the rotor, which comes to the same).
+        """
+        limit = self.cfg.limit_a
+        held = self.control(state, self.ramp, target, speed, emf)
+        push = full[5] - held[5]  # what the step adds to the demand
+        if push == 0.0:
+            return full
+        bound = limit if push > 0.0 else -limit
+        if (full[5] - bound) * push <= 0.0:
+            return full  # the full step stays within the level on the side it pushes
+        share = (bound - held[5]) / push
+        if share <= 0.0:
+            return held
+        return self.control(state, self.ramp + share * (asked - self.ramp), target, speed, emf)
 
     def stall_limited(self, state: State, full: Control, target: float, speed: float, emf: float) -> Control:
         """Overvoltage stall prevention, looking one step ahead as the drive's fast stall loop does.
@@ -235,10 +275,12 @@ class Integrator:
                 return
             if self.ramp != target_rpm(state, self.cfg) or self.speed != self.ramp:
                 return
-        elif self.speed != 0.0:
-            return
         elif self.current != 0.0:
             return  # the diodes still conduct
+        elif self.speed != 0.0 and self.hall.fault is not None:
+            return  # a broken sensor on a turning rotor glitches
+        # Output off, the rotor at rest or where an active load and the friction balance (a fixed point: the
+        # same speed from one step to the next, every input constant).
         watch = state not in (State.FAULT, State.OFF)
         thermal = self.profile.thermal
         temp_ss = self.bench.ambient + self.loss * thermal.resistance_k_per_w

@@ -6,8 +6,10 @@ not depend on how often anyone looks; reads never change it. A settled drive
 skips ahead in closed form, bit for bit as if it had stepped.
 
 The drive behaves as an INVT-family drive does where it matters for trips
-(see the integrator): overcurrent trips on the current the speed loop asks,
-overvoltage stall prevention holds the ramp, overload curves have thermal
+(see the integrator): current limiting holds the ramp where the speed loop
+would ask more than its level, overcurrent trips on the current the loop asks
+(limiting off, or a load step faster than the limit), overvoltage stall
+prevention holds the ramp, overload curves have thermal
 memory, 3006H is measured from the Hall edges.
 
 Faults are causes: each protection watches a physical condition, trips by a
@@ -35,6 +37,8 @@ from .config import (
     CHANNEL_KEYPAD,
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
+    F_CURRENT_LIMIT_LEVEL,
+    F_CURRENT_LIMITING,
     F_MOTOR_OVERLOAD_COEFFICIENT,
     F_OV_STALL,
     Conditions,
@@ -53,6 +57,8 @@ from .telemetry import Telemetry, snapshot
 __all__ = [
     "F_COMM_ACTION",
     "F_COMM_TIMEOUT",
+    "F_CURRENT_LIMITING",
+    "F_CURRENT_LIMIT_LEVEL",
     "F_MOTOR_OVERLOAD_COEFFICIENT",
     "F_OV_STALL",
     "STEP",
@@ -133,6 +139,9 @@ class Drive:
 
     def write(self, address: int, value: int) -> None:
         face.write(self, address, value)
+
+    def write_ram(self, address: int, value: int) -> None:
+        face.write(self, address, value, ram_only=True)
 
     # --- Local controls and injection.
 
@@ -281,6 +290,7 @@ class Drive:
 
     def _power_up(self) -> None:
         self.ram = dict.fromkeys(face.RAM_REGISTERS, 0)
+        self.parameters.power_up()  # RAM-only function-code writes are lost
         self._reconfigure()
         self.motion.power_up()
         self.hall.reset()

@@ -3,6 +3,12 @@
 Holds every function code of the profile at its default, and answers for the
 20xxH registers that mirror one. Restoring defaults (200FH) is done here.
 
+Two layers, as in the drive: the EEPROM (what :meth:`ParameterStore.set`
+writes, what the state file holds) and RAM (what the drive works from). A
+write to a function code's RAM-only address changes RAM only
+(:meth:`ParameterStore.set_ram`): it acts at once, is never saved, and is
+gone at the next power-up (:meth:`ParameterStore.power_up`).
+
 With a state file the store is an EEPROM: every change is on disk before
 :meth:`ParameterStore.set` returns, written atomically (a temporary file in
 the same directory, fsync, ``os.replace``, fsync of the directory), so a kill
@@ -31,6 +37,7 @@ from typing import Any
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import format_fcode, parse_fcode
+from .files import MAX_DEPTH, FileReadError, json_depth, read_bytes
 from .profile import Profile
 
 __all__ = ["STATE_FORMAT", "ParameterStore", "StateFileError"]
@@ -56,13 +63,16 @@ class ParameterStore:
     def __init__(self, profile: Profile, path: str | Path | None = None) -> None:
         self.profile = profile
         self.path = Path(path) if path is not None else None
-        self._values: dict[int, int] = dict(profile.defaults)
+        #: the EEPROM: what is saved
+        self._stored: dict[int, int] = dict(profile.defaults)
         if self.path is not None:
             self._remove_stale_temporaries()
             if self.path.exists():
-                self._values.update(self._read(self.path))
+                self._stored.update(self._read(self.path))
             else:
                 self.save()
+        #: RAM: what the drive works from (the EEPROM's values, and RAM-only writes since power-up)
+        self._values: dict[int, int] = dict(self._stored)
 
     def __contains__(self, address: object) -> bool:
         return address in self._values
@@ -73,28 +83,42 @@ class ParameterStore:
         return value if value is not None else self._values[self.profile.registers.canonical(address)]
 
     def set(self, address: int, value: int) -> None:
-        """Store a value (persisted before returning when there is a state file)."""
+        """Store a value in EEPROM and RAM (persisted before returning when there is a state file)."""
         cell = self.profile.registers.canonical(address)
         value &= 0xFFFF
-        if self._values.get(cell) == value:
-            return
-        self._commit({**self._values, cell: value})
+        if self._stored.get(cell) != value:
+            self._commit({**self._stored, cell: value})
+        self._values[cell] = value
+
+    def set_ram(self, address: int, value: int) -> None:
+        """Change a value in RAM only: it acts at once, is never saved, and goes at the next power-up."""
+        self._values[self.profile.registers.canonical(address)] = value & 0xFFFF
+
+    def power_up(self) -> None:
+        """RAM takes the EEPROM's values again: RAM-only writes are lost."""
+        self._values = dict(self._stored)
 
     def restore_defaults(self) -> None:
         self._commit(dict(self.profile.defaults))
+        self._values = dict(self._stored)
 
     def snapshot(self) -> dict[int, int]:
-        """A copy of every value, by function-code address."""
+        """A copy of every value in effect (RAM), by function-code address."""
         return dict(self._values)
+
+    def stored(self) -> dict[int, int]:
+        """A copy of every value in EEPROM (what the state file holds), by function-code address."""
+        return dict(self._stored)
 
     def load(self, values: Mapping[int, int]) -> None:
         """Take stored values for the function codes this profile knows."""
-        new = dict(self._values)
+        new = dict(self._stored)
         for address, value in values.items():
             if address in new:
                 new[address] = value & 0xFFFF
         self._write(new)
-        self._values = new
+        self._stored = new
+        self._values = dict(new)
 
     # --- The state file.
 
@@ -112,11 +136,11 @@ class ParameterStore:
         except StateFileError as exc:
             log.error("parameter write refused (0x04): the EEPROM save failed: %s; the old values are kept", exc)
             raise ModbusError(ExceptionCode.OPERATION_FAILED, f"EEPROM save failed: {exc.message}") from None
-        self._values = values
+        self._stored = values
 
     def save(self) -> None:
         """Write the state file atomically (no-op without one)."""
-        self._write(self._values)
+        self._write(self._stored)
 
     def _write(self, values: dict[int, int]) -> None:
         if self.path is None:
@@ -146,11 +170,13 @@ class ParameterStore:
 
     def _read(self, path: Path) -> dict[int, int]:
         try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise StateFileError(path, f"cannot read: {exc.strerror}") from None
+            text = read_bytes(path, "state file").decode("utf-8")
+        except FileReadError as exc:
+            raise StateFileError(path, exc.reason) from None
         except UnicodeDecodeError:
             raise StateFileError(path, "not a c20sim state file (not UTF-8 text)") from None
+        if json_depth(text) > MAX_DEPTH:
+            raise StateFileError(path, "not a c20sim state file (JSON nested too deeply)")
         try:
             document: Any = json.loads(text)
         except json.JSONDecodeError as exc:

@@ -22,6 +22,7 @@ __all__ = [
     "STEP",
     "TWO_PI",
     "Segment",
+    "active_torque",
     "bus_step",
     "free_motion",
     "hall_code",
@@ -74,6 +75,19 @@ def free_motion(speed: float, drive_torque: float, hold: float, viscous: float, 
     if speed != 0.0 and new * speed <= 0.0 and not (drive_torque * new > 0.0 and abs(drive_torque) > hold):
         return 0.0
     return new
+
+
+def active_torque(torque: float, speed: float, knee: float, free: float) -> float:
+    """An active (overhauling) load's torque (N m, signed) at ``speed`` (rpm): its speed-torque characteristic.
+
+    Full up to ``knee`` rpm, and whenever it opposes the motion; pushing the rotor faster than ``knee`` it falls
+    linearly to zero at ``free`` rpm, where the load's own drag balances its pull. A free rotor driven by it
+    settles below ``free``, where what is left of it meets the friction. Below the knee the value is the
+    torque itself, bit for bit.
+    """
+    if torque * speed <= 0.0 or abs(speed) <= knee:
+        return torque
+    return torque * max(0.0, (free - abs(speed)) / (free - knee))
 
 
 def bus_step(

@@ -32,6 +32,7 @@ from ..wire.registers import (
     is_fcode,
     parse_fcode,
 )
+from .files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 
 __all__ = [
     "DEFAULT_PROFILE",
@@ -103,6 +104,13 @@ class ProtocolParams:
     simple_plc: bool = field(
         default=False, metadata={"doc": "the model runs a simple PLC program (2007H = 6); false: refused"}
     )
+    ram_only_alias: bool = field(
+        default=False,
+        metadata={
+            "doc": "a write at a function code's address | 8000H changes it in RAM only (not saved, lost at "
+            "power-off; write-only: reads there get 0x02), as the INVT family does"
+        },
+    )
     password: int = field(default=0, metadata=_num(0, 65535, "", "user password; 0 = none"))
     password_register: str = field(default="F07.00", metadata={"doc": "function code where the password is written"})
     eeprom_endurance_writes: int = field(
@@ -129,6 +137,16 @@ class MotorParams:
     friction_nm: float = field(metadata=_num(0, 100, "N m", "Coulomb friction"))
     viscous_nm_per_krpm: float = field(metadata=_num(0, 100, "N m/krpm"))
     jog_speed_rpm: float = field(metadata=_num(0, 3000, "rpm"))
+    active_load_free_rpm: float = field(
+        default=3300.0,
+        metadata=_num(
+            100,
+            30000,
+            "rpm",
+            "an active load's torque falls from full at rated_speed_rpm to zero here (its own drag): "
+            "a free rotor it drives settles below it",
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -322,13 +340,9 @@ def load_profile(name_or_path: str = DEFAULT_PROFILE) -> Profile:
     """Load and check a profile by shipped name or by path."""
     path = profile_path(name_or_path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProfileError(str(path), "", "file not found") from None
-    except OSError as exc:
-        raise ProfileError(str(path), "", f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ProfileError(str(path), "", f"not a TOML profile: not UTF-8 text (byte {exc.start})") from None
+        text = read_text(path, "profile", named="TOML profile")
+    except FileReadError as exc:
+        raise ProfileError(str(path), "", "file not found" if exc.missing else exc.reason) from None
     return parse_profile(text, str(path))
 
 
@@ -482,6 +496,8 @@ _SOURCES = ("sheet", "notes", "field", "assumed")
 def parse_profile(text: str, path: str = "<profile>") -> Profile:
     """Check a profile's TOML text; ``path`` names it in errors."""
     check = _Checker(path)
+    if toml_depth(text) > MAX_DEPTH:
+        raise check.fail("", too_deep(path, "profile").reason)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -515,6 +531,11 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
             "supply.undervoltage_recover_v",
             f"{supply.undervoltage_recover_v:g} V must be between supply.undervoltage_v = {supply.undervoltage_v:g} V "
             f"and supply.voltage_v = {supply.voltage_v:g} V",
+        )
+    if motor.active_load_free_rpm <= motor.rated_speed_rpm:
+        raise check.fail(
+            "motor.active_load_free_rpm",
+            f"{motor.active_load_free_rpm:g} rpm must be above motor.rated_speed_rpm = {motor.rated_speed_rpm:g} rpm",
         )
     if supply.overvoltage_v <= supply.voltage_v:
         raise check.fail(

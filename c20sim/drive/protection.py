@@ -175,6 +175,8 @@ class Machine:
         if cause in BY_PHASE["overvoltage"].values():
             return bench.supply > s.overvoltage_v
         if cause in BY_PHASE["overcurrent"].values():  # holding the load, or starting or stopping it on the ramp
+            if cfg.limit_a:  # current limiting: the ramp never asks more than the level, below the trip
+                return self.load_current() > p.overcurrent_a
             ramp = cfg.inertia * max(cfg.up, cfg.down) / STEP * RPM / self.profile.motor.kt_nm_per_a
             return self.load_current() + ramp > p.overcurrent_a
         if cause is FaultCause.STALL:  # the current limit cannot hold the load: a running rotor stalls
@@ -238,8 +240,10 @@ class Machine:
         driven = state in DRIVEN
         if motion.bus > supply.overvoltage_v and self.trip_on(BY_PHASE["overvoltage"][motion.phase]):
             return
-        # The current the loop asks this step flows for the microseconds the limit takes to act: a ramp of a
-        # heavy load that asks more than the trip level trips here, a load beyond the limit slows the rotor.
+        # The current the loop asks this step flows for the microseconds the limit takes to act: with current
+        # limiting off, a ramp of a heavy load that asks more than the trip level trips here; with it on, the
+        # ramp holds at the level, and only a load step faster than the limit (a shock) trips; a load beyond
+        # the limit slows the rotor.
         if driven and abs(motion.demand) > prot.overcurrent_a and self.trip_on(BY_PHASE["overcurrent"][motion.phase]):
             return
         if self.hall.glitch and self.trip_on(FaultCause.HALL):  # a bad code trips whenever the bus is up

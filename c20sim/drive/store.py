@@ -69,3 +69,6 @@ class RegisterStoreDrive:
             self.ram[address] = value
         else:
             self.parameters.set(address, value)
+
+    def write_ram(self, address: int, value: int) -> None:
+        self.parameters.set_ram(address, value)

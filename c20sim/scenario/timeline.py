@@ -59,6 +59,7 @@ from typing import IO, TYPE_CHECKING, Any, TypeVar
 from ..audit import RULES
 from ..control import causes, liveaudit, ops
 from ..core.simulator import Simulator
+from ..drive.files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
 from ..wire.protocol import (
@@ -194,11 +195,12 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and check a scenario file; raises ScenarioError naming the file, step and key."""
     where = str(path)
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ScenarioError(where, "", f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(where, "", f"not a TOML scenario: not UTF-8 text (byte {exc.start})") from None
+        text = read_text(path, "scenario", named="TOML scenario")
+        if toml_depth(text) > MAX_DEPTH:
+            raise too_deep(where, "scenario")
+        data = tomllib.loads(text)
+    except FileReadError as exc:
+        raise ScenarioError(where, "", exc.reason) from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(where, "", f"not valid TOML: {exc}") from None
     return parse_scenario(data, where)

@@ -2,7 +2,8 @@
 
 A frame log is one JSON object a line, as ``serve --log-frames`` and ``c20sim record``
 write it; only ``t`` (seconds), ``dir`` (``rx`` master to drive, ``tx`` drive to master) and
-``hex`` (the bytes) are read, so a log from any tool that writes those three keys will do.
+``hex`` (the bytes) are read (for a Modbus TCP frame, ``rtu``: the frame on the line behind the
+gateway, where ``hex`` is the MBAP frame on the connection), so a log from any tool that writes those three keys will do.
 The log is read a line at a time (a line longer than :data:`MAX_LINE` is an error), so
 memory stays bounded whatever its length. A line that is not a frame (the frame log's own
 ``{"kind": "log-dropped"}`` notices) is skipped; a line that is not JSON, or a frame with a bad
@@ -50,7 +51,7 @@ def read_frames(stream: IO[str], where: str) -> Iterator[tuple[float, str, bytes
         number += 1
         if len(line) > MAX_LINE and not line.endswith("\n"):
             raise C20SimError(f"{where}: line {number}: longer than {MAX_LINE} characters; not a frame log")
-        found = fast(line)
+        found = fast(line) if '"rtu": ' not in line else None  # Modbus TCP: the RTU frame is under "rtu"
         if found is not None:
             try:
                 t = float(found.group(1))
@@ -85,6 +86,10 @@ def _slow(line: str, number: int, where: str) -> Iterator[tuple[float, str, byte
     if direction not in ("rx", "tx"):
         raise bad('key \'dir\': expected "rx" (master to drive) or "tx" (drive to master)')
     text = item.get("hex")
+    if "rtu" in item:  # a Modbus TCP frame: "hex" is its MBAP frame, "rtu" the frame on the line behind the gateway
+        text = item["rtu"]
+        if text is None:
+            return  # the gateway's own answer (0x0B after silence): never on the line
     if not isinstance(text, str):
         raise bad("key 'hex': expected the frame's bytes in hex, such as \"01 03 21 00 00 01 8E 36\"")
     try:

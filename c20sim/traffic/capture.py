@@ -6,27 +6,44 @@ or a JSONL frame log as ``serve --log-frames`` and ``c20sim record`` write
 (one JSON object a line: ``t`` seconds, ``dir`` ``rx`` from the master or
 ``tx`` from the drive, ``hex`` the bytes). :func:`c20sim.wire.decode.split_frames`
 cuts the bytes into frames by the protocol.
+
+A Modbus TCP exchange is logged as the TCP connection carried it: ``hex`` is
+the MBAP frame, ``modbus_tcp`` its ``transaction`` and ``unit``, and ``rtu`` the
+frame on the line behind the gateway (null for the gateway's own answer,
+exception 0x0B, which never was on the line). Decode shows both; replay plays
+and compares the line.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
 import re
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import cast
 
+from ..drive.files import MAX_DEPTH, FileReadError, json_depth, read_bytes
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.decode import Piece, decode_frame, split_frames
 from ..wire.errors import C20SimError
-from ..wire.protocol import Request
+from ..wire.protocol import MbapHeader, Request, mbap_adus, with_crc
 from ..wire.registers import RegisterMap
 
-__all__ = ["LogRecord", "add_decode_command", "load_frame_log", "parse_dump", "parse_hex", "parse_log"]
+__all__ = [
+    "LogRecord",
+    "add_decode_command",
+    "load_frame_log",
+    "on_the_line",
+    "parse_dump",
+    "parse_hex",
+    "parse_log",
+    "rtu_of_mbap",
+]
 
 #: The most input ``decode`` and ``replay`` read (bytes of text): a capture, not a disk.
 MAX_INPUT = 64 * 1024 * 1024
@@ -98,6 +115,61 @@ class LogRecord:
     data: bytes
     kind: str = ""
     note: str = ""
+    #: a Modbus TCP record: its MBAP header (``data`` is then the MBAP frame), else None
+    mbap: MbapHeader | None = None
+    #: a Modbus TCP record: the RTU frame on the line (None: the gateway's own answer, never on the line)
+    rtu: bytes | None = None
+
+    @property
+    def line_data(self) -> bytes | None:
+        """The bytes on the RTU line: ``data``, or for Modbus TCP the RTU frame behind the gateway (None if none)."""
+        return self.data if self.mbap is None else self.rtu
+
+
+def rtu_of_mbap(adu: bytes) -> bytes:
+    """The RTU frame of a Modbus TCP frame: unit, PDU, CRC (empty for fewer than 8 bytes)."""
+    return with_crc(adu[6:]) if len(adu) >= 8 else b""
+
+
+def on_the_line(records: Sequence[LogRecord]) -> list[LogRecord]:
+    """The records as the RTU line saw them: a Modbus TCP record's RTU frame in ``data``; the gateway's own answers
+    (never on the line) left out. RTU records are kept as they are."""
+    out = []
+    for record in records:
+        if record.mbap is None:
+            out.append(record)
+        elif record.rtu is not None:
+            out.append(dataclasses.replace(record, data=record.rtu, mbap=None, rtu=None))
+    return out
+
+
+def _modbus_tcp(
+    item: dict[str, object], data: bytes, bad: Callable[[str], C20SimError]
+) -> tuple[MbapHeader, bytes | None]:
+    """The MBAP header and the RTU frame of a Modbus TCP record (``modbus_tcp`` and ``rtu`` keys)."""
+    header = item["modbus_tcp"]
+    fields = header if isinstance(header, dict) else {}
+    transaction, unit = fields.get("transaction"), fields.get("unit")
+    if (
+        not isinstance(transaction, int)
+        or isinstance(transaction, bool)
+        or not 0 <= transaction <= 0xFFFF
+        or not isinstance(unit, int)
+        or isinstance(unit, bool)
+        or not 0 <= unit <= 0xFF
+    ):
+        raise bad('key \'modbus_tcp\': expected {"transaction": 0-65535, "unit": 0-255}')
+    if "rtu" not in item:
+        return MbapHeader(transaction, unit), rtu_of_mbap(data)  # the line's frame, from the TCP one
+    rtu = item["rtu"]
+    if rtu is None:
+        return MbapHeader(transaction, unit), None
+    if not isinstance(rtu, str):
+        raise bad("key 'rtu': expected the RTU frame on the line in hex, or null for the gateway's own answer")
+    try:
+        return MbapHeader(transaction, unit), bytes.fromhex(rtu)
+    except ValueError:
+        raise bad(f"key 'rtu': not hex bytes: {rtu[:60]!r}") from None
 
 
 def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
@@ -112,6 +184,8 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
         def bad(message: str, n: int = number) -> C20SimError:
             return C20SimError(f"{where}: line {n}: {message}")
 
+        if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse
+            raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
         try:
             item = json.loads(line)
         except json.JSONDecodeError:
@@ -132,6 +206,7 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
         except ValueError:
             raise bad(f"key 'hex': not hex bytes: {text[:60]!r}") from None
         kind, note = item.get("kind", ""), item.get("note", "")
+        mbap, rtu = _modbus_tcp(item, data, bad) if "modbus_tcp" in item else (None, None)
         records.append(
             LogRecord(
                 number,
@@ -140,24 +215,26 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
                 data,
                 kind if isinstance(kind, str) else "",
                 note if isinstance(note, str) else "",
+                mbap,
+                rtu,
             )
         )
     return records
 
 
 def _read_text(path: str) -> str:
-    if path == "-":
-        text = sys.stdin.read(MAX_INPUT + 1)
-        where = "stdin"
-    else:
+    if path != "-":  # a file: bounded, and never a FIFO or a device (stdin is the way to pipe a capture in)
         try:
-            with open(path, encoding="utf-8", errors="replace") as f:
-                text = f.read(MAX_INPUT + 1)
-        except OSError as exc:
-            raise C20SimError(f"{path}: cannot read: {exc.strerror}") from None
-        where = path
+            return read_bytes(path, "capture", MAX_INPUT).decode("utf-8", errors="replace")
+        except FileReadError as exc:
+            if exc.reason.startswith("bigger than"):
+                raise C20SimError(f"{path}: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture") from None
+            if exc.reason.startswith("is a FIFO"):
+                raise C20SimError(f"{exc}; to read a pipe, give - and pipe it to stdin") from None
+            raise
+    text = sys.stdin.read(MAX_INPUT + 1)
     if len(text) > MAX_INPUT:
-        raise C20SimError(f"{where}: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture")
+        raise C20SimError(f"stdin: more than {MAX_INPUT // (1024 * 1024)} MiB; split the capture")
     return text
 
 
@@ -194,12 +271,25 @@ def decode_log(records: list[LogRecord], registers: RegisterMap) -> tuple[list[s
     last: Request | None = None
     for record in records:
         lines.append(f"{record.t:>12.6f} {record.direction} {record.data.hex(' ').upper()}".rstrip())
+        if record.mbap is not None:
+            on_line = "not on the line: the gateway's own answer" if record.rtu is None else "on the line: "
+            lines.append(
+                f"  modbus tcp: transaction {record.mbap.transaction}, unit {record.mbap.unit}; {on_line}"
+                + ("" if record.rtu is None else record.rtu.hex(" ").upper() or "nothing")
+            )
         if not record.data:
             lines.append(
                 f"  {record.kind or 'empty'}: no bytes on the wire" + (f" ({record.note})" if record.note else "")
             )
             continue
-        pieces = split_frames(record.data, registers, after=last if record.direction == "tx" else None)
+        if record.mbap is not None and record.rtu is None and len(record.data) == 9 and record.data[7] & 0x80:
+            lines.append(
+                f"  gateway: exception 0x{record.data[8]:02X} to function 0x{record.data[7] & 0x7F:02X}"
+                + (": gateway target device failed to respond" if record.data[8] == 0x0B else "")
+            )
+            continue
+        frame = record.data if record.mbap is None else rtu_of_mbap(record.data)  # in words as RTU: unit, PDU
+        pieces = split_frames(frame, registers, after=last if record.direction == "tx" else None)
         wanted = ("request",) if record.direction == "rx" else ("reply", "exception")
         if len(pieces) == 1 and pieces[0].kind in wanted:
             lines.append(f"  {pieces[0].kind}: {pieces[0].text}")
@@ -207,8 +297,14 @@ def decode_log(records: list[LogRecord], registers: RegisterMap) -> tuple[list[s
                 last = cast(Request, pieces[0].message)
             continue
         ok = False
+        headers = mbap_adus(record.data) if record.mbap is None else None
+        if headers:
+            lines.append(
+                f"  this looks like Modbus TCP (transaction {headers[0].transaction}, unit {headers[0].unit}) "
+                "sent to an RTU port"
+            )
         if len(pieces) <= 1:
-            decoded = decode_frame(record.data, registers)
+            decoded = decode_frame(frame, registers)
             lines.append(f"  {decoded.kind}: {decoded.text}")
         else:
             lines += ["  " + line for line in _render(pieces)]

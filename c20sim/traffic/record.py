@@ -41,6 +41,15 @@ __all__ = ["Recorder", "add_record_command"]
 #: Records written before ``--max-records`` stops the log (the bytes are still passed on).
 DEFAULT_MAX_RECORDS = 1_000_000
 
+#: MiB of log written before ``--max-mb`` stops it (the bytes are still passed on): a day of a busy line.
+DEFAULT_MAX_MB = 256.0
+
+#: Noise no longer than this is one record as a frame is, its bytes spaced and described; longer noise, and
+#: noise that goes on, is logged compactly: its bytes in one run of hex, up to :data:`NOISE_RUN` bytes a record
+#: (about 2 bytes of log a byte of noise, where a record a broken piece took 3.4).
+NOISE_SHORT = 16
+NOISE_RUN = 4096
+
 
 #: Each direction of the log, and how its frames are cut: the master sends requests, the drive replies.
 _SIDES: tuple[tuple[str, Literal["request", "response"]], ...] = (("rx", "request"), ("tx", "response"))
@@ -49,12 +58,25 @@ _SIDES: tuple[tuple[str, Literal["request", "response"]], ...] = (("rx", "reques
 class Recorder:
     """Frames both directions of a master-drive conversation and writes each frame as a JSON line."""
 
-    def __init__(self, out: IO[str], registers: RegisterMap, baud: int, *, max_records: int = DEFAULT_MAX_RECORDS):
+    def __init__(
+        self,
+        out: IO[str],
+        registers: RegisterMap,
+        baud: int,
+        *,
+        max_records: int = DEFAULT_MAX_RECORDS,
+        max_mb: float = DEFAULT_MAX_MB,
+    ):
         self.out = out
         self.registers = registers
         self.max_records = max_records
+        self.max_mb = max_mb
+        self.max_bytes = int(max_mb * 1024 * 1024)
         self.records = 0
+        self.bytes = 0  #: bytes of log written
         self.full = False
+        #: noise being gathered into one compact record, by direction: (its bytes, the time of its last byte)
+        self._noise: dict[str, tuple[bytearray, float]] = {}
         self.t0 = 0.0
         self._last_request: Request | None = None
         self.framers = {
@@ -80,35 +102,64 @@ class Recorder:
         deadline = framer.deadline()
         if deadline is not None:
             self._timers[direction] = loop.call_at(deadline + self.t0, self._silence, direction)
+        elif direction in self._noise:  # noise gathered, nothing half-framed: silence ends the noise too
+            self._timers[direction] = loop.call_later(UNTIMED_SILENCE, self._silence, direction)
 
     def _silence(self, direction: str) -> None:
         self._timers.pop(direction, None)
         self.framers[direction].tick(asyncio.get_running_loop().time() - self.t0)
         self._drain(direction)
+        self._end_noise(direction)
 
     def flush(self) -> None:
         for direction, framer in self.framers.items():
             framer.flush()
             self._drain(direction)
+            self._end_noise(direction)
         for timer in self._timers.values():
             timer.cancel()
         self._timers.clear()
 
     def _drain(self, direction: str) -> None:
         for event in self.framers[direction].events():
-            self.write(direction, event)
+            if event.kind is FrameKind.FRAME:
+                self._end_noise(direction)
+                self.write(direction, event)
+            elif direction in self._noise or len(event.data) > NOISE_SHORT:
+                self._gather_noise(direction, event)
+            else:
+                self.write(direction, event)
+
+    def _gather_noise(self, direction: str, event: FrameEvent) -> None:
+        data, _t = self._noise.get(direction, (bytearray(), 0.0))
+        data += event.data
+        self._noise[direction] = (data, event.t)
+        while len(data) >= NOISE_RUN:
+            self._write_noise(direction, bytes(data[:NOISE_RUN]), event.t)
+            del data[:NOISE_RUN]
+
+    def _end_noise(self, direction: str) -> None:
+        """The noise gathered in ``direction`` ends (a frame, silence, the end): write what is left of it."""
+        data, t = self._noise.pop(direction, (bytearray(), 0.0))
+        if data:
+            self._write_noise(direction, bytes(data), t)
+
+    def _write_noise(self, direction: str, data: bytes, t: float) -> None:
+        self._put(
+            {
+                "t": round(t, 6),
+                "model_t": None,
+                "dir": direction,
+                "hex": data.hex().upper(),
+                "kind": "noise",
+                "slave": None,
+                "text": f"{len(data)} bytes that are no frame",
+                "note": "",
+            }
+        )
 
     def write(self, direction: str, event: FrameEvent) -> None:
         kind, text = self._words(direction, event)
-        if self.records >= self.max_records:
-            if not self.full:
-                self.full = True
-                print(
-                    f"c20sim record: {self.max_records} records written; the rest is passed on, not logged",
-                    file=sys.stderr,
-                    flush=True,
-                )
-            return
         record = {
             "t": round(event.t, 6),
             "model_t": None,
@@ -119,9 +170,27 @@ class Recorder:
             "text": text,
             "note": event.note,
         }
-        self.out.write(json.dumps(record) + "\n")
+        self._put(record)
+
+    def _put(self, record: dict[str, Any]) -> None:
+        """Write one record, unless the log has reached ``--max-records`` or ``--max-mb`` (said once)."""
+        if self.full:
+            return
+        line = json.dumps(record) + "\n"
+        size = len(line.encode())
+        if self.records >= self.max_records or self.bytes + size > self.max_bytes:
+            self.full = True
+            limit = f"{self.max_records} records" if self.records >= self.max_records else f"{self.max_mb:g} MiB"
+            print(
+                f"c20sim record: {limit} written (the log's bound); the rest is passed on, not logged",
+                file=sys.stderr,
+                flush=True,
+            )
+            return
+        self.out.write(line)
         self.out.flush()
         self.records += 1
+        self.bytes += size
 
     def _words(self, direction: str, event: FrameEvent) -> tuple[str, str]:
         if event.kind is not FrameKind.FRAME:
@@ -164,7 +233,7 @@ async def record(args: Any, out: IO[str], registers: RegisterMap) -> tuple[Recor
     """Sniff until SIGINT or SIGTERM, or a port is lost; the recorder (its count of records), and the loss."""
     master = _master_side(args)
     drive = SerialSide(args.drive_serial, args.baud, args.parity, args.stopbits)
-    recorder = Recorder(out, registers, args.baud, max_records=args.max_records)
+    recorder = Recorder(out, registers, args.baud, max_records=args.max_records, max_mb=args.max_mb)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     losses: list[str] = []
@@ -215,6 +284,8 @@ def cmd_record(args: Any) -> int:
         raise C20SimError(f"--baud {args.baud}: not one the C20 supports: {', '.join(map(str, BAUD_RATES))}")
     if args.max_records < 1:
         raise C20SimError(f"--max-records {args.max_records}: must be at least 1")
+    if not 0.01 <= args.max_mb <= 1e6:  # also refuses nan
+        raise C20SimError(f"--max-mb {args.max_mb:g}: give a size in MiB from 0.01 to 1000000")
     _master_side(args)  # the checks, before the log file is made
     registers = load_profile(args.profile).registers
     try:
@@ -251,6 +322,13 @@ def add_record_command(sub: Any) -> None:
     parser.add_argument("--profile", default=DEFAULT_PROFILE, help="profile whose register names the log uses")
     parser.add_argument(
         "--max-records", type=int, default=DEFAULT_MAX_RECORDS, metavar="N", help="stop logging after N frames"
+    )
+    parser.add_argument(
+        "--max-mb",
+        type=float,
+        default=DEFAULT_MAX_MB,
+        metavar="MB",
+        help=f"stop logging when the log reaches this size in MiB (default {DEFAULT_MAX_MB:g})",
     )
     parser.add_argument("--ready-file", metavar="PATH", help="write the master's address as JSON when ready")
     parser.set_defaults(func=cmd_record)

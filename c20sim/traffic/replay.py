@@ -1,7 +1,8 @@
 """``c20sim replay LOG``: play the master's side of a frame log against a simulated drive, and compare.
 
 The log is JSONL as ``c20sim record`` and ``serve --log-frames`` write it
-(:mod:`c20sim.traffic.capture`). Each frame the master sent (``rx``) is framed and
+(:mod:`c20sim.traffic.capture`); of a Modbus TCP exchange, the RTU frames on the
+line behind the gateway are played and compared (``rtu``). Each frame the master sent (``rx``) is framed and
 handed to a simulator with a virtual clock, at the log's time for it (the
 first frame at model time 0): the drive's model runs exactly as long between
 two requests as the real drive did. The simulator's reply is compared, byte
@@ -25,7 +26,7 @@ from ..wire.decode import decode_frame, describe, split_frames
 from ..wire.errors import C20SimError
 from ..wire.protocol import Request, RtuFramer, decode_request
 from ..wire.registers import RegisterMap
-from .capture import LogRecord, load_frame_log
+from .capture import LogRecord, load_frame_log, on_the_line
 
 __all__ = ["Difference", "Exchange", "ReplayResult", "add_replay_command", "exchanges", "replay"]
 
@@ -117,7 +118,7 @@ def replay(records: Sequence[LogRecord], sim: Simulator) -> ReplayResult:
     """Play the master's frames of ``records`` on ``sim`` (virtual clock) at the log's times, and compare."""
     if not isinstance(sim.clock, VirtualClock):
         raise C20SimError("replay needs a simulator with a virtual clock")
-    found, skipped = exchanges(records)
+    found, skipped = exchanges(on_the_line(records))  # a Modbus TCP log: the line behind the gateway
     registers = sim.profile.registers
     differences: list[Difference] = []
     start = sim.now()
@@ -150,7 +151,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if not any(r.direction == "rx" for r in records):
         raise C20SimError(f"{args.log}: no frame from the master (dir rx) to replay")
     profile = load_profile(args.profile)
-    found, _ = exchanges(records)
+    found, _ = exchanges(on_the_line(records))
     addresses = parse_addresses(args.drives) if args.drives else default_drives(found)
     sim = Simulator(profile, addresses, clock=VirtualClock(), seed=args.seed, baud=args.baud)
     result = replay(records, sim)

@@ -101,6 +101,11 @@ class RtuEndpoint:
         return self._outstanding
 
     @property
+    def between_frames(self) -> bool:
+        """True when no bytes of an unfinished frame wait: the next bytes start a frame."""
+        return not self._unfed and not self.framer.pending
+
+    @property
     def paused(self) -> bool:
         """True while the transport is asked not to read."""
         return self._paused

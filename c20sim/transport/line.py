@@ -1,4 +1,4 @@
-"""The shared line: one request at a time, and a reply holds the line for its turnaround.
+"""The shared line: one request at a time, and a reply holds the line for its turnaround, or its line time.
 
 Every transport hands its framing events to the one :class:`Line` of its
 simulator, with a callback that puts the reply on the stream that asked. The
@@ -13,6 +13,17 @@ a few requests at a time and reads no more until they are answered
 (backpressure), and a closed endpoint's waiting requests are dropped with
 :meth:`Line.cancel`, as a gateway forgets a connection that went away.
 
+Bus timing (``serve --bus-timing``, on by default in every front end): each
+transaction holds the line for the time it would take on RS485 at the drive's
+serial settings (:func:`~c20sim.wire.protocol.transaction_time`, which the
+bus computes for every event: the request and the reply at the line's baud
+and character size, each after its t3.5, and the turnaround between), and a
+master over TCP gets its reply only when that time is over. Masters on every
+transport then meet the real line's throughput and queue behind each other as
+behind a serial device server. A silent request (broadcast, absent drive)
+holds the line for its own frame. A line-timed port has put the request on its
+wire already: its transactions hold the line for the rest.
+
 When the bus's line speed changes (the only drive took a 2009H write), every
 endpoint attached to the line is told, after the reply that acknowledged it
 has been handed over at the old speed.
@@ -22,6 +33,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
+from bisect import bisect_left
 from collections import deque
 from collections.abc import Callable
 
@@ -29,7 +42,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["Line", "Respond", "SelfTimed"]
+__all__ = ["LATENCY_BUCKETS", "Latency", "Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +64,44 @@ class SelfTimed:
         self.respond(reply)
 
 
+#: Upper bounds (seconds) of the reply latency histogram's buckets: from a fast TCP reply to a slow line's.
+LATENCY_BUCKETS: tuple[float, ...] = (
+    0.0001,
+    0.0002,
+    0.0005,
+    0.001,
+    0.002,
+    0.005,
+    0.01,
+    0.02,
+    0.05,
+    0.1,
+    0.2,
+    0.5,
+    1.0,
+)
+
+
+class Latency:
+    """How long replies took, from the request's last byte to the reply handed to its port: a histogram.
+
+    Counting costs a bisect and two additions per reply on the serving loop; reading it
+    (``GET /metrics``) costs nothing on the wire's path.
+    """
+
+    __slots__ = ("count", "counts", "sum")
+
+    def __init__(self) -> None:
+        self.counts = [0] * (len(LATENCY_BUCKETS) + 1)  #: per bucket, the last one above every bound
+        self.count = 0
+        self.sum = 0.0
+
+    def observe(self, seconds: float) -> None:
+        self.counts[bisect_left(LATENCY_BUCKETS, seconds)] += 1
+        self.count += 1
+        self.sum += seconds
+
+
 def _nothing(reply: Reply | None) -> None:
     """The respond of a delay whose reply was handed over already."""
 
@@ -58,13 +109,19 @@ def _nothing(reply: Reply | None) -> None:
 class Line:
     """Serves framing events from every endpoint of one simulator, in order."""
 
-    def __init__(self, sim: Simulator) -> None:
+    def __init__(self, sim: Simulator, *, bus_timing: bool = False) -> None:
         self.sim = sim
+        #: hold the line for each transaction's time on RS485 (else only for a reply's turnaround)
+        self.bus_timing = bus_timing
         self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
         self._busy = False
         self._timer: asyncio.TimerHandle | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
+        #: the replies' latency (request's last byte to reply handed over), for GET /metrics
+        self.latency = Latency()
+        #: seconds the line has been held: a transaction's RS485 time with bus timing, else delayed replies
+        self.busy_seconds = 0.0
 
     def on_baud(self, listener: Callable[[int], None]) -> Callable[[], None]:
         """Call ``listener`` with the new line speed; returns a function that detaches it."""
@@ -80,6 +137,11 @@ class Line:
     def busy(self) -> bool:
         """True while a delayed reply holds the line."""
         return self._busy
+
+    @property
+    def free_at(self) -> float | None:
+        """The event loop's time at which the transaction holding the line ends; None while the line is free."""
+        return self._timer.when() if self._timer is not None else None
 
     @property
     def waiting(self) -> int:
@@ -115,20 +177,31 @@ class Line:
                 log.exception("bug while serving %s; the simulator keeps serving", event)
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 continue
-            if reply is not None and reply.delay > 0:
-                if isinstance(respond, SelfTimed):
-                    _deliver(respond, reply)
+            hold = reply.delay if reply is not None else 0.0
+            if self.bus_timing:
+                bus = self.sim.bus
+                hold = bus.last_line_time - (bus.last_request_time if isinstance(respond, SelfTimed) else 0.0)
+            if hold > 0:
+                self.busy_seconds += hold
+                if reply is None or isinstance(respond, SelfTimed):
+                    if reply is not None:
+                        self.latency.observe(time.perf_counter() - event.t)
+                    _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
                 loop = asyncio.get_running_loop()
-                self._timer = loop.call_later(reply.delay, self._release, reply, respond)
+                self._timer = loop.call_later(hold, self._release, reply, respond, event.t)
                 return
+            if reply is not None:
+                self.latency.observe(time.perf_counter() - event.t)
             _deliver(respond, reply)
             self._announce_baud()
 
-    def _release(self, reply: Reply, respond: Respond) -> None:
+    def _release(self, reply: Reply | None, respond: Respond, asked: float) -> None:
         self._timer = None
         self._busy = False
+        if reply is not None and respond is not _nothing:  # handed over now: its latency ends here
+            self.latency.observe(time.perf_counter() - asked)
         _deliver(respond, reply)
         self._announce_baud()
         self._serve_waiting()

@@ -10,7 +10,8 @@ their own.
 
 A real port loses what arrives while nobody has it open: when the last
 program that opened the device closes it (:class:`~.ptywatch.PtyOpeners`),
-the replies it did not read and the requests it left are flushed, and
+the replies it did not read and the requests it left are flushed (those
+still on the device's side, and those that had crossed to ours unread), and
 replies due while nobody has it open are dropped.
 """
 
@@ -142,6 +143,11 @@ class PtyPort:
         if isinstance(self._endpoint, TimedEndpoint):
             self._endpoint.reset()  # first: no byte of its replies is written after the flush
         termios.tcflush(self._slave, termios.TCIOFLUSH)
+        # The requests it wrote that have crossed to our side already: the kernel's flush of the device's output
+        # leaves those in the master side's own input buffer (up to 4 KiB), which we would read and answer, to
+        # the next master. Dropped too.
+        with contextlib.suppress(OSError):
+            termios.tcflush(self._master, termios.TCIFLUSH)
         if self._unsent:
             self._unsent.clear()
             asyncio.get_running_loop().remove_writer(self._master)

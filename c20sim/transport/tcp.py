@@ -17,12 +17,20 @@ Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
 request's transaction id. Where the line stays silent (absent drive, dropped
 or corrupt reply) the gateway answers exception 0x0B after its timeout, as
-gateways do; a broadcast (unit 0) gets no answer.
+gateways do; a broadcast (unit 0) gets no answer. The frame log keeps what the
+TCP connection carried (the MBAP frames, their transaction id and unit) with
+the RTU frame on the line beside it.
+
+A Modbus TCP master pointed at the RTU-over-TCP port by mistake sends MBAP
+frames: the port answers nothing, as a serial device server in front of a
+drive would, but says once (the server's log, so stderr, and the simulator's
+notices, which the dashboard shows) where Modbus TCP is served.
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import errno
 import logging
 import socket
@@ -30,9 +38,9 @@ import struct
 from collections.abc import Callable
 from typing import cast
 
-from ..core.bus import Reply
+from ..core.bus import Direction, FrameRecord, RecordKind, Reply
 from ..wire.errors import C20SimError
-from ..wire.protocol import BROADCAST, RtuFramer, crc_ok, with_crc
+from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, mbap_adus, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
@@ -189,6 +197,11 @@ class _RtuConnection(_Connection):
         )
 
     def data_received(self, data: bytes) -> None:
+        if self.endpoint.between_frames:
+            headers = mbap_adus(data)
+            if headers is not None:  # a Modbus TCP master at the RTU port: no drive answers that
+                cast(RtuOverTcpServer, self.owner).mbap_seen(data, headers)
+                return
         self.endpoint.feed(data)
 
     def pause_writing(self) -> None:
@@ -207,8 +220,37 @@ class RtuOverTcpServer(_TcpServer):
 
     option = "--tcp"
 
+    def __init__(self, line: Line, host: str, port: int) -> None:
+        super().__init__(line, host, port)
+        #: where Modbus TCP is served (HOST:PORT), or None: for the word to a Modbus TCP master that came here
+        self.modbus_tcp: Callable[[], str | None] = lambda: None
+
     def _connection(self) -> _Connection:
         return _RtuConnection(self)
+
+    def mbap_seen(self, data: bytes, headers: list[MbapHeader]) -> None:
+        """Modbus TCP frames arrived here: not answered (they are no RTU frames), logged, and said once."""
+        sim = self.line.sim
+        first = headers[0]
+        sim.bus.noise += 1
+        sim.bus.record(
+            FrameRecord(
+                asyncio.get_running_loop().time(),
+                Direction.RX,
+                data,
+                RecordKind.NOISE,
+                None,
+                f"Modbus TCP (MBAP) on the RTU-over-TCP port: transaction {first.transaction}, unit {first.unit}"
+                + (f", and {len(headers) - 1} more" if len(headers) > 1 else "")
+                + ": not answered",
+                model_t=sim.now(),
+            )
+        )
+        where = self.modbus_tcp()
+        use = f"use --modbus-tcp (open on {where})" if where else "use --modbus-tcp HOST:PORT (not open now)"
+        text = f"RTU over TCP {self.name}: this looks like Modbus TCP: {use}"
+        if sim.notice(text):
+            log.warning("c20sim: %s; this port answers no Modbus TCP frame, as a drive would not", text)
 
 
 class _MbapConnection(_Connection):
@@ -273,6 +315,8 @@ class _MbapConnection(_Connection):
         framer.feed(with_crc(bytes((unit,)) + pdu), loop.time())
         framer.flush()
 
+        header = MbapHeader(transaction, unit)
+
         def respond(reply: Reply | None) -> None:
             if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
                 self._answer(transaction, unit, reply.data[1:-2])
@@ -283,6 +327,8 @@ class _MbapConnection(_Connection):
 
                 def time_out() -> None:
                     self._timers.discard(timer)
+                    if self.transport is not None:
+                        self._log_gateway_answer(header, answer)
                     self._answer(transaction, unit, answer)
                     self._done()
 
@@ -293,10 +339,28 @@ class _MbapConnection(_Connection):
 
         for event in framer.events():
             self._outstanding += 1
-            line.submit(event, respond, self)
+            line.submit(dataclasses.replace(event, mbap=header), respond, self)
 
     def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
         self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
+
+    def _log_gateway_answer(self, header: MbapHeader, answer: bytes) -> None:
+        """The frame log's record of the gateway's own exception 0x0B: on the TCP connection, never on the line."""
+        sim = self.owner.line.sim
+        sim.bus.record(
+            FrameRecord(
+                asyncio.get_running_loop().time(),
+                Direction.TX,
+                with_crc(bytes((header.unit,)) + answer),
+                RecordKind.EXCEPTION,
+                header.unit,
+                f"gateway: exception 0x{GATEWAY_NO_RESPONSE:02X} to function 0x{answer[0] & 0x7F:02X}: "
+                f"gateway target device failed to respond (no good reply on the line within {self.owner.timeout:g} s)",
+                model_t=sim.now(),
+                mbap=header,
+                from_gateway=True,
+            )
+        )
 
     def connection_lost(self, exc: Exception | None) -> None:
         for timer in self._timers:

@@ -233,6 +233,8 @@ class Dashboard(App[int]):
         self.received = 0
         self._stream_task: asyncio.Task[None] | None = None
         self._signals: list[int] = []
+        #: the server's notices already shown (it keeps a few, each said once)
+        self._notices_shown: set[str] = set()
 
     # --- life cycle
 
@@ -303,6 +305,7 @@ class Dashboard(App[int]):
         kind = data.get("type")
         if kind == "telemetry":
             self.received += 1
+            self._show_notices(data.get("notices"))
             if self.remote.update(data):
                 self.refresh_views()
             framelog.show_log_dropped(int(data.get("log_dropped", 0)))
@@ -311,6 +314,16 @@ class Dashboard(App[int]):
             for record in data["frames"]:
                 framelog.add(record_from_dict(record), missed)
                 missed = 0
+
+    def _show_notices(self, notices: object) -> None:
+        """What the server has to say about the way a master talks to it (a Modbus TCP master on the RTU port):
+        each notice once, for long enough to read."""
+        if not isinstance(notices, list):
+            return
+        for text in notices:
+            if isinstance(text, str) and text not in self._notices_shown:
+                self._notices_shown.add(text)
+                self.notify(text, title="the server says", severity="warning", timeout=30)
 
     def _title(self) -> Text:
         bench = self.bench
@@ -471,10 +484,12 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        # A key that does nothing on this clock is not offered (False hides it from the footer; None would
+        # show it greyed out, still there to be tried)
         if action == "advance" and not self.bench.virtual:
-            return None
+            return False  # a realtime clock is not advanced by hand
         if action in ("pause", "clock_speed") and self.bench.virtual:
-            return None  # a virtual clock stands still until advanced (t / T)
+            return False  # a virtual clock stands still until advanced (t / T)
         if action == "drive" and len(self.bench.addresses) < 2:
             return None
         return True

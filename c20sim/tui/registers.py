@@ -28,7 +28,8 @@ COLUMNS = ("register", "name", "value", "access", "raw", "source")
 
 
 def counters_text(counters: dict[str, object]) -> Text:
-    """One line of traffic: requests, replies, exceptions by code, CRC and length errors, silences, injected."""
+    """One line of traffic: requests, replies, exceptions by code, CRC and length errors, silences, injected, and
+    the line's time its transactions took (their share of the line's capacity)."""
     text = Text()
     exceptions = counters.get("exceptions") or {}
     assert isinstance(exceptions, dict)
@@ -41,11 +42,16 @@ def counters_text(counters: dict[str, object]) -> Text:
         ("silences", f"{counters['silences']}"),
         ("injected", f"{counters['injected']}"),
     ]
+    if "line_busy_s" in counters:  # the line's time its transactions took at the drive's serial settings
+        share = counters.get("line_share", 0.0)
+        assert isinstance(share, float | int)
+        parts.append(("line", f"{counters['line_busy_s']} s, {share:.0%}"))
     for label, value in parts:
         if text:
             text.append(" · ", style="dim")
         text.append(f"{label} ", style="bold")
-        text.append(value, style="bold yellow" if label not in ("requests", "replies") and value != "0" else "")
+        quiet = label in ("requests", "replies", "line") or value == "0"
+        text.append(value, style="" if quiet else "bold yellow")
     text.no_wrap = True
     text.overflow = "ellipsis"
     return text

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from ..control.client import ControlClient, RemoteOps, attach_target
+from ..control.client import TOKEN_ENV, ControlClient, RemoteOps, attach_target
 from ..wire.errors import C20SimError
 
 __all__ = ["SERVE_OPTIONS", "run_dashboard", "serve_argv", "served"]
@@ -47,8 +47,8 @@ SERVE_OPTIONS = {
     "tcp": "--tcp",
     "modbus_tcp": "--modbus-tcp",
     "line_timing": "--line-timing",
+    "bus_timing": "--bus-timing",
     "control": "--control",
-    "control_token": "--control-token",
     "profile": "--profile",
     "drives": "--drives",
     "clock": "--clock",
@@ -58,8 +58,6 @@ SERVE_OPTIONS = {
     "log_frames": "--log-frames",
     "ready_file": "--ready-file",
 }
-#: The environment variable that may carry the control API's token to ``--attach`` (``c20sim web`` sets it).
-TOKEN_ENV = "C20SIM_CONTROL_TOKEN"
 #: Options that say which server to attach to (the rest are the server's own business).
 ATTACH_OPTIONS = frozenset({"control_token"})
 
@@ -73,6 +71,10 @@ def serve_argv(args: argparse.Namespace, ready_file: str) -> list[str]:
             value = "127.0.0.1:0"
         if dest == "ready_file":
             value = ready_file
+        if dest == "bus_timing":
+            if value is False:
+                argv.append("--no-bus-timing")  # on is serve's default: only off needs saying
+            continue
         if value is None or value is False:
             continue
         argv += [option] if value is True else [option, str(value)]
@@ -94,8 +96,12 @@ def served(args: argparse.Namespace) -> Iterator[tuple[str, str | None]]:
         ready.unlink(missing_ok=True)
         stderr_path = Path(tmp) / "serve.stderr"
         with stderr_path.open("w") as stderr:
+            env = {k: v for k, v in os.environ.items() if k != TOKEN_ENV}
+            if args.control_token is not None:
+                env[TOKEN_ENV] = args.control_token  # not on the command line, where every local user sees it
             process = subprocess.Popen(
                 serve_argv(args, str(ready)),
+                env=env,
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
                 stderr=stderr,

@@ -26,10 +26,10 @@ import signal
 import sys
 from typing import Any
 
-from ..control.client import attach_target
+from ..control.client import TOKEN_ENV, attach_target
 from ..transport.tcp import parse_host_port
 from ..wire.errors import C20SimError
-from .session import TOKEN_ENV, check_attach_options, served
+from .session import check_attach_options, served
 
 __all__ = ["run_web"]
 

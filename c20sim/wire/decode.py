@@ -38,7 +38,7 @@ from .protocol import (
     decode_response,
     expected_length,
 )
-from .registers import Reg, RegisterMap, address_label, status2_words
+from .registers import Reg, RegisterMap, address_label, format_fcode, ram_alias_of, status2_words
 
 __all__ = ["Decoded", "Piece", "decode_frame", "describe", "register_label", "split_frames"]
 
@@ -50,14 +50,23 @@ _FUNCTION_WORDS: dict[int, str] = {
 
 
 def register_label(address: int, registers: RegisterMap | None) -> str:
-    """``2000H`` or ``F00.10``, with the register's name where the map knows it."""
+    """``2000H`` or ``F00.10``, with the register's name where the map knows it; a function code's RAM-only
+    address (bit 15 set: 800AH) reads ``F00.10 (keypad speed setting, RAM only)``."""
+    base = ram_alias_of(address)
+    if base is not None:
+        spec = registers.get(base) if registers else None
+        return f"{format_fcode(base)} ({spec.name}, RAM only)" if spec else f"{format_fcode(base)} (RAM only)"
     label = address_label(address)
     spec = registers.get(address) if registers else None
     return f"{label} ({spec.name})" if spec else label
 
 
 def _value(address: int, raw: int, registers: RegisterMap | None) -> str:
-    label = address_label(address)
+    base = ram_alias_of(address)
+    if base is not None:  # the RAM-only address: the function code's meaning, said to be RAM only
+        label, address = f"{format_fcode(base)} (RAM only)", base
+    else:
+        label = address_label(address)
     spec = registers.get(address) if registers else None
     if address == Reg.STATUS2:
         words = f": {status2_words(raw)}"
@@ -192,7 +201,15 @@ def _at(data: bytes, i: int, direction: Literal["request", "response"]) -> int |
 
 
 def _reply_to(message: Response, pending: Request | None) -> bool:
-    return pending is not None and message.slave == pending.slave and message.function & 0x7F == pending.function
+    """Whether ``message`` can be ``pending``'s reply: the same slave and function, and for a write the echo
+    of what it wrote (a 0x06 reply that differs from the request is the next request, not its echo)."""
+    if pending is None or message.slave != pending.slave or message.function & 0x7F != pending.function:
+        return False
+    if isinstance(message, WriteSingleResponse) and isinstance(pending, WriteSingleRequest):
+        return (message.register, message.value) == (pending.register, pending.value)
+    if isinstance(message, WriteMultipleResponse) and isinstance(pending, WriteMultipleRequest):
+        return (message.start, message.count) == (pending.start, pending.count)
+    return True
 
 
 def _piece(

@@ -18,7 +18,7 @@ import enum
 import struct
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 __all__ = [
     "BROADCAST",
@@ -31,6 +31,7 @@ __all__ = [
     "FrameEvent",
     "FrameKind",
     "FunctionCode",
+    "MbapHeader",
     "ReadRequest",
     "ReadResponse",
     "Request",
@@ -50,6 +51,7 @@ __all__ = [
     "encode",
     "expected_length",
     "frame_time",
+    "mbap_adus",
     "silence_times",
     "transaction_time",
     "with_crc",
@@ -407,6 +409,36 @@ class FrameKind(enum.Enum):
     NOISE = "noise"  #: too short to be a frame, or broken by a gap inside it
 
 
+class MbapHeader(NamedTuple):
+    """What a Modbus TCP request's MBAP header says that its RTU form does not: the transaction id (the unit is
+    the RTU frame's address)."""
+
+    transaction: int
+    unit: int
+
+    def adu(self, pdu: bytes) -> bytes:
+        """The Modbus TCP frame of ``pdu`` under this header: transaction, protocol 0, length, unit, PDU."""
+        return struct.pack(">HHHB", self.transaction, 0, len(pdu) + 1, self.unit) + pdu
+
+
+def mbap_adus(data: bytes) -> list[MbapHeader] | None:
+    """The MBAP headers of ``data`` if it is nothing but whole Modbus TCP frames (one or more, back to back) and
+    not a good RTU frame; else None. A master speaking Modbus TCP to an RTU port sends exactly that."""
+    if len(data) < 8 or crc_ok(data):
+        return None
+    found: list[MbapHeader] = []
+    at = 0
+    while at < len(data):
+        if len(data) - at < 8:
+            return None
+        transaction, protocol, length, unit = struct.unpack_from(">HHHB", data, at)
+        if protocol != 0 or not 2 <= length <= 254 or at + 6 + length > len(data):
+            return None
+        found.append(MbapHeader(transaction, unit))
+        at += 6 + length
+    return found
+
+
 @dataclass(frozen=True, slots=True)
 class FrameEvent:
     """One outcome of framing, for the bus and the frame log."""
@@ -415,6 +447,8 @@ class FrameEvent:
     data: bytes
     t: float  #: arrival time of the frame's last byte
     note: str = ""
+    #: the Modbus TCP header the frame came under (a gateway's request), or None on an RTU line
+    mbap: MbapHeader | None = None
 
     @property
     def is_frame(self) -> bool:

@@ -32,8 +32,13 @@ __all__ = [
     "format_fcode",
     "is_fcode",
     "parse_fcode",
+    "ram_alias_of",
     "status2_words",
 ]
+
+#: The INVT family's RAM-only address of a function code: its address with the most significant bit set
+#: (Goodrive350 manual 9.4.5.1; Goodrive100 7.3.4.1: P00.07 at 8007H). Write-only; not saved to EEPROM.
+RAM_ONLY = 0x8000
 
 
 class Access(enum.Enum):
@@ -358,6 +363,13 @@ FIXED_REGISTERS: Mapping[int, RegisterSpec] = {
 def fcode_address(group: int, number: int) -> int:
     """Address of parameter Fgg.nn: ``(gg << 8) | nn`` (F00.10 is 000AH, F00.50 is 0032H)."""
     return (group << 8) | number
+
+
+def ram_alias_of(address: int) -> int | None:
+    """The function code whose RAM-only address ``address`` is (``address`` with bit 15 cleared), or None."""
+    if address & RAM_ONLY and is_fcode(address & ~RAM_ONLY):
+        return address & ~RAM_ONLY
+    return None
 
 
 def is_fcode(address: int) -> bool:

@@ -18,6 +18,7 @@ from pymodbus.exceptions import ModbusIOException
 
 from c20sim.control.ctl import call
 from c20sim.wire.errors import C20SimError
+from c20sim.wire.protocol import frame_time, transaction_time
 from tests.conftest import wait_for_ready_file
 
 
@@ -137,7 +138,7 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "frames", "--last", "0")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
-        "c20sim: c20sim ctl frames: argument --last: 0 must be at least 1 (see: c20sim ctl frames --help)\n"
+        "c20sim ctl frames: argument --last: 0 must be at least 1 (see: c20sim ctl frames --help)\n"
     )
 
 
@@ -186,6 +187,12 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
     counters = json.loads(ctl(ready, "counters").stdout)
     demand = counters.pop("line_demand")  # the live audit's: every frame on the line, the bad CRC's too
     assert (demand["transactions"], demand["baud"], demand["format"]) == (7, 19200, "8N1")
+    # The line's time of those frames at 19200 8N1 with the 2 ms turnaround: 3 reads, 3 exception replies,
+    # the silent read's request alone; the share is against the wall time they were spread over.
+    read_time, refused_time = transaction_time(8, 7, 19200, 10, 0.002), transaction_time(8, 5, 19200, 10, 0.002)
+    busy = 3 * read_time + 3 * refused_time + frame_time(8, 19200, 10)
+    assert counters.pop("line_busy_s") == round(busy, 3)  # ctl prints 3 decimals
+    assert 0.0 < counters.pop("line_share") <= 1.0
     assert counters == {
         "requests": 6,
         "replies": 3,

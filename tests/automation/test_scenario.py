@@ -250,7 +250,7 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
     scenario = str(SCENARIOS / "comm_timeout.toml")
     options = ["--clock", "virtual", "--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--ready-file", str(ready)]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "c20sim", "serve", *options, "--scenario", scenario],
+        [sys.executable, "-m", "c20sim", "serve", *options, "--scenario", scenario, "--then", "serve"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -268,6 +268,7 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
 
         state = call(json.loads(ready.read_text())["control"], "GET", "/drives/1")
         assert (state["t"], state["fault_code"]) == (2.5, 0x12)  # the scenario drove the clock
+        assert proc.poll() is None  # --then serve: still serving after the verdict
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=10)
@@ -392,8 +393,35 @@ def test_a_bad_cause_names_the_key(fault: dict[str, object], message: str) -> No
     assert str(caught.value).startswith(message)
 
 
+@pytest.mark.parametrize(("body", "code"), [("status1 = 1", 1), ("status1 = 3", 0)])
+def test_serve_ends_with_its_scenario_and_its_exit_code(tmp_path: Path, body: str, code: int) -> None:
+    """A CI job's ``serve --scenario`` ends when the scenario does, on its own: 1 failed, 0 passed; the ready file
+    goes with it."""
+    path = write(tmp_path, f"[[step]]\nat = 0.5\nexpect = {{ {body} }}\n", "s.toml")
+    ready = tmp_path / "ready.json"
+    argv = ["serve", "--clock", "virtual", "--tcp", "127.0.0.1:0", "--ready-file", str(ready), "--scenario", str(path)]
+    done = subprocess.run([sys.executable, "-m", "c20sim", *argv], capture_output=True, text=True, timeout=60)
+    lines = done.stdout.splitlines()
+    assert (done.returncode, done.stderr, len(lines)) == (code, "", 3)  # the ready line, the check, the verdict
+    assert lines[-1] == ("scenario s: FAILED (1 of 1 checks)" if code else "scenario s: passed")
+    assert not ready.exists()
+
+
+def test_then_without_a_scenario_is_a_usage_error() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--then", "serve"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr == (
+        "c20sim: --then: it says what follows a --scenario; give --scenario FILE too, or leave --then out\n"
+    )
+
+
 def test_serve_exits_1_when_its_scenario_failed(tmp_path: Path) -> None:
-    """CI that runs serve --scenario sees a failed expectation in the exit code, not only in the output."""
+    """With --then serve, serve stays up after the verdict, and its exit code still says the scenario failed."""
     path = write(tmp_path, "[[step]]\nat = 0.5\nexpect = { status1 = 1 }\n", "fails.toml")
     proc = subprocess.Popen(
         [
@@ -407,6 +435,8 @@ def test_serve_exits_1_when_its_scenario_failed(tmp_path: Path) -> None:
             "127.0.0.1:0",
             "--scenario",
             str(path),
+            "--then",
+            "serve",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -415,6 +445,7 @@ def test_serve_exits_1_when_its_scenario_failed(tmp_path: Path) -> None:
     try:
         lines = read_lines(proc, 3)  # the ready line, the check, the verdict
         assert lines[-1] == "scenario fails: FAILED (1 of 1 checks)\n"
+        assert proc.poll() is None
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=10)

@@ -160,9 +160,7 @@ def test_an_unknown_schema_is_a_usage_error() -> None:
     done = subprocess.run(
         [sys.executable, "-m", "c20sim", "schema", "drive"], capture_output=True, text=True, timeout=60, cwd=ROOT
     )
-    assert done.returncode == 2 and done.stderr.startswith(
-        "c20sim: c20sim schema: argument kind: invalid choice: 'drive'"
-    )
+    assert done.returncode == 2 and done.stderr.startswith("c20sim schema: argument kind: invalid choice: 'drive'")
 
 
 # --- The reference pages name everything the formats and the API have.

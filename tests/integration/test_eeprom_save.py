@@ -16,8 +16,12 @@ import sys
 from pathlib import Path
 
 from pymodbus import FramerType
-from pymodbus.client import ModbusTcpClient
+from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.serve import ServeOptions, Server
 from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 
@@ -52,3 +56,32 @@ def test_a_failed_save_answers_0x04_and_keeps_the_old_value(tmp_path: Path) -> N
     lines = [line for line in err.splitlines() if "EEPROM save failed" in line]
     assert len(lines) == 1, err
     assert "0x04" in lines[0] and str(state) in lines[0], lines
+
+
+async def test_a_failed_save_is_refused_and_changes_nothing_through_the_modbus_tcp_gateway(tmp_path: Path) -> None:
+    """The same rule through another door: a simulator served in this process on Modbus TCP, pymodbus's TCP
+    client, a 0x10 write of two function codes. The save fails: 0x04, and neither value changes, in the drive
+    or in the file."""
+    state_dir = tmp_path / "eeprom"
+    state_dir.mkdir()
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock(), state=state_dir / "drive.json")
+    server = Server(sim, ServeOptions(modbus_tcp="127.0.0.1:0"))
+    await server.start()
+    try:
+        assert server.endpoints.modbus_tcp is not None
+        client = AsyncModbusTcpClient("127.0.0.1", port=server.endpoints.modbus_tcp.port, timeout=2.0, retries=0)
+        assert await client.connect()
+        try:
+            assert not (await client.write_registers(Reg.ACCEL_TIME, [5000, 4000], device_id=1)).isError()
+            moved = tmp_path / "moved"
+            state_dir.rename(moved)
+            refused = await client.write_registers(Reg.ACCEL_TIME, [1234, 2345], device_id=1)
+            assert refused.isError() and refused.exception_code == 0x04, refused
+            for register, value in ((Reg.ACCEL_TIME, 5000), (Reg.ACCEL_TIME + 1, 4000)):  # one a read, as the sheet
+                assert (await client.read_holding_registers(register, count=1, device_id=1)).registers == [value]
+        finally:
+            client.close()
+    finally:
+        await server.aclose()
+    stored = json.loads((moved / "drive.json").read_text())["parameters"]
+    assert (stored["F00.11"], stored["F00.12"]) == (5000, 4000)

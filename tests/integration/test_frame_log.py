@@ -36,6 +36,7 @@ def serve_info(tmp_path: Path, *args: str, stdout: int) -> tuple[subprocess.Pope
     ready = tmp_path / "ready.json"
     ready.unlink(missing_ok=True)
     command = [sys.executable, "-m", "c20sim", "serve", "--tcp", "127.0.0.1:0", "--ready-file", str(ready), *args]
+    command.append("--no-bus-timing")  # these tests fill logs with traffic: the volume, not the line's pace
     proc = subprocess.Popen(command, stdout=stdout, stderr=subprocess.PIPE)
     return proc, wait_for_ready_file(ready, proc)
 
@@ -228,3 +229,33 @@ def test_a_full_disk_keeps_whole_lines_and_logging_resumes(tmp_path: Path, small
     assert records[-1].get("kind") != "log-dropped"  # frames were written after the notice
     assert "Traceback" not in err, err
     assert err.count("frames are dropped and counted") == 1 and err.count("writing again;") == 1, err
+
+
+@pytest.mark.parametrize(("option", "rotated"), [((), True), (("--log-frames-max-mb", "0"), False)])
+def test_the_log_is_bounded_unless_asked(tmp_path: Path, option: tuple[str, ...], rotated: bool) -> None:
+    """Without --log-frames-max-mb the log is rotated at 100 MiB (before: it grew without end, about 10 MB a
+    minute on a busy line); --log-frames-max-mb 0 asks for no bound. A log of 100 MiB already there (sparse)
+    stands for the hours it takes a line to write one."""
+    log = tmp_path / "frames.jsonl"
+    with open(log, "wb") as f:
+        f.truncate(100 * 1024 * 1024)
+    proc, port = serve(tmp_path, "--log-frames", str(log), *option)
+    try:
+        assert poll(port, count=20) == (20, 20)
+        deadline = time.monotonic() + 10
+        while log.stat().st_size in (0, 100 * 1024 * 1024):  # the writer thread has written nothing yet
+            assert time.monotonic() < deadline, "nothing logged"
+            time.sleep(0.01)
+        err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    old = Path(f"{log}.1")
+    if rotated:
+        assert old.stat().st_size == 100 * 1024 * 1024
+        assert 0 < log.stat().st_size < 1024 * 1024 and whole_lines(log)
+    else:
+        assert not old.exists()
+        assert log.stat().st_size > 100 * 1024 * 1024

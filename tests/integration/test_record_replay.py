@@ -9,10 +9,12 @@ the other it differs exactly where the profiles do: the DC bus voltage
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -224,3 +226,52 @@ def test_record_stops_when_the_drive_port_is_lost(tmp_path: Path) -> None:
     assert out.splitlines()[-1] == f"c20sim record: 0 frame(s) written to {log}"
     assert err == f"c20sim record: stopped: the port was lost ({ready['pty']}: hung up)\n"
     assert log.read_text() == ""
+
+
+def logged_noise(log: Path) -> int:
+    """Bytes of noise in the log so far (its last line may be half-written)."""
+    total = 0
+    for line in log.read_text().splitlines():
+        with contextlib.suppress(json.JSONDecodeError):
+            total += len(bytes.fromhex(json.loads(line)["hex"]))
+    return total
+
+
+def noise_through_the_sniffer(drive: str, tmp_path: Path, size: int, until: int, *options: str) -> tuple[Path, str]:
+    """``size`` bytes of line noise from a master on RTU over TCP through ``record``, until ``until`` bytes of
+    it are in the log; the log and record's stderr."""
+    log = tmp_path / "noise.jsonl"
+    recorder, ready = start(
+        ["record", "--drive-serial", drive, "--master-tcp", "127.0.0.1:0", "--out", str(log), *options],
+        tmp_path / "rec.json",
+    )
+    try:
+        host, port = ready["master"].rsplit(":", 1)
+        noise = bytes((i * 7919 + 13) % 251 for i in range(size))  # no valid frame in it, CRC or length
+        with socket.create_connection((host, int(port)), timeout=10) as master:
+            for start_at in range(0, size, 1024):
+                master.sendall(noise[start_at : start_at + 1024])
+            deadline = time.monotonic() + 20
+            while logged_noise(log) < until:
+                assert time.monotonic() < deadline, f"{logged_noise(log)} of {until} bytes logged"
+                time.sleep(0.05)
+    finally:
+        _out, err = stop(recorder)
+    return log, err
+
+
+def test_noise_is_logged_compactly(drive: str, tmp_path: Path) -> None:
+    """Before: 3.4 bytes of log a byte of noise (a record a broken piece, its bytes spaced and described)."""
+    log, err = noise_through_the_sniffer(drive, tmp_path, 40_000, 40_000)
+    lines = log.read_text().splitlines()
+    noise = [line for line in lines if json.loads(line)["dir"] == "rx"]  # the drive may answer a piece of it
+    assert sum(len(bytes.fromhex(json.loads(line)["hex"])) for line in noise) == 40_000, err
+    assert {json.loads(line)["kind"] for line in noise} == {"noise"}
+    assert sum(len(line) + 1 for line in noise) < 2.2 * 40_000
+
+
+def test_the_log_is_bounded_in_bytes(drive: str, tmp_path: Path) -> None:
+    """Before: --max-records bounded records only, whatever their size."""
+    log, err = noise_through_the_sniffer(drive, tmp_path, 200_000, 20_000, "--max-mb", "0.05")
+    assert 0.04 * 1024 * 1024 < log.stat().st_size <= 0.05 * 1024 * 1024
+    assert err == "c20sim record: 0.05 MiB written (the log's bound); the rest is passed on, not logged\n"

@@ -17,7 +17,7 @@ from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
 
 from c20sim.drive.profile import load_profile
-from c20sim.wire.protocol import ExceptionCode
+from c20sim.wire.protocol import ExceptionCode, ReadRequest, ReadResponse, WriteSingleRequest, encode
 from tests.integration.conftest import Served, ServeFactory, need
 
 X = ExceptionCode
@@ -105,6 +105,26 @@ async def test_password_error_on_the_wire(serve: ServeFactory) -> None:
         client.close()
 
 
+async def test_a_wrong_password_locks_again_on_the_pty(serve: ServeFactory) -> None:
+    """Unlocked by the right password, a wrong one (written to F07.00) is refused with 0x05 and locks the function
+    codes again until the right one comes: through the pty, by pymodbus's serial master."""
+    base = load_profile()
+    locked = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, password=4321))
+    served = await serve(profile=locked)
+    client = await served.serial_client(timeout=2.0)
+    try:
+        assert not (await client.write_register(0x200E, 1, device_id=1)).isError()
+        assert not (await client.write_register(0x0700, 4321, device_id=1)).isError()
+        assert not (await client.write_register(0x000A, 2500, device_id=1)).isError()  # unlocked
+        assert await exception_of_write(client, 0x0700, 1234) == X.PASSWORD_ERROR  # a wrong password ...
+        assert await exception_of_write(client, 0x000A, 2600) == X.PASSWORD_ERROR  # ... locks again
+        assert await read(client, 0x000A) == 2500
+        assert not (await client.write_register(0x0700, 4321, device_id=1)).isError()
+        assert not (await client.write_register(0x000A, 2600, device_id=1)).isError()
+    finally:
+        client.close()
+
+
 async def test_bad_crc_gets_exception_06(serve: ServeFactory) -> None:
     corrupt = {"on": False}
 
@@ -158,6 +178,25 @@ async def test_three_drives_on_one_pty_and_a_broadcast(serve: ServeFactory) -> N
         assert [await read(client, 0x2001, device=a) for a in (1, 2, 5)] == [2400, 2400, 2400]
     finally:
         client.close()
+
+
+async def test_a_broadcast_is_never_answered_on_rtu_over_tcp(serve: ServeFactory) -> None:
+    """A raw socket sends a broadcast write and a read of drive 2 in one go: the first bytes back are the read's
+    reply, and nothing else follows (an answered broadcast would come first). No waiting for silence: the line
+    serves the two in order."""
+    served = await serve(addresses=(1, 2))
+    reader, writer = await asyncio.open_connection("127.0.0.1", served.tcp_port)
+    try:
+        writer.write(encode(WriteSingleRequest(0, 0x2001, 2400)) + encode(ReadRequest(2, 0x2001, 1)))
+        await writer.drain()
+        first = await asyncio.wait_for(reader.readexactly(7), timeout=10)
+        assert first == encode(ReadResponse(2, (2400,))), first.hex(" ")
+        writer.write(encode(ReadRequest(1, 0x2001, 1)))  # and the next bytes are the next read's, not a late echo
+        await writer.drain()
+        second = await asyncio.wait_for(reader.readexactly(7), timeout=10)
+        assert second == encode(ReadResponse(1, (2400,))), second.hex(" ")
+    finally:
+        writer.close()
 
 
 async def wait_for(condition: object, timeout: float = 5.0) -> None:

@@ -71,9 +71,15 @@ def serving(
     control: str = "127.0.0.1:0",
     token: str | None = None,
     clock: Clock | None = None,
+    modbus_tcp: bool = False,
 ) -> Iterator[Served]:
     sim = Simulator(load_profile(), drives, clock=clock if clock is not None else VirtualClock(), seed=1)
-    options = ServeOptions(tcp="127.0.0.1:0" if tcp else None, control=control, control_token=token)
+    options = ServeOptions(
+        tcp="127.0.0.1:0" if tcp else None,
+        modbus_tcp="127.0.0.1:0" if modbus_tcp else None,
+        control=control,
+        control_token=token,
+    )
     thread = _LoopThread()
 
     async def start() -> Server:

@@ -53,6 +53,14 @@ def test_bare_c20sim_starts_serve_with_a_loopback_control_api(started: list[tupl
     assert attach is None
 
 
+def test_dashboard_passes_bus_timing_off_to_serve(started: list[tuple[list[str], str | None]]) -> None:
+    assert cli.main(["dashboard", "--no-bus-timing"]) == 0
+    assert cli.main(["dashboard", "--bus-timing"]) == 0
+    (off, _), (on, _) = started
+    assert "--no-bus-timing" in off  # on is serve's own default: only off is said
+    assert not any("bus-timing" in word for word in on)
+
+
 def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], str | None]]) -> None:
     argv = ["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual", "--line-timing"]
     argv += ["--pty", "--seed", "7", "--control", "127.0.0.1:8020", "--control-token", "s3cret"]
@@ -64,13 +72,13 @@ def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], s
         "--modbus-tcp 127.0.0.1:0",
         "--line-timing",
         "--control 127.0.0.1:8020",
-        "--control-token s3cret",
         "--drives 1,2",
         "--clock virtual",
         "--seed 7",
     ):
         assert part in text, text
     assert "--tcp" not in text  # serve picks its defaults itself when no endpoint is given
+    assert "s3cret" not in text  # the token goes to serve in its environment, not where ps shows it
 
 
 def test_attach_refuses_a_serve_option(capsys: pytest.CaptureFixture[str]) -> None:

@@ -317,7 +317,8 @@ async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:
     assert str(table.get_cell("2100H", "value")) == "stopped"
     assert str(table.get_cell("2002H", "name")) == "motor pole pairs (= F02.00)"
     await bench.press("down", "down", "down", "enter")  # 2001H: the communication speed setting
-    await bench.pilot.pause(0.1)
+    editor = screen.query_one("#reg-edit", Input)
+    await until(lambda: editor.has_focus and editor.value == "0", "the editor of 2001H, focused")
     await bench.press("ctrl+u", *"1500", "enter")
     assert await bench.read(0x2001) == 1500
     await bench.write(0x2000, 1)
@@ -325,7 +326,7 @@ async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:
     assert str(table.get_cell("2002H", "access")) == "W/R* lock"  # pole pairs, while running
     table.move_cursor(row=table.get_row_index("2002H"))
     await bench.press("enter")
-    await bench.pilot.pause(0.1)
+    await until(lambda: editor.has_focus and editor.value == "4", "the editor of 2002H, focused")
     await bench.press("ctrl+u", "8", "enter")
     errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
     assert errors[-1] == (

@@ -79,8 +79,7 @@ async def test_help_scrolls_to_its_last_line() -> None:
         box = screen.query_one("#help")
         assert box.max_scroll_y > 0  # longer than the box: it must scroll
         await bench.press("end")
-        await bench.pilot.pause(0.3)
-        assert box.scroll_y == box.max_scroll_y
+        await until(lambda: box.scroll_y == box.max_scroll_y, "the help to scroll to its last line")
         assert screen.query_one(Markdown).region.bottom <= box.region.bottom + box.max_scroll_y
 
 

@@ -29,7 +29,7 @@ def running_bench() -> Workbench:
     [
         ("u", 0.5, 0x0A),  # UV
         ("v", 0.5, 0x09),  # OV3: at constant speed
-        ("c", 0.5, 0x05),  # a heavy coupled inertia: the STOP pressed below asks too much current: OC2
+        ("c", 0.5, 0x06),  # a shock load while running: OC3 (current limiting stretches a heavy ramp instead)
         ("l", 40.0, 0x0C),  # OL2: 18 A is 164 % of the drive's 11 A (INVT curve: about 26 s)
         ("k", 4.0, 27),  # STALL (assumed code)
         ("o", 160.0, 0x10),  # OH2: ambient 150 °C
@@ -44,10 +44,6 @@ def test_each_device_fault_trips_its_code_and_clears(key: str, seconds: float, c
     drive = bench.sim.drive(1)
     bench.toggle_device_fault(1, key)
     assert bench.device_fault_active(1, key)
-    if key == "c":
-        bench.advance(1.0)
-        assert drive.read(Reg.FAULT_CODE) == 0  # at constant speed the inertia asks nothing
-        assert bench.keypad(1, "stop") is None
     bench.advance(max(seconds, 0.001))
     assert drive.read(Reg.FAULT_CODE) == code
     bench.toggle_device_fault(1, "z")

@@ -145,3 +145,23 @@ def test_the_log_is_streamed_not_read_whole() -> None:
     for _ in range(1000):
         auditor.feed(*next(frames))
     assert stream.lines == 1000
+
+
+def test_a_modbus_tcp_log_is_judged_by_its_rtu_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """serve's log of a Modbus TCP frame has the MBAP frame in hex and the line's frame in rtu (null: the gateway's
+    own 0x0B, never on the line)."""
+
+    def mbap(rtu: str) -> str:
+        body = bytes.fromhex(rtu)[:-2]
+        return (b"\x00\x07\x00\x00" + len(body).to_bytes(2, "big") + body).hex(" ").upper()
+
+    with (tmp_path / "tcp.jsonl").open("w") as f:
+        for k in range(300):
+            t = k / 100
+            f.write(line(t, "rx", mbap(REQUEST), modbus_tcp={"transaction": 7, "unit": 1}, rtu=REQUEST))
+            f.write(line(t + 0.002, "tx", mbap(REPLY), modbus_tcp={"transaction": 7, "unit": 1}, rtu=REPLY))
+        f.write(line(3.5, "tx", "00 07 00 00 00 03 01 83 0B", modbus_tcp={"transaction": 7, "unit": 1}, rtu=None))
+    assert main(["audit", str(tmp_path / "tcp.jsonl"), "--format", "json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["frames"] == 600
+    assert [(f["rule"], round(f["value"])) for f in report["findings"]] == [("line-demand", 135)]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import pytest
 
@@ -173,13 +174,39 @@ def test_a_forced_exception_keeps_a_broadcast_from_acting(profile: Profile) -> N
     assert line.bus.slaves[0].drive.read(0x2001) == 0
 
 
-def test_unsubscribing_twice_is_harmless(profile: Profile) -> None:
+def test_unsubscribing_twice_is_harmless(profile: Profile, caplog: pytest.LogCaptureFixture) -> None:
     bus = Bus([make_slave(profile, 1)])
 
     def failing(record: object) -> None:
         raise RuntimeError("listener bug")
 
+    seen: list[object] = []
     unsubscribe = bus.subscribe(failing)
-    Line(bus).send(read(1, 0x2103))  # the failing listener is logged and removed
+    unsubscribe_seen = bus.subscribe(seen.append)
+    with caplog.at_level(logging.ERROR, logger="c20sim.core.bus"):
+        assert Line(bus).send(read(1, 0x2103)) == encode(ReadResponse(1, (0x0020,)))  # the bus serves on
+    # The failing listener is logged (once, with its exception) and removed; the other one gets every record.
+    failures = [r for r in caplog.records if r.getMessage() == "frame log listener failed; removing it"]
+    assert len(failures) == 1 and failures[0].exc_info is not None
+    assert str(failures[0].exc_info[1]) == "listener bug"
+    assert len(seen) == 2  # the request and its reply
+    Line(bus).send(read(1, 0x2103))
+    assert len(caplog.records) == 1 and len(seen) == 4  # removed: not called, not logged again
     unsubscribe()
-    unsubscribe()
+    unsubscribe()  # already gone: harmless
+    unsubscribe_seen()
+    Line(bus).send(read(1, 0x2103))
+    assert len(seen) == 4
+
+
+@pytest.mark.parametrize("percent", [50.0, 10.0])
+def test_drop_percent_drops_that_share_of_the_replies(profile: Profile, percent: float) -> None:
+    line = Line(Bus([make_slave(profile, 1)], seed=7))
+    line.bus.link.drop_percent = percent
+    requests = 2000
+    dropped = sum(line.send(read(1, 0x2103)) is None for _ in range(requests))
+    # Binomial: within 5 sigma of the mean (50 %: 1000 +- 112; 10 %: 200 +- 67); half the rate is far outside.
+    mean = requests * percent / 100
+    sigma = (requests * percent / 100 * (1 - percent / 100)) ** 0.5
+    assert abs(dropped - mean) <= 5 * sigma, f"{dropped} of {requests} dropped at {percent:g} %"
+    assert line.bus.counters_of(1).silences == dropped

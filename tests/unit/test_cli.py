@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from c20sim import cli
 from c20sim.cli import main
 
 
@@ -88,3 +89,51 @@ def test_python_dash_m_runs_the_cli() -> None:
     )
     assert result.returncode == 0
     assert "write 2000H = 0005: stop; CRC ok" in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (
+            ["serve", "--lnik", "/tmp/ttyC20"],
+            "c20sim serve: unrecognized arguments: --lnik /tmp/ttyC20; did you mean --link? (see: c20sim serve --help)",
+        ),
+        (
+            ["--modbus-tpc", "127.0.0.1:1502"],
+            "c20sim dashboard: unrecognized arguments: --modbus-tpc 127.0.0.1:1502; did you mean --modbus-tcp? "
+            "(see: c20sim dashboard --help)",
+        ),
+        (
+            ["ctl", "frames", "--lats", "2"],
+            "c20sim ctl frames: unrecognized arguments: --lats 2; did you mean --last? (see: c20sim ctl frames --help)",
+        ),
+        (
+            ["serve", "--clock", "virtaul"],
+            "c20sim serve: argument --clock: invalid choice: 'virtaul' (choose from 'realtime', 'virtual'); "
+            "did you mean virtual? (see: c20sim serve --help)",
+        ),
+        (
+            ["serv", "--pty"],
+            "c20sim: argument COMMAND: invalid choice: 'serv' (choose from 'decode', 'audit', 'profiles', 'serve', "
+            "'dashboard', 'web', 'ctl', 'run-scenario', 'schema', 'plant', 'plant-check', 'record', 'replay'); "
+            "did you mean serve? (see: c20sim --help)",
+        ),
+        (
+            ["serve", "--zzzz"],
+            "c20sim serve: unrecognized arguments: --zzzz (see: c20sim serve --help)",
+        ),
+    ],
+)
+def test_a_mistyped_option_is_one_line_naming_the_command_and_what_was_meant(argv: list[str], said: str) -> None:
+    """One ``c20sim`` prefix, a "did you mean" for options as for values, and the help of the command it went to."""
+    result = subprocess.run(
+        [sys.executable, "-m", "c20sim", *argv], capture_output=True, text=True, check=False, timeout=60
+    )
+    assert (result.returncode, result.stdout, result.stderr) == (2, "", said + "\n")
+
+
+def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to() -> None:
+    parser = cli.build_parser()
+    assert cli.serve_options(parser.parse_args(["serve", "--tcp", "127.0.0.1:0"])).bus_timing is True
+    off = parser.parse_args(["serve", "--tcp", "127.0.0.1:0", "--no-bus-timing"])
+    assert cli.serve_options(off).bus_timing is False

@@ -217,6 +217,22 @@ def test_decode_reads_a_frame_log(
         ),
         ('{"t": 1, "dir": "rx", "hex": "0g"}', "line 2: key 'hex': not hex bytes: '0g'"),
         ("{not json", "line 2: not JSON; a frame log has one JSON object a line"),
+        (
+            '{"t": 1, "dir": "rx", "hex": "", "modbus_tcp": {"transaction": 70000, "unit": 1}}',
+            'line 2: key \'modbus_tcp\': expected {"transaction": 0-65535, "unit": 0-255}',
+        ),
+        (
+            '{"t": 1, "dir": "rx", "hex": "", "modbus_tcp": 5}',
+            'line 2: key \'modbus_tcp\': expected {"transaction": 0-65535, "unit": 0-255}',
+        ),
+        (
+            '{"t": 1, "dir": "rx", "hex": "", "modbus_tcp": {"transaction": 1, "unit": 1}, "rtu": 3}',
+            "line 2: key 'rtu': expected the RTU frame on the line in hex, or null for the gateway's own answer",
+        ),
+        (
+            '{"t": 1, "dir": "rx", "hex": "", "modbus_tcp": {"transaction": 1, "unit": 1}, "rtu": "zz"}',
+            "line 2: key 'rtu': not hex bytes: 'zz'",
+        ),
     ],
 )
 def test_a_bad_log_line_is_named(line: str, message: str) -> None:
@@ -252,3 +268,24 @@ def test_a_closed_pipe_ends_decode_quietly(tmp_path: Path) -> None:
     finally:
         os.close(write_end)
     assert (result.returncode, result.stderr) == (0, b"")
+
+
+def test_a_different_0x06_after_an_unanswered_one_is_the_next_request_not_its_echo() -> None:
+    """Found by the property test above: two unanswered writes of one register with different values. A 0x06
+    reply echoes its request byte for byte, so the second frame cannot be the first one's reply."""
+    first, second = encode(WriteSingleRequest(1, 0, 0)), encode(WriteSingleRequest(1, 0, 1))
+    stream = encode(ReadRequest(1, 0, 1)) + first + second
+    assert [(p.kind, p.data) for p in split_frames(stream)] == [
+        ("request", encode(ReadRequest(1, 0, 1))),
+        ("request", first),
+        ("request", second),
+    ]
+    echo = split_frames(first + first)
+    assert [(p.kind, p.request) for p in echo] == [("request", None), ("reply", WriteSingleRequest(1, 0, 0))]
+
+
+def test_a_modbus_tcp_record_without_rtu_is_read_as_the_line_frame_of_its_mbap_bytes() -> None:
+    """A log made by another tool may carry the MBAP frame and its header only: the RTU frame is derived from it."""
+    line = '{"t": 1, "dir": "rx", "hex": "00 07 00 00 00 06 01 03 21 00 00 01", "modbus_tcp": {"transaction": 7, "unit": 1}}'
+    [found] = parse_log([line], "cap.jsonl")
+    assert (found.mbap, found.line_data) == ((7, 1), bytes.fromhex("01 03 21 00 00 01 8E 36"))

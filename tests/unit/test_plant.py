@@ -69,6 +69,8 @@ def test_each_bus_pod_serves_both_wire_ports_from_the_configmap(capsys: pytest.C
         "0.0.0.0:1502",
         "--profile",
         "/etc/c20sim/profile.toml",
+        "--metrics",
+        "0.0.0.0:9120",
     ]
     assert container["env"] == [
         {"name": "C20SIM_DRIVES", "valueFrom": {"configMapKeyRef": {"name": "c20sim-plant", "key": "drives"}}}
@@ -76,6 +78,7 @@ def test_each_bus_pod_serves_both_wire_ports_from_the_configmap(capsys: pytest.C
     assert container["ports"] == [
         {"name": "rtu-tcp", "containerPort": 5020, "hostPort": 15021, "protocol": "TCP"},
         {"name": "modbus-tcp", "containerPort": 1502, "hostPort": 1503, "protocol": "TCP"},
+        {"name": "metrics", "containerPort": 9120, "hostPort": 9121, "protocol": "TCP"},
     ]
     assert container["readinessProbe"]["exec"] == {"command": ["c20sim", "plant-check", "--quiet", "127.0.0.1:5020"]}
     assert container["volumeMounts"] == [{"name": "config", "mountPath": "/etc/c20sim", "readOnly": True}]
@@ -223,3 +226,15 @@ def test_every_manifest_is_valid_against_kubernetes_own_schemas(
     for doc in docs:
         kubernetes_validate.validate(doc, version, strict=True)
     assert len(docs) == 1 + 2 * int(args[1])
+
+
+def test_each_bus_pod_is_scraped_by_prometheus_on_its_metrics_port(capsys: pytest.CaptureFixture[str]) -> None:
+    docs = generate(capsys, "--buses", "1", "--drives", "1-4")
+    template = docs[1]["spec"]["template"]  # type: ignore[index]
+    assert template["metadata"]["annotations"] == {
+        "prometheus.io/scrape": "true",
+        "prometheus.io/port": "9120",
+        "prometheus.io/path": "/metrics",
+    }
+    [container] = template["spec"]["containers"]
+    assert {"name": "metrics", "containerPort": 9120, "hostPort": 9120, "protocol": "TCP"} in container["ports"]

@@ -136,6 +136,11 @@ def test_the_recover_level_lies_between_the_trip_and_the_supply(tmp_path: Path) 
     assert "supply.undervoltage_recover_v: 19 V must be between supply.undervoltage_v = 20 V" in bad(tmp_path, text)
 
 
+def test_the_active_loads_free_speed_lies_above_the_rated_speed(tmp_path: Path) -> None:
+    text = DEFAULT_TEXT.replace("active_load_free_rpm = 3300", "active_load_free_rpm = 2500")
+    assert "motor.active_load_free_rpm: 2500 rpm must be above motor.rated_speed_rpm = 3000 rpm" in bad(tmp_path, text)
+
+
 def test_protocol_quirks_of_the_sheets_edges(tmp_path: Path) -> None:
     protocol = load_profile().protocol
     assert (protocol.run_while_faulted_exception, protocol.byte_count_exception) == (1, 6)

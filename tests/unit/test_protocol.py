@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from c20sim.transport.endpoint import stream_framer
 from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
@@ -99,6 +100,27 @@ def test_silence_times() -> None:
     assert silence_times(1200, char_bits(8, "E", 1)) == pytest.approx((1.5 * 11 / 1200, 3.5 * 11 / 1200))
     assert silence_times(38400) == (0.00075, 0.00175)
     assert silence_times(57600) == (0.00075, 0.00175)
+
+
+@pytest.mark.parametrize("baud", [38400, 57600])
+def test_a_line_timed_port_above_19200_ends_a_frame_after_a_fixed_1_75_ms(baud: int) -> None:
+    """Through the framer a line-timed port uses (transport's stream_framer): garbage, a silence, a request. Above
+    19200 baud t3.5 is a fixed 1.75 ms (3.5 characters would be 0.91 or 0.61 ms): 1.6 ms of silence leaves one
+    bad frame, 1.9 ms splits off the request."""
+    char = char_time(baud)
+
+    def framed(silence: float) -> list[tuple[FrameKind, bytes]]:
+        framer = stream_framer(baud, line_timing=True)
+        framer.feed(H("FF 00"), 1.0)
+        end = 1.0 + silence + len(READ) * char
+        framer.feed(READ, end)
+        framer.tick(end + 1.0)
+        return frames(framer)
+
+    assert [data for _, data in framed(0.0010)] == [H("FF 00") + READ]
+    assert [data for _, data in framed(0.0016)] == [H("FF 00") + READ]
+    assert framed(0.0019)[1:] == [(FrameKind.FRAME, READ)]
+    assert [data for _, data in framed(0.0019)] == [H("FF 00"), READ]
 
 
 # --- the framer

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import pytest
 
-from c20sim.drive.model import F_MOTOR_OVERLOAD_COEFFICIENT, F_OV_STALL, STEP, Drive
+from c20sim.drive.model import F_CURRENT_LIMITING, F_MOTOR_OVERLOAD_COEFFICIENT, F_OV_STALL, STEP, Drive
 from c20sim.drive.profile import FaultCause, Profile, load_profile
 from c20sim.drive.terminals import Input, Output
 from c20sim.wire.registers import Reg
@@ -139,6 +139,7 @@ def trip_time(profile: Profile, amps: float, until: float, coefficient_raw: int 
     m = profile.motor
     drive = Drive(profile)
     drive.write(F_MOTOR_OVERLOAD_COEFFICIENT, coefficient_raw)
+    drive.write(F_CURRENT_LIMITING, 0)  # off: a start may carry a load beyond the limiting level (160 %)
     drive.write(cell(profile, Reg.ACCEL_TIME), 50)  # loaded from the start: a gentle ramp stays below the limit
     drive.set_load_torque(amps * m.kt_nm_per_a - m.friction_nm - m.viscous_nm_per_krpm * 1.5)
     drive.write(Reg.SPEED_SETPOINT, 1500)
@@ -249,12 +250,22 @@ def test_forced_persistent_fault_waits_for_release(profile: Profile) -> None:
 def test_load_step_beyond_the_trip_level_is_held_at_the_current_limit(profile: Profile) -> None:
     # Overcurrent follows current, not load torque: 6 N m would need 47 A, but the current limit holds it at 20 A
     # and the locked rotor trips, as a jam does.
+    # Current limiting off: the current sits at the hardware clamp.
     drive = running(profile)
+    drive.write(F_CURRENT_LIMITING, 0)
     drive.set_load_torque(6.0)
     assert first_time(drive, faulted, drive.t + 0.5) is None
     assert drive.read(Reg.OUTPUT_CURRENT) == round(profile.protection.current_limit_a * 100)
     assert first_time(drive, faulted, drive.t + 5.0) is not None
     assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.STALL)
+    # On (the default): the ramp holds too, the current stays between the limiting level and the clamp.
+    limited = running(profile)
+    limited.set_load_torque(6.0)
+    assert first_time(limited, faulted, limited.t + 0.5) is None
+    level = profile.protection.drive_rated_current_a * 1.6
+    assert round(level * 100) <= limited.read(Reg.OUTPUT_CURRENT) <= round(profile.protection.current_limit_a * 100)
+    assert first_time(limited, faulted, limited.t + 5.0) is not None
+    assert limited.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.STALL)
 
 
 def test_locked_rotor_trips_stall(profile: Profile) -> None:

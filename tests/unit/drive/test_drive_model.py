@@ -8,7 +8,7 @@ from collections.abc import Callable
 import pytest
 
 from c20sim.drive.base import DrivePort
-from c20sim.drive.model import STEP, Drive, HallFault
+from c20sim.drive.model import F_CURRENT_LIMITING, STEP, Drive, HallFault
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.drive.terminals import Input, Output
 from c20sim.wire.errors import ModbusError
@@ -178,14 +178,18 @@ def test_jog_runs_at_the_jog_speed(profile: Profile) -> None:
     assert drive.read(Reg.STATUS1) == 3
 
 
-def test_current_limit_slows_a_heavy_ramp(profile: Profile) -> None:
+@pytest.mark.parametrize("limiting", [1, 0])
+def test_current_limit_slows_a_heavy_ramp(profile: Profile, limiting: int) -> None:
     drive = Drive(profile)
+    drive.write(F_CURRENT_LIMITING, limiting)
     drive.set_load_inertia(0.01)
-    drive.write(cell(profile, Reg.ACCEL_TIME), 10)  # 1 s asks 26 A: limited to 20 (0.5 s asks 51 A: OC1)
+    drive.write(cell(profile, Reg.ACCEL_TIME), 10)  # 1 s asks 26 A: limited (0.5 s asks 51 A: OC1 without limiting)
     drive.write(Reg.SPEED_SETPOINT, 3000)
     drive.write(Reg.COMMAND, 1)
     drive.advance_to(0.5)
-    assert drive.read(Reg.OUTPUT_CURRENT) == round(profile.protection.current_limit_a * 100)
+    # On: the limiting level, 160 % of the drive's 11 A; off: the hardware clamp.
+    amps = profile.protection.drive_rated_current_a * 1.6 if limiting else profile.protection.current_limit_a
+    assert drive.read(Reg.OUTPUT_CURRENT) == round(amps * 100)
     assert drive.read(Reg.MOTOR_SPEED) < 2000
     assert drive.read(Reg.RAMP_FREQUENCY) == drive.read(Reg.OUTPUT_FREQUENCY)  # the ramp waits for the motor
     drive.advance_to(5.0)

@@ -17,11 +17,12 @@ import pytest
 from c20sim.drive.model import (
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
+    F_CURRENT_LIMITING,
     F_OV_STALL,
     STEP,
     Drive,
 )
-from c20sim.drive.physics import HALL_SEQUENCE, RPM
+from c20sim.drive.physics import HALL_SEQUENCE, RPM, active_torque
 from c20sim.drive.profile import FaultCause, Profile, load_profile
 from c20sim.drive.terminals import Input
 from c20sim.wire.registers import Reg
@@ -147,6 +148,7 @@ def test_read_noise_is_seeded_and_does_not_depend_on_polling(profile: Profile) -
 def test_a_held_load_at_standstill_heats_the_inverter(profile: Profile) -> None:
     th = profile.thermal
     drive = running(profile, 0)
+    drive.write(F_CURRENT_LIMITING, 0)  # off: 19 A is above the limiting level (17.6 A), under the clamp
     drive.set_active_load(19.0 * profile.motor.kt_nm_per_a)  # held at zero speed: 19 A, just under the limit
     drive.advance_to(5.0)
     tel = drive.telemetry()
@@ -182,6 +184,7 @@ def test_undervoltage_has_a_recover_level(profile: Profile) -> None:
 
 def test_too_short_an_accel_of_a_heavy_load_trips_oc1(profile: Profile) -> None:
     drive = Drive(profile)
+    drive.write(F_CURRENT_LIMITING, 0)  # off: today's trip (on, the ramp stretches: see section 8)
     drive.set_load_inertia(0.01)
     drive.write(cell(profile, Reg.ACCEL_TIME), 5)  # 0.5 s: 6000 rpm/s x 0.0103 kg m^2 asks 51 A
     drive.write(Reg.SPEED_SETPOINT, 3000)
@@ -277,6 +280,47 @@ def test_a_heavier_faster_hoist_trips_ov3(profile: Profile) -> None:
     drive.set_active_load(2.4)  # 750 W back into a 10 ohm chopper
     assert first_time(drive, faulted, 10.0) is not None
     assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERVOLTAGE_CONSTANT)
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_a_free_rotor_an_overhauling_load_drives_settles_where_load_and_friction_balance(name: str) -> None:
+    # The drive trips OV3 braking a load past the chopper's power; the output off, nothing but the load's own
+    # characteristic and the friction bound the rotor (issue 27 measured 10,800 rpm in 3 s without them).
+    profile = load_profile(name)
+    m = profile.motor
+    drive = running(profile, 3000)
+    pulling = 0.9 * profile.protection.current_limit_a * m.kt_nm_per_a
+    drive.set_active_load(pulling)
+    assert first_time(drive, faulted, 4.0) is not None
+    assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERVOLTAGE_CONSTANT)
+    drive.advance_to(30.0)
+    # pulling x (free - n) / (free - rated) = friction + viscous x n, solved for n:
+    knee, free, viscous = m.rated_speed_rpm, m.active_load_free_rpm, m.viscous_nm_per_krpm / 1000.0
+    settled = (pulling * free / (free - knee) - m.friction_nm) / (pulling / (free - knee) + viscous)
+    assert knee < settled < free
+    assert drive.telemetry().speed_rpm == pytest.approx(settled, abs=1e-6)
+    assert drive.telemetry().steady  # a fixed point: the model skips ahead
+    assert drive.read(Reg.MOTOR_SPEED) == 3000  # 3006H saturates at the sheet's top
+    assert drive.read(Reg.OUTPUT_FREQUENCY) == 0  # the output is off
+
+
+def test_the_frequency_registers_saturate_at_the_maximum_speeds_frequency(profile: Profile) -> None:
+    drive = running(profile, 3000)
+    drive.write(F_CURRENT_LIMITING, 0)  # let the clamp, not the level, decide what the motor can hold
+    drive.set_active_load(3.0)  # past what the 20 A clamp holds: the rotor is driven beyond 3000 rpm
+    assert first_time(drive, lambda d: d.telemetry().speed_rpm > 3050.0, 3.5) is not None
+    assert not faulted(drive)
+    top = round(3000 * 4 * 100 / 60)  # 200.00 Hz at 4 pole pairs (F00.03 = 3000)
+    assert drive.read(Reg.OUTPUT_FREQUENCY) == drive.read(Reg.RAMP_FREQUENCY) == top
+    assert drive.read(Reg.MOTOR_SPEED) == 3000
+
+
+def test_an_active_load_opposing_the_motion_pulls_fully_at_any_speed() -> None:
+    assert active_torque(2.0, 3150.0, 3000.0, 3300.0) == pytest.approx(1.0)  # half way: half the pull
+    assert active_torque(2.0, 3400.0, 3000.0, 3300.0) == 0.0  # beyond the free speed: nothing
+    assert active_torque(2.0, -5000.0, 3000.0, 3300.0) == 2.0  # against the motion: all of it
+    assert active_torque(-2.0, -3150.0, 3000.0, 3300.0) == pytest.approx(-1.0)
+    assert active_torque(2.0, 2999.0, 3000.0, 3300.0) == 2.0
 
 
 def test_an_active_load_must_be_finite(profile: Profile) -> None:

@@ -152,8 +152,8 @@ def test_undervoltage_is_present_at_once_and_its_reset_waits_for_the_recover_lev
         ({"load": 2.29}, {FaultCause.MOTOR_OVERLOAD, FaultCause.DRIVE_OVERLOAD}),
         ({"load": 3.81}, {FaultCause.STALL}),  # 30 A: past the limit, a stall, not an overload
         ({"load": 5.2}, {FaultCause.STALL, *(f for f in FaultCause if f.value.startswith("overcurrent"))}),
-        # a start at the 0.5 s ramp of 0.01 kg m^2 more asks 51 A
-        ({"load_inertia": 0.01}, {f for f in FaultCause if f.value.startswith("overcurrent")}),
+        # a start at the 0.5 s ramp of 0.01 kg m^2 more would ask 51 A: current limiting holds the ramp instead
+        ({"load_inertia": 0.01}, set()),
         ({"ambient": 86.0}, {FaultCause.OVERHEAT}),
         ({"physical_inputs": int(Input.EF)}, {FaultCause.EXTERNAL}),
     ],
@@ -221,3 +221,13 @@ def test_the_terminals_run_and_reset_on_the_terminal_channel(profile: Profile) -
     parts.configure()
     parts.machine.inputs_changed(before)
     assert parts.machine.state is State.COASTING  # CLR's rising edge reset the fault
+
+
+def test_with_current_limiting_off_a_heavy_inertia_is_an_overcurrent_cause(profile: Profile) -> None:
+    parts = Parts(profile)
+    parts.params.set(fcode_address(11, 5), 0)  # F11.05 = 0: the ramp asks what the inertia needs
+    parts.bench.load_inertia = 0.01  # the 0.5 s ramp asks 51 A, above the 40 A trip
+    parts.configure()
+    assert parts.motion.cfg.limit_a == 0.0
+    overcurrent = {f for f in FaultCause if f.value.startswith("overcurrent")}
+    assert {cause for cause in FaultCause if parts.machine.present(cause)} == overcurrent

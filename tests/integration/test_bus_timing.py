@@ -1,0 +1,159 @@
+"""Bus timing on every transport (issue 27): a transaction holds the shared line for its RS485 time.
+
+The line's time is computed here from the serial settings (``transaction_time`` at the drive's baud, the
+character size of --parity/--stopbits, the profile's turnaround), never written in: what the tests assert is
+a lower bound (N transactions never take less than the line's time for them), which no load on the machine
+can break, and the line's own accounting (the counters), which is exact.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import load_profile
+from c20sim.serve import ServeOptions, Server
+from c20sim.wire.protocol import (
+    FrameEvent,
+    FrameKind,
+    ReadRequest,
+    char_bits,
+    encode,
+    frame_time,
+    transaction_time,
+    with_crc,
+)
+from c20sim.wire.registers import Reg
+
+N = 12
+
+
+@pytest.fixture
+async def started() -> AsyncIterator[list[Server]]:
+    servers: list[Server] = []
+    yield servers
+    for server in servers:
+        await server.aclose()
+
+
+async def serve(started: list[Server], **options: object) -> Server:
+    sim = Simulator(load_profile("c20-400hr"), (1,), clock=VirtualClock())
+    settings: dict[str, object] = {"tcp": "127.0.0.1:0", "modbus_tcp": "127.0.0.1:0", "bus_timing": True, **options}
+    server = Server(sim, ServeOptions(**settings))  # type: ignore[arg-type]
+    await server.start()
+    started.append(server)
+    return server
+
+
+def one_read_time(server: Server, parity: str = "N") -> float:
+    """The line's time of one single-register read at the drive's baud, the line's format, the turnaround."""
+    sim = server.sim
+    turnaround = sim.profile.protocol.turnaround_ms / 1000.0
+    return transaction_time(8, 7, sim.bus.line_baud, char_bits(8, parity, 1), turnaround)
+
+
+async def client(server: Server, framer: FramerType) -> AsyncModbusTcpClient:
+    if framer is FramerType.RTU:
+        assert server.endpoints.tcp is not None
+        port = server.endpoints.tcp.port
+    else:
+        assert server.endpoints.modbus_tcp is not None
+        port = server.endpoints.modbus_tcp.port
+    master = AsyncModbusTcpClient("127.0.0.1", port=port, framer=framer, timeout=5.0, retries=0)
+    assert await master.connect()
+    return master
+
+
+async def reads(master: AsyncModbusTcpClient | AsyncModbusSerialClient, n: int) -> None:
+    for _ in range(n):
+        reply = await master.read_holding_registers(Reg.STATUS1, count=1, device_id=1)
+        assert reply.registers == [3]
+
+
+async def test_a_master_on_the_pty_meets_the_lines_time_too(started: list[Server]) -> None:
+    server = await serve(started, pty=True)
+    assert server.endpoints.pty is not None
+    master = AsyncModbusSerialClient(server.endpoints.pty.path, framer=FramerType.RTU, timeout=5.0, retries=0)
+    assert await master.connect()
+    try:
+        began = time.monotonic()
+        await reads(master, N)
+        took = time.monotonic() - began
+    finally:
+        master.close()
+    assert took >= N * one_read_time(server)
+    assert server.sim.bus.counters_of(1).line_busy_s == pytest.approx(N * one_read_time(server), rel=1e-9)
+
+
+@pytest.mark.parametrize(("framer", "parity"), [(FramerType.RTU, "N"), (FramerType.RTU, "E"), (FramerType.SOCKET, "N")])
+async def test_n_transactions_never_take_less_than_the_lines_time(
+    started: list[Server], framer: FramerType, parity: str
+) -> None:
+    server = await serve(started, parity=parity)
+    master = await client(server, framer)
+    try:
+        began = time.monotonic()
+        await reads(master, N)
+        took = time.monotonic() - began
+    finally:
+        master.close()
+    line = N * one_read_time(server, parity)
+    assert took >= line
+    counters = server.sim.bus.counters_of(1)
+    assert counters.line_busy_s == pytest.approx(line, rel=1e-9)
+    assert 0.0 < counters.line_share <= 1.0
+
+
+async def test_two_masters_share_the_line(started: list[Server]) -> None:
+    server = await serve(started)
+    first, second = await client(server, FramerType.RTU), await client(server, FramerType.SOCKET)
+    try:
+        began = time.monotonic()
+        await asyncio.gather(reads(first, N), reads(second, N))
+        took = time.monotonic() - began
+    finally:
+        first.close()
+        second.close()
+    # Each master alone would take N transactions' time; together they queue as behind a serial device server.
+    line = 2 * N * one_read_time(server)
+    assert took >= line
+    assert server.sim.bus.counters_of(1).line_busy_s == pytest.approx(line, rel=1e-9)
+
+
+async def test_the_line_is_held_for_the_transaction_or_only_the_turnaround(started: list[Server]) -> None:
+    timed = await serve(started)
+    plain = await serve(started, bus_timing=False)
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    for server, hold in ((timed, one_read_time(timed)), (plain, timed.sim.profile.protocol.turnaround_ms / 1000)):
+        line = server.line
+        loop = asyncio.get_running_loop()
+        got: list[object] = []
+        before = loop.time()
+        line.submit(FrameEvent(FrameKind.FRAME, request, before), got.append)
+        after = loop.time()
+        assert line.busy and got == []  # the reply waits for the line's time
+        free_at = line.free_at
+        assert free_at is not None and before + hold <= free_at <= after + hold
+        while not got:
+            await asyncio.sleep(0.001)
+        assert not line.busy
+
+
+async def test_a_silent_request_holds_the_line_for_its_frame(started: list[Server]) -> None:
+    server = await serve(started)
+    line = server.line
+    got: list[object] = []
+    loop = asyncio.get_running_loop()
+    before = loop.time()
+    line.submit(FrameEvent(FrameKind.FRAME, with_crc(bytes.fromhex("07 03 21 00 00 01")), before), got.append)
+    assert got == [None]  # no drive at 7: silence, known at once
+    assert line.busy  # but the request was on the line
+    free_at = line.free_at
+    assert free_at is not None and free_at >= before + frame_time(8, 19200, 10)
