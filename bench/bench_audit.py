@@ -16,6 +16,11 @@ load (``--rate``, 200 requests a second by default; 0: back to back, the wire sa
 the machine. It prints p50 and p99 of each and the ratio of the p99s (target: within 1.1).
 
     .venv/bin/python bench/bench_audit.py --live [--requests 10000 --rounds 5 --rate 200]
+
+``--bus`` measures the audit's own cost, in this process and free of the network's noise: the bus
+serving write/read pairs with and without the live audit, best of alternating rounds.
+
+    .venv/bin/python bench/bench_audit.py --bus [--requests 20000 --rounds 5]
 """
 
 from __future__ import annotations
@@ -132,16 +137,56 @@ def live(requests: int, rounds: int, rate: float) -> None:
     print(f"p99 audit on / off: {p99['audit on'] / p99['audit off (--no-audit)']:.3f} (target: <= 1.1)")
 
 
+def on_the_bus(requests: int, rounds: int) -> None:
+    """The audit's cost a request in this process: the bus serving write/read pairs with and without it."""
+    import dataclasses
+
+    from c20sim.control import liveaudit
+    from c20sim.core.clock import VirtualClock
+    from c20sim.core.simulator import Simulator
+    from c20sim.wire.protocol import FrameEvent, FrameKind
+
+    base = load_profile("c20-400hr")
+    profile = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, turnaround_ms=0.0))
+    frames = [encode(WriteSingleRequest(1, 0x2001, v % 3000)) for v in range(1000)]
+    frames += [encode(ReadRequest(1, 0x2001, 1))] * 1000
+
+    def serve(audited: bool) -> float:
+        sim = Simulator(profile, (1,), clock=VirtualClock())
+        audit = liveaudit.start(sim) if audited else None
+        start, t0 = time.perf_counter(), time.monotonic()
+        for k in range(requests):
+            sim.bus.handle(FrameEvent(FrameKind.FRAME, frames[k % len(frames)], t0 + k * 1e-4), sim.now())
+        elapsed = time.perf_counter() - start
+        if audit is not None:
+            audit.close()
+        return elapsed / requests
+
+    best = {True: float("inf"), False: float("inf")}
+    for _ in range(rounds):
+        for audited in (False, True):
+            best[audited] = min(best[audited], serve(audited))
+    print(machine())
+    print(f"the bus serving {requests:,} requests (write/read 2001H), best of {rounds} alternating rounds")
+    print(f"  audit off  {best[False] * 1e6:.2f} us a request")
+    print(f"  audit on   {best[True] * 1e6:.2f} us a request (+{(best[True] - best[False]) * 1e6:.2f} us)")
+    print(f"ratio on / off: {best[True] / best[False]:.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1_000_000)
     parser.add_argument("--live", action="store_true", help="the live audit's cost to the wire's p99 instead")
+    parser.add_argument("--bus", action="store_true", help="the live audit's cost a request on the bus, in process")
     parser.add_argument("--requests", type=int, default=20_000)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--rate", type=float, default=200.0, help="--live: requests a second (0: back to back)")
     args = parser.parse_args()
     if args.live:
         live(args.requests, args.rounds, args.rate)
+        return
+    if args.bus:
+        on_the_bus(args.requests, args.rounds)
         return
     profile = load_profile("c20-400hr")
     with tempfile.TemporaryDirectory() as tmp:
