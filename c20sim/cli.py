@@ -21,6 +21,7 @@ from .scenario.schema import add_schema_command
 from .scenario.suite import add_run_scenario_command
 from .serve import ServeOptions, pty_supported, run, run_server
 from .traffic.capture import add_decode_command
+from .traffic.exercise import add_exercise_command
 from .traffic.record import add_record_command
 from .traffic.replay import add_replay_command
 from .wire.errors import C20SimError
@@ -258,6 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_plant_commands(sub)
     add_record_command(sub)
     add_replay_command(sub)
+    add_exercise_command(sub)
     return parser
 
 
