@@ -37,6 +37,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import IO, Any, Protocol
 
+from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.decode import describe
 from ..wire.errors import C20SimError
@@ -47,6 +48,7 @@ from ..wire.protocol import (
     ReadResponse,
     Request,
     Response,
+    RtuFramer,
     WriteSingleRequest,
     crc_ok,
     decode_response,
@@ -63,11 +65,14 @@ __all__ = [
     "DriveRefused",
     "DriveSilent",
     "Master",
+    "SimulatedLink",
+    "SimulatedTime",
     "Step",
     "open_link",
     "programme",
     "register_of",
     "run_programme",
+    "simulated_capture",
 ]
 
 #: Short names a person at a bench types, for the registers they read and write most.
@@ -138,6 +143,9 @@ SETTINGS: tuple[int, ...] = (
 SILENCES_IN_A_ROW = 3
 
 STATUS_STOPPED = 3
+
+#: The marks of a load change in the log: ``{"dir": "rx", "hex": "", "kind": "mark", "note": "load-on"}``.
+LOAD_ON, LOAD_OFF = "load-on", "load-off"
 
 
 class DriveSilent(C20SimError):
@@ -351,6 +359,48 @@ def open_link(port: str, baud: int, parity: str = "N", stopbits: int = 1) -> Lin
     return SerialLink(port, baud, parity, stopbits)
 
 
+class SimulatedLink:
+    """c20sim in this process under a virtual clock: the programme's captures in tests and benchmarks (an hour of
+    model time in seconds). A reply comes after the profile's turnaround, silence after the timeout."""
+
+    def __init__(self, sim: Simulator) -> None:
+        if not sim.virtual:
+            raise C20SimError("a simulated link needs a simulator with a virtual clock")
+        self.sim = sim
+
+    def exchange(self, frame: bytes, timeout: float) -> bytes:
+        sim = self.sim
+        framer = RtuFramer(sim.bus.line_baud, complete_on_length=True, check_gaps=False)
+        framer.feed(frame, sim.now())
+        framer.flush()
+        reply = b""
+        for event in framer.events():
+            answer = sim.handle(event)
+            if answer is not None:
+                sim.advance(answer.delay)
+                reply += answer.data
+        if not reply:
+            sim.advance(timeout)
+        return reply
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
+class SimulatedTime:
+    """The simulator's virtual clock as the master's: a sleep moves model time on."""
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+
+    def now(self) -> float:
+        return self.sim.now()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self.sim.advance(seconds)
+
+
 # --- The master: one request at a time, every frame logged.
 
 
@@ -407,6 +457,12 @@ class Master:
         self.log.write(json.dumps(item) + "\n")
         self.frames += 1
 
+    def mark(self, note: str) -> None:
+        """A line in the log saying what the user did by hand (no bytes on the wire): replay passes over it."""
+        if self.log is not None:
+            item = {"t": round(self.clock.now(), 6), "dir": "rx", "hex": "", "kind": "mark", "slave": self.address}
+            self.log.write(json.dumps(item | {"text": note, "note": note}) + "\n")
+
     def transact(self, request: Request) -> Response:
         frame = encode(request)
         self._record(self.clock.now(), "rx", frame, request, None)
@@ -455,6 +511,7 @@ class Step:
     writes: tuple[tuple[int, int], ...] = ()
     hold: float = 0.0
     prompt: str = ""  #: a change the user makes by hand, confirmed before the step starts
+    mark: str = ""  #: written to the log (an empty rx frame of kind "mark") once the user confirmed: load-on ...
     until_stopped: bool = False  #: poll on until status word 1 reads stopped (at most ``hold`` more)
 
 
@@ -476,8 +533,8 @@ def programme(
         steps.append(Step(f"{'run at' if index == 0 else 'step to'} {rpm:g} rpm", writes, ramp + hold))
         last = rpm
     if load:
-        steps.append(Step(f"with the load, at {last:g} rpm", (), hold, prompt="apply the load now"))
-        steps.append(Step(f"load taken off, at {last:g} rpm", (), hold, prompt="take the load off now"))
+        steps.append(Step(f"with the load, at {last:g} rpm", (), hold, "apply the load now", LOAD_ON))
+        steps.append(Step(f"load taken off, at {last:g} rpm", (), hold, "take the load off now", LOAD_OFF))
     stop_ramp = last / max_rpm * decel_s
     steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True))
     steps.append(Step("at rest after the stop", hold=min(hold, 3.0)))
@@ -550,6 +607,8 @@ def run_programme(
         for index, step in enumerate(steps):
             if step.prompt and confirm is not None:
                 confirm(step.prompt)
+            if step.mark:
+                master.mark(step.mark)
             for address, value in step.writes:
                 master.write(address, value)
                 started = started or address == Reg.COMMAND
@@ -592,6 +651,32 @@ def run_programme(
             raise C20SimError(f"{exc}; {_stop(master)}") from None
         raise
     return reads
+
+
+def simulated_capture(
+    sim: Simulator,
+    out: IO[str],
+    *,
+    speeds: Sequence[float],
+    hold: float,
+    rate: float = 10.0,
+    load_nm: float | None = None,
+    address: int = 1,
+) -> int:
+    """The programme run on c20sim in this process, in virtual time, its capture written to ``out``; the load
+    change (``load_nm``) made as a user would when told. Returns the reads made. Tests and benchmarks use it."""
+    registers = sim.profile.registers
+    master = Master(SimulatedLink(sim), registers, address, clock=SimulatedTime(sim), log=out)
+    settings = check_ready(master)
+    accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
+    decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
+    steps = programme(speeds, hold, accel, decel, sim.profile.motor.rated_speed_rpm, load_nm is not None)
+    drive = sim.drive(address)
+
+    def confirm(prompt: str) -> None:
+        drive.set_load_torque((load_nm or 0.0) if prompt.startswith("apply") else 0.0)
+
+    return run_programme(master, steps, rate=rate, confirm=confirm)
 
 
 def _cycle(items: Sequence[int]) -> Iterator[int]:

@@ -83,9 +83,11 @@ def test_bad_words_are_one_line(served: dict[str, str], words: list[str], messag
     assert result.stderr.startswith(message) and result.stderr.count("\n") == 1
 
 
-def test_the_programme_makes_a_capture_over_a_pty(served: dict[str, str], tmp_path: Path) -> None:
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_the_programme_makes_a_capture_fit_accepts(served: dict[str, str], tmp_path: Path, transport: str) -> None:
     out = tmp_path / "capture.jsonl"
-    result = exercise(served["pty"], "--out", str(out), "--hold", "0.3", "--rate", "20", "--speeds", "1000,2000")
+    port = served["pty"] if transport == "pty" else f"tcp://{served['tcp']}"
+    result = exercise(port, "--out", str(out), "--hold", "0.3", "--rate", "20", "--speeds", "1000,2000")
     assert result.returncode == 0, result.stderr
     assert "no function code" in result.stdout
     records = load_frame_log(str(out))
@@ -104,6 +106,11 @@ def test_the_programme_makes_a_capture_over_a_pty(served: dict[str, str], tmp_pa
         if r.direction == "rx" and r.data[2:4] == bytes.fromhex("2100")
     ]
     assert 1 in status and status[-1] == 3
+    fitted = subprocess.run(
+        c20sim("fit", str(out), "--out", str(tmp_path / "mydrive.toml")), capture_output=True, text=True, check=False
+    )
+    assert fitted.returncode == 0, fitted.stderr
+    assert "motor.kt_nm_per_a" in fitted.stdout and (tmp_path / "mydrive.toml").exists()
 
 
 def test_refuses_a_drive_that_is_not_stopped(served: dict[str, str], tmp_path: Path) -> None:

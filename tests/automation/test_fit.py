@@ -1,0 +1,206 @@
+"""fit: a capture of c20sim running a profile the fit does not see, fitted from the shipped one, recovers it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from c20sim.cli import main
+from c20sim.core.clock import VirtualClock
+from c20sim.core.simulator import Simulator
+from c20sim.drive.profile import Profile, load_profile
+from c20sim.traffic.capture import load_frame_log
+from c20sim.traffic.exercise import simulated_capture
+from c20sim.traffic.fit import fit, load_capture, write_profile
+from c20sim.traffic.replay import replay
+from c20sim.wire.protocol import ReadRequest, ReadResponse, WriteSingleRequest, decode_request, decode_response, encode
+from c20sim.wire.registers import Reg
+
+NOISE_RPM = 5.0
+
+#: The drive on the bench: what the fit must find, and the tolerance it must find it within (relative).
+TRUE = {
+    "motor.kt_nm_per_a": (0.140, 0.01),  # shipped 0.127
+    "motor.inertia_kg_m2": (4.5e-4, 0.03),  # shipped 3e-4
+    "motor.friction_nm": (0.030, 0.08),  # shipped 0.02
+    "motor.viscous_nm_per_krpm": (0.030, 0.08),  # as shipped: found again, not moved
+    "supply.voltage_v": (48.0, 0.002),
+    "supply.source_resistance_ohm": (0.30, 0.05),  # shipped 0.15
+}
+TURNAROUND_MS = 3.5  # shipped 2.0
+
+
+def bench_drive() -> Profile:
+    base = load_profile()
+    return dataclasses.replace(
+        base,
+        motor=dataclasses.replace(base.motor, kt_nm_per_a=0.140, inertia_kg_m2=4.5e-4, friction_nm=0.030),
+        supply=dataclasses.replace(base.supply, source_resistance_ohm=0.30),
+        protocol=dataclasses.replace(base.protocol, turnaround_ms=TURNAROUND_MS),
+        control=dataclasses.replace(base.control, speed_noise_rpm=NOISE_RPM, noise_seed=11),
+    )
+
+
+@pytest.fixture(scope="module")
+def capture_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The identification programme with a load change, on c20sim in virtual time, read noise on."""
+    path = tmp_path_factory.mktemp("fit") / "bench.jsonl"
+    sim = Simulator(bench_drive(), [1], clock=VirtualClock())
+    with path.open("w") as out:
+        simulated_capture(sim, out, speeds=(900, 1800, 2700, 1500), hold=6.0, rate=10.0, load_nm=0.4)
+    return path
+
+
+def test_round_trip_recovers_each_identifiable_parameter(capture_file: Path, tmp_path: Path) -> None:
+    base = load_profile()
+    capture = load_capture(str(capture_file), base)
+    result = fit(capture, base)
+    found = {f.parameter.name: f for f in result.fitted}
+    for name, (true, tolerance) in TRUE.items():
+        assert found[name].identified, (name, found[name].why)
+        assert found[name].value == pytest.approx(true, rel=tolerance), name
+    for name in ("thermal.time_constant_s", "thermal.resistance_k_per_w"):  # a minute moves no temperature
+        assert not found[name].identified
+        assert found[name].why.startswith("the temperature moved 0.")
+        assert found[name].value == found[name].base
+    assert result.turnaround is not None
+    assert result.turnaround.value == pytest.approx(TURNAROUND_MS, abs=0.01)
+    assert result.load_nm is not None and result.load_nm[0] == pytest.approx(0.4, rel=0.05)
+    assert result.states_differ == 0 and result.states_compared > 50
+    # fitted, the model differs from every compared read only by the read noise and the registers' resolution
+    bound = {Reg.OUTPUT_CURRENT: 0.015, Reg.MOTOR_SPEED: NOISE_RPM + 1.0, Reg.OUTPUT_VOLTAGE: 0.1}
+    bound |= {Reg.BUS_VOLTAGE: 0.1, Reg.TEMPERATURE: 0.1}
+    for address, (_, recorded, model) in result.after.items():
+        worst = max(abs(m - r) for m, r in zip(model, recorded, strict=True))
+        assert worst <= bound[address], (hex(address), worst)
+    before_current = result.before[Reg.OUTPUT_CURRENT]
+    assert max(abs(m - r) for _, r, m in zip(*before_current, strict=True)) > 0.3  # the shipped profile did not fit
+
+    profile = write_profile(result, tmp_path / "mydrive.toml", capture_file.name)
+    reloaded = load_profile(str(tmp_path / "mydrive.toml"))  # c20sim's own loader
+    assert reloaded.motor == profile.motor and reloaded.name == "mydrive"
+    assert reloaded.motor.kt_nm_per_a == pytest.approx(0.140, rel=0.01)
+    text = (tmp_path / "mydrive.toml").read_text()
+    assert f"# fitted from {capture_file.name}, +-" in text
+    assert text.count("fitted from") == 7  # six parameters and the turnaround; thermal kept from the base
+    assert reloaded.thermal == base.thermal
+
+
+def test_replay_against_the_fitted_profile_differs_only_within_the_noise(capture_file: Path, tmp_path: Path) -> None:
+    base = load_profile()
+    result = fit(load_capture(str(capture_file), base), base)
+    profile = write_profile(result, tmp_path / "mydrive.toml", capture_file.name)
+    records = load_frame_log(str(capture_file))
+    replayed = replay(records, Simulator(profile, [1], clock=VirtualClock()))
+    shipped = replay(records, Simulator(base, [1], clock=VirtualClock()))
+    assert len(replayed.differences) < len(shipped.differences) / 2
+    on, off = (r.t for r in records if r.kind == "mark")  # replay knows nothing of the load applied by hand
+    worst: dict[int, int] = {}
+    for difference in replayed.differences:
+        if on <= difference.exchange.record.t <= off + 0.5:
+            continue
+        request = decode_request(difference.exchange.record.data)
+        assert isinstance(request, ReadRequest), difference.text  # every write is answered as the drive did
+        recorded = decode_response(difference.exchange.reply)
+        simulated = decode_response(difference.simulated)
+        assert isinstance(recorded, ReadResponse) and isinstance(simulated, ReadResponse)
+        gap = abs(recorded.values[0] - simulated.values[0])
+        worst[request.start] = max(worst.get(request.start, 0), gap)
+    # raw units: the speed by the noise (twice: the log's and the replay's own), the rest by a unit or two
+    assert worst.get(Reg.MOTOR_SPEED, 0) <= 2 * NOISE_RPM + 1
+    assert all(gap <= 2 for address, gap in worst.items() if address != Reg.MOTOR_SPEED), worst
+
+
+def test_the_command_writes_profile_report_and_plots(
+    capture_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, report = tmp_path / "mydrive.toml", tmp_path / "report"
+    assert main(["fit", str(capture_file), "--out", str(out), "--report", str(report)]) == 0
+    printed = capsys.readouterr().out
+    assert "thermal.time_constant_s" in printed and "not identifiable from this capture" in printed
+    assert f"wrote {out} (mydrive)" in printed
+    assert load_profile(str(out)).name == "mydrive"
+    words = (report / "report.md").read_text()
+    assert "motor.kt_nm_per_a" in words and "![current](current.png)" in words
+    for name in ("current", "speed", "output-voltage", "bus-voltage", "temperature"):
+        png = (report / f"{name}.png").read_bytes()
+        assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
+        assert (report / f"{name}.svg").read_text().lstrip().startswith("<?xml")
+
+
+def _log(tmp_path: Path, frames: list[tuple[bytes, bytes]], name: str = "log.jsonl") -> Path:
+    lines = []
+    for i, (request, reply) in enumerate(frames):
+        lines.append(json.dumps({"t": i * 0.1, "dir": "rx", "hex": request.hex(" ")}))
+        lines.append(json.dumps({"t": i * 0.1 + 0.004, "dir": "tx", "hex": reply.hex(" ")}))
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _fit_error(path: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> str:
+    assert main(["fit", str(path), "--out", str(tmp_path / "out.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert not (tmp_path / "out.toml").exists()
+    return err
+
+
+def test_a_log_without_physical_reads(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    read = encode(ReadRequest(1, 0x2001, 1)), encode(ReadResponse(1, (1500,)))
+    path = _log(tmp_path, [read] * 10)
+    assert _fit_error(path, capsys, tmp_path) == (
+        f"c20sim: {path}: no answered reads of physical quantities (3000H-3011H, 2100H-2102H) from drive 1: "
+        "nothing to fit; make a capture with: c20sim exercise PORT --out FILE\n"
+    )
+
+
+def test_another_devices_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    other = encode(ReadRequest(1, 0x0100, 1)), encode(ReadResponse(1, (7,)))
+    path = _log(tmp_path, [other] * 8 + [(encode(ReadRequest(1, 0x3006, 1)), encode(ReadResponse(1, (0,))))])
+    assert _fit_error(path, capsys, tmp_path) == (
+        f"c20sim: {path}: not a C20's traffic: 8 of 9 requests are nothing a C20 answers "
+        "(first: line 1: register 0100H); is it another device's log?\n"
+    )
+    ident = encode(ReadRequest(1, 0x2103, 1)), encode(ReadResponse(1, (0x42,)))
+    path = _log(tmp_path, [ident, (encode(ReadRequest(1, 0x3006, 1)), encode(ReadResponse(1, (0,))))], "id.jsonl")
+    assert _fit_error(path, capsys, tmp_path) == (
+        f"c20sim: {path}: line 1: the drive ID (2103H) reads 0x0042, a C20 reads 0x0020: another device's log\n"
+    )
+
+
+def test_a_truncated_file(capture_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = capture_file.read_text()
+    cut = tmp_path / "cut.jsonl"
+    cut.write_text(text[: len(text) // 2 - 7])  # the power went mid-write
+    lines = cut.read_text().count("\n") + 1
+    assert _fit_error(cut, capsys, tmp_path) == (
+        f"c20sim: {cut}: truncated: its last line ({lines}) is cut short; remove that line, or record again\n"
+    )
+
+
+def test_a_capture_that_changes_the_baud(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    speed = encode(ReadRequest(1, 0x3006, 1)), encode(ReadResponse(1, (0,)))
+    change = encode(WriteSingleRequest(1, Reg.BAUD, 5)), encode(WriteSingleRequest(1, Reg.BAUD, 5))
+    path = _log(tmp_path, [speed, speed, change, speed])
+    assert _fit_error(path, capsys, tmp_path) == (
+        f"c20sim: {path}: line 5: the master changes the baud (2009H = 38400 baud) mid-capture; a fit needs one "
+        "baud all through: record again without the change\n"
+    )
+
+
+def test_the_capture_is_the_frame_log_replay_reads(capture_file: Path) -> None:
+    records = load_frame_log(str(capture_file))
+    marks = [r for r in records if r.kind == "mark"]
+    assert [m.note for m in marks] == ["load-on", "load-off"] and all(m.data == b"" for m in marks)
+    result = replay(records, Simulator(bench_drive(), [1], clock=VirtualClock()))
+    # the same drive, the same noise seed: the replay matches the capture byte for byte, marks and all, but for
+    # the load the user applied by hand, which replay knows nothing of (and the heat it left in the drive)
+    on, off = (m.t for m in marks)
+    assert result.differences
+    for d in result.differences:
+        heat = d.exchange.record.data[2:4] == bytes.fromhex("300C")
+        assert on <= d.exchange.record.t <= off + 0.5 or (heat and d.exchange.record.t > on), d.text
