@@ -54,7 +54,6 @@ from ..wire.protocol import (
     decode_response,
     encode,
     expected_length,
-    frame_time,
     with_crc,
 )
 from ..wire.registers import BAUD_RATES, Command, Reg, RegisterMap, RegisterSpec, address_label, is_fcode, parse_fcode
@@ -240,18 +239,24 @@ class SerialLink:
         port = self.port
         port.reset_input_buffer()
         port.write(frame)
-        port.flush()
-        deadline = time.monotonic() + timeout + frame_time(len(frame), self.baud)
+        port.flush()  # the request is on the wire: the reply's time counts from here
+        deadline = time.monotonic() + timeout
         buffer = bytearray()
-        while time.monotonic() < deadline and not _reply_complete(buffer):
-            port.timeout = max(0.0, min(0.02, deadline - time.monotonic()))
-            chunk = port.read(256 - len(buffer) if len(buffer) < 256 else 1)
-            if chunk:
-                buffer += chunk
-            if len(buffer) >= 256:
+        wanted = 3  # enough to know the reply's length (an exception's, or a read's byte count)
+        while len(buffer) < wanted:
+            left = deadline - time.monotonic()
+            if left <= 0:
                 break
-        length = expected_length(bytes(buffer[:3]), "response")
-        return bytes(buffer[:length]) if length is not None else bytes(buffer)
+            port.timeout = left
+            chunk = port.read(wanted - len(buffer))  # returns as soon as these bytes are in
+            if not chunk:
+                break
+            buffer += chunk
+            length = expected_length(bytes(buffer[:3]), "response")
+            if length is None and len(buffer) >= 3:
+                break  # not a reply the C20 gives: what came is returned, and refused by its CRC
+            wanted = length if length is not None else 3
+        return bytes(buffer)
 
     def close(self) -> None:
         self.port.close()

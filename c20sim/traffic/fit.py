@@ -494,10 +494,12 @@ def fit(
     )
     x = result.x
     profile_x, load, after_values, states = model(x)
-    # standard uncertainties from the Jacobian at the solution, scaled by the residuals' spread
+    # Standard uncertainties from the Jacobian at the solution. Each quantity's residuals are weighted by
+    # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
+    # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
+    # honest uncertainty is what one read at the register's resolution allows, times the misfit where it is worse.
     jac = result.jac
-    dof = max(1, len(result.fun) - len(x))
-    spread = float(np.sum(result.fun**2) / dof)
+    spread = max(1.0, float(np.sum(result.fun**2)) / max(1, len(compared)))
     try:
         covariance = np.linalg.pinv(jac.T @ jac) * spread
         sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))

@@ -62,6 +62,8 @@ def test_round_trip_recovers_each_identifiable_parameter(capture_file: Path, tmp
     for name, (true, tolerance) in TRUE.items():
         assert found[name].identified, (name, found[name].why)
         assert found[name].value == pytest.approx(true, rel=tolerance), name
+        assert abs(found[name].value - true) <= 3 * found[name].sigma, name  # the +-x written is honest
+        assert found[name].sigma < 0.25 * true, name
     for name in ("thermal.time_constant_s", "thermal.resistance_k_per_w"):  # a minute moves no temperature
         assert not found[name].identified
         assert found[name].why.startswith("the temperature moved 0.")
