@@ -124,6 +124,7 @@ POLL: tuple[int, ...] = (
     Reg.TEMPERATURE,
     Reg.OUTPUT_POWER,
     Reg.STATUS2,
+    Reg.HALL,
 )
 
 #: The settings read once before the programme starts: the fit takes the ramps and pole pairs from them.

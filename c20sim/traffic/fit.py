@@ -88,6 +88,7 @@ COMPARED: dict[int, tuple[str, str, float]] = {
     Reg.OUTPUT_VOLTAGE: ("output voltage", "V", 0.1),
     Reg.BUS_VOLTAGE: ("bus voltage", "V", 0.1),
     Reg.TEMPERATURE: ("temperature", "degC", 0.1),
+    Reg.RAMP_FREQUENCY: ("ramp frequency", "Hz", 0.01),  # no parameter moves it: it shows the ramps' behaviour
 }
 
 #: Reads the least squares look at, at most, per quantity: a long capture is thinned evenly (an hour at 10
@@ -330,6 +331,7 @@ READ_MODEL: dict[int, Reader] = {
     Reg.OUTPUT_VOLTAGE: face.output_volts,
     Reg.BUS_VOLTAGE: lambda d: float(d.motion.bus),
     Reg.TEMPERATURE: lambda d: float(d.motion.temp),
+    Reg.RAMP_FREQUENCY: lambda d: abs(d.motion.ramp) * d.motion.cfg.pole_pairs / 60.0,
 }
 
 
@@ -544,6 +546,7 @@ def fit(
             f"{FIXED_REGISTERS[a].name} {FIXED_REGISTERS[a].describe(v)}" for a, v in sorted(capture.settings.items())
         )
         notes.append(f"the drive's settings, read at the start and given to the model: {words}")
+    notes += _consistency(capture)
     return FitResult(
         capture,
         base,
@@ -559,6 +562,41 @@ def fit(
         notes,
         final,
     )
+
+
+def _consistency(capture: Capture) -> list[str]:
+    """Pole pairs (2002H against 3001H / 3006H) and the Hall codes (3009H), in words."""
+    notes: list[str] = []
+    frequency = capture.reads.get(Reg.OUTPUT_FREQUENCY, [])
+    speed = capture.reads.get(Reg.MOTOR_SPEED, [])
+    ratios: list[float] = []
+    j = 0
+    for read in frequency:  # each output frequency with the speed read next to it
+        while j + 1 < len(speed) and speed[j + 1].t <= read.t:
+            j += 1
+        if speed and read.value and speed[j].value > 200 and abs(speed[j].t - read.t) < 0.5:
+            ratios.append(read.value / 100.0 * 60.0 / speed[j].value)
+    if len(ratios) >= 3:
+        found = statistics.median(ratios)
+        read_pp = capture.settings.get(Reg.POLE_PAIRS)
+        if read_pp is None:
+            notes.append(f"pole pairs: output frequency against speed gives {found:.2f}; 2002H was not read")
+        elif abs(found - read_pp) < 0.25:
+            notes.append(f"pole pairs: output frequency against speed gives {found:.2f}, as 2002H reads ({read_pp})")
+        else:
+            notes.append(
+                f"pole pairs: output frequency against speed gives {found:.2f}, but 2002H reads {read_pp}: "
+                "the motor's pole pairs are set wrong on the drive, or its speed is measured another way"
+            )
+    halls = capture.reads.get(Reg.HALL, [])
+    if halls:
+        bad = sorted({e.value for e in halls if e.value in (0, 7)})
+        seen = sorted({e.value for e in halls})
+        if bad:
+            notes.append(f"Hall codes (3009H): {seen}; {bad} is no healthy sensor's code: check the Hall wiring")
+        else:
+            notes.append(f"Hall codes (3009H): {seen}, each a healthy sensor's")
+    return notes
 
 
 def _baud(profile: Profile) -> int:

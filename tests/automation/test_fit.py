@@ -72,9 +72,12 @@ def test_round_trip_recovers_each_identifiable_parameter(capture_file: Path, tmp
     assert result.turnaround.value == pytest.approx(TURNAROUND_MS, abs=0.01)
     assert result.load_nm is not None and result.load_nm[0] == pytest.approx(0.4, rel=0.05)
     assert result.states_differ == 0 and result.states_compared > 50
+    assert "pole pairs: output frequency against speed gives 4.00, as 2002H reads (4)" in result.notes
+    hall = result.notes[-1]  # codes sampled at random angles: which ones depends on the timing
+    assert hall.startswith("Hall codes (3009H): [1, 2") and hall.endswith("6], each a healthy sensor's")
     # fitted, the model differs from every compared read only by the read noise and the registers' resolution
     bound = {Reg.OUTPUT_CURRENT: 0.015, Reg.MOTOR_SPEED: NOISE_RPM + 1.0, Reg.OUTPUT_VOLTAGE: 0.1}
-    bound |= {Reg.BUS_VOLTAGE: 0.1, Reg.TEMPERATURE: 0.1}
+    bound |= {Reg.BUS_VOLTAGE: 0.1, Reg.TEMPERATURE: 0.1, Reg.RAMP_FREQUENCY: 0.01}
     for address, (_, recorded, model) in result.after.items():
         worst = max(abs(m - r) for m, r in zip(model, recorded, strict=True))
         assert worst <= bound[address], (hex(address), worst)
@@ -127,7 +130,7 @@ def test_the_command_writes_profile_report_and_plots(
     assert load_profile(str(out)).name == "mydrive"
     words = (report / "report.md").read_text()
     assert "motor.kt_nm_per_a" in words and "![current](current.png)" in words
-    for name in ("current", "speed", "output-voltage", "bus-voltage", "temperature"):
+    for name in ("current", "speed", "output-voltage", "bus-voltage", "temperature", "ramp-frequency"):
         png = (report / f"{name}.png").read_bytes()
         assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
         assert (report / f"{name}.svg").read_text().lstrip().startswith("<?xml")
@@ -206,3 +209,18 @@ def test_the_capture_is_the_frame_log_replay_reads(capture_file: Path) -> None:
     for d in result.differences:
         heat = d.exchange.record.data[2:4] == bytes.fromhex("300C")
         assert on <= d.exchange.record.t <= off + 0.5 or (heat and d.exchange.record.t > on), d.text
+
+
+def test_pole_pairs_and_hall_codes_that_do_not_add_up() -> None:
+    from c20sim.traffic.fit import Capture, Event, _consistency
+
+    frequency = [Event(t, "read", Reg.OUTPUT_FREQUENCY, 10000) for t in (1.0, 2.0, 3.0)]  # 100 Hz at 1500 rpm: 4
+    speed = [Event(t - 0.1, "read", Reg.MOTOR_SPEED, 1500) for t in (1.0, 2.0, 3.0)]
+    hall = [Event(t, "read", Reg.HALL, code) for t, code in ((1.5, 3), (2.5, 7))]
+    reads = {Reg.OUTPUT_FREQUENCY: frequency, Reg.MOTOR_SPEED: speed, Reg.HALL: hall}
+    capture = Capture("log", 1, [], reads, [], [], 0, {Reg.POLE_PAIRS: 2})
+    assert _consistency(capture) == [
+        "pole pairs: output frequency against speed gives 4.00, but 2002H reads 2: the motor's pole pairs are set "
+        "wrong on the drive, or its speed is measured another way",
+        "Hall codes (3009H): [3, 7]; [7] is no healthy sensor's code: check the Hall wiring",
+    ]
