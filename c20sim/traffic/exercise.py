@@ -152,6 +152,10 @@ class DriveSilent(C20SimError):
     """No reply (or a broken one) within the timeout."""
 
 
+class Interrupted(C20SimError):
+    """Ctrl-C during the programme; the message says how stopping the drive went."""
+
+
 class DriveRefused(C20SimError):
     """The drive answered an exception."""
 
@@ -272,6 +276,26 @@ def _connect(host: str, port: int, where: str) -> socket.socket:
     return sock
 
 
+def _drain(sock: socket.socket) -> None:
+    """Read and drop whatever the socket holds (bounded: a few KiB at most)."""
+    sock.setblocking(False)
+    try:
+        for _ in range(16):
+            if not sock.recv(256):
+                break
+    except (BlockingIOError, InterruptedError):
+        pass
+    finally:
+        sock.setblocking(True)
+
+
+def _send(sock: socket.socket, data: bytes, where: str) -> None:
+    try:
+        sock.sendall(data)
+    except OSError as exc:
+        raise C20SimError(f"{where}: connection lost: {exc.strerror or exc}") from None
+
+
 class TcpLink:
     """Raw RTU frames over TCP (a serial device server, ``serve --tcp``)."""
 
@@ -280,7 +304,8 @@ class TcpLink:
         self.where = where
 
     def exchange(self, frame: bytes, timeout: float) -> bytes:
-        self.sock.sendall(frame)
+        _drain(self.sock)  # a late reply to an earlier request is not this one's
+        _send(self.sock, frame, self.where)
         deadline = time.monotonic() + timeout
         buffer = bytearray()
         while not _reply_complete(buffer) and len(buffer) < 256:
@@ -333,7 +358,7 @@ class MbapLink:
     def exchange(self, frame: bytes, timeout: float) -> bytes:
         self.transaction = (self.transaction + 1) & 0xFFFF
         unit, pdu = frame[0], frame[1:-2]
-        self.sock.sendall(struct.pack(">HHHB", self.transaction, 0, len(pdu) + 1, unit) + pdu)
+        _send(self.sock, struct.pack(">HHHB", self.transaction, 0, len(pdu) + 1, unit) + pdu, self.where)
         deadline = time.monotonic() + timeout
         while True:
             header = self._recv(7, deadline)
@@ -601,7 +626,7 @@ def run_programme(
     """Run ``steps``, polling :data:`POLL` at ``rate`` reads a second; returns the reads made.
 
     A refusal, silence (:data:`SILENCES_IN_A_ROW` in a row) or a trip stops the drive and raises
-    C20SimError in one line; so does KeyboardInterrupt (re-raised after the stop).
+    C20SimError in one line; KeyboardInterrupt stops it and raises :class:`Interrupted`.
     """
     period = 1.0 / rate
     reads = 0
@@ -649,9 +674,7 @@ def run_programme(
                 if progress is not None:
                     progress(index, len(steps), step, master.clock.now() - begin, step.hold, last)
     except KeyboardInterrupt:
-        if started:
-            _stop(master)
-        raise
+        raise Interrupted(_stop(master) if started else "the drive was not started") from None
     except C20SimError as exc:
         if started:
             raise C20SimError(f"{exc}; {_stop(master)}") from None
@@ -790,8 +813,8 @@ def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: fl
 
         try:
             reads = run_programme(master, steps, rate=args.rate, progress=progress, confirm=confirm)
-        except KeyboardInterrupt:
-            print(f"\ninterrupted: the drive was told to stop; {master.frames} frames in {args.out}", file=sys.stderr)
+        except Interrupted as exc:
+            print(f"\ninterrupted: {exc}; {master.frames} frames in {args.out}", file=sys.stderr)
             return 130
         finally:
             if tty:

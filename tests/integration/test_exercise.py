@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -171,3 +173,29 @@ async def test_exceptions_stop_the_programme_in_one_line(
     assert err.startswith("c20sim: the drive answered exception 0x02 (illegal data address) to read ")
     # the stop was answered with the exception too: the user is told to stop it by hand
     assert err.endswith("stop it by hand\n") and err.count("\n") == 1
+
+
+def test_ctrl_c_stops_the_drive_first(served: dict[str, str], tmp_path: Path) -> None:
+    out = tmp_path / "capture.jsonl"
+    args = ("--out", str(out), "--hold", "30", "--rate", "20")
+    proc = subprocess.Popen(
+        c20sim("exercise", served["pty"], *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    run = encode(WriteSingleRequest(1, 0x2000, 1)).hex(" ").upper()
+    deadline = time.monotonic() + 20
+    while not (out.exists() and run in out.read_text()):  # the drive was started
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.stderr else ""
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 130
+    assert err.startswith("\ninterrupted: the drive was told to stop (2000H = 5); ") and err.count("\n") == 2
+    records = load_frame_log(str(out))
+    stop = encode(WriteSingleRequest(1, 0x2000, 5))
+    assert [r.data for r in records[-2:]] == [stop, stop]  # the last frames: the stop, and its echo
+    client = ModbusSerialClient(served["pty"], framer=FramerType.RTU, timeout=1, retries=0)
+    assert client.connect()
+    try:  # an independent master reads the command in force: stop
+        assert client.read_holding_registers(0x2000, count=1, device_id=1).registers == [5]
+    finally:
+        client.close()
