@@ -345,24 +345,32 @@ def with_values(profile: Profile, values: dict[str, float]) -> Profile:
     return dataclasses.replace(profile, **changes)
 
 
+def given_settings(sim: Simulator, capture: Capture) -> Simulator:
+    """``sim`` with the drive's own ramps and pole pairs, as the capture read them at its start."""
+    slave = sim.slaves[capture.address]
+    for address, value in capture.settings.items():
+        reply = slave.handle(WriteSingleRequest(capture.address, address, value), sim.now(), communicated=False)
+        if isinstance(reply, ExceptionResponse):
+            raise C20SimError(
+                f"{capture.path}: the drive's {FIXED_REGISTERS[address].name} ({address:04X}H = {value}) is outside "
+                "what the base profile allows: give a --profile closer to this drive"
+            )
+    return sim
+
+
 def simulate(
     profile: Profile, capture: Capture, events: Sequence[Event], load_nm: float
 ) -> tuple[dict[int, list[float]], list[tuple[Event, int]]]:
     """Play ``events`` into a fresh model: the compared values at each read, and each state read's model value."""
-    sim = Simulator(profile, [capture.address], clock=VirtualClock())
+    sim = given_settings(Simulator(profile, [capture.address], clock=VirtualClock()), capture)
     drive = sim.drive(capture.address)
-    for address, value in capture.settings.items():
-        drive.write(address, value)  # the drive's own ramps and pole pairs, as read at the start
+    slave = sim.slaves[capture.address]
     values: dict[int, list[float]] = {address: [] for address in COMPARED}
     states: list[tuple[Event, int]] = []
     for event in events:
         sim.run_until(event.t)
-        if event.kind == "write":
-            try:
-                drive.check_write(event.address, event.value)
-                drive.write(event.address, event.value)
-            except (C20SimError, KeyError, ValueError):
-                pass  # the drive answered it, the model refuses it: the state reads will tell
+        if event.kind == "write":  # through the slave, as the drive took it: its access rules, its mirrors
+            slave.handle(WriteSingleRequest(capture.address, event.address, event.value), event.t)
         elif event.kind == "load":
             drive.set_load_torque(load_nm if event.value else 0.0)
         else:
@@ -803,9 +811,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         written = write_report(result, Path(args.report), out)
         print(f"report: {written[0]} ({len(written) - 1} plot file(s))")
     # the replay against the fitted profile: the byte-for-byte view of what remains
-    sim = Simulator(profile, [capture.address], clock=VirtualClock())
-    for address, value in capture.settings.items():
-        sim.drive(capture.address).write(address, value)
+    sim = given_settings(Simulator(profile, [capture.address], clock=VirtualClock()), capture)
     records = _load_records(args.log)
     replayed = replay(records, sim)
     print(

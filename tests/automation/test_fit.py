@@ -14,9 +14,17 @@ from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.traffic.capture import load_frame_log
 from c20sim.traffic.exercise import simulated_capture
-from c20sim.traffic.fit import fit, load_capture, write_profile
+from c20sim.traffic.fit import fit, given_settings, load_capture, write_profile
 from c20sim.traffic.replay import replay
-from c20sim.wire.protocol import ReadRequest, ReadResponse, WriteSingleRequest, decode_request, decode_response, encode
+from c20sim.wire.protocol import (
+    ReadRequest,
+    ReadResponse,
+    WriteSingleRequest,
+    WriteSingleResponse,
+    decode_request,
+    decode_response,
+    encode,
+)
 from c20sim.wire.registers import Reg
 
 NOISE_RPM = 5.0
@@ -49,6 +57,11 @@ def capture_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The identification programme with a load change, on c20sim in virtual time, read noise on."""
     path = tmp_path_factory.mktemp("fit") / "bench.jsonl"
     sim = Simulator(bench_drive(), [1], clock=VirtualClock())
+    # its ramps set on the drive, not the profile's: the fit takes them from the capture's reads of 2003H, 2004H
+    for register, value in ((Reg.ACCEL_TIME, 12), (Reg.DECEL_TIME, 8)):
+        assert sim.slaves[1].handle(WriteSingleRequest(1, register, value), 0.0) == WriteSingleResponse(
+            1, register, value
+        )
     with path.open("w") as out:
         simulated_capture(sim, out, speeds=(900, 1800, 2700, 1500), hold=6.0, rate=10.0, load_nm=0.4)
     return path
@@ -72,6 +85,10 @@ def test_round_trip_recovers_each_identifiable_parameter(capture_file: Path, tmp
     assert result.turnaround.value == pytest.approx(TURNAROUND_MS, abs=0.01)
     assert result.load_nm is not None and result.load_nm[0] == pytest.approx(0.4, rel=0.05)
     assert result.states_differ == 0 and result.states_compared > 50
+    assert result.notes[0] == (
+        "the drive's settings, read at the start and given to the model: motor pole pairs 4, "
+        "acceleration time 1.2 s, deceleration time 0.8 s"
+    )
     assert "pole pairs: output frequency against speed gives 4.00, as 2002H reads (4)" in result.notes
     hall = result.notes[-1]  # codes sampled at random angles: which ones depends on the timing
     assert hall.startswith("Hall codes (3009H): [1, 2") and hall.endswith("6], each a healthy sensor's")
@@ -99,8 +116,9 @@ def test_replay_against_the_fitted_profile_differs_only_within_the_noise(capture
     result = fit(load_capture(str(capture_file), base), base)
     profile = write_profile(result, tmp_path / "mydrive.toml", capture_file.name)
     records = load_frame_log(str(capture_file))
-    replayed = replay(records, Simulator(profile, [1], clock=VirtualClock()))
-    shipped = replay(records, Simulator(base, [1], clock=VirtualClock()))
+    capture = load_capture(str(capture_file), base)
+    replayed = replay(records, given_settings(Simulator(profile, [1], clock=VirtualClock()), capture))
+    shipped = replay(records, given_settings(Simulator(base, [1], clock=VirtualClock()), capture))
     assert len(replayed.differences) < len(shipped.differences) / 2
     on, off = (r.t for r in records if r.kind == "mark")  # replay knows nothing of the load applied by hand
     worst: dict[int, int] = {}
@@ -201,7 +219,10 @@ def test_the_capture_is_the_frame_log_replay_reads(capture_file: Path) -> None:
     records = load_frame_log(str(capture_file))
     marks = [r for r in records if r.kind == "mark"]
     assert [m.note for m in marks] == ["load-on", "load-off"] and all(m.data == b"" for m in marks)
-    result = replay(records, Simulator(bench_drive(), [1], clock=VirtualClock()))
+    sim = Simulator(bench_drive(), [1], clock=VirtualClock())
+    for register, value in ((Reg.ACCEL_TIME, 12), (Reg.DECEL_TIME, 8)):
+        sim.slaves[1].handle(WriteSingleRequest(1, register, value), 0.0)
+    result = replay(records, sim)
     # the same drive, the same noise seed: the replay matches the capture byte for byte, marks and all, but for
     # the load the user applied by hand, which replay knows nothing of (and the heat it left in the drive)
     on, off = (m.t for m in marks)
