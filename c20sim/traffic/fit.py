@@ -469,15 +469,28 @@ def fit(
     fit_load = capture.loads > 0
 
     names = [p.name for p in free]
-    x0 = [1.0] * len(free) + ([1.0] if fit_load else [])
-    scales = [start_values[n] if start_values[n] > 0 else 1.0 for n in names]
+    # Each parameter moves as a multiple of its base value (1 = the base), within the profile format's range and
+    # a factor of 50 either way; a base value of 0 (no viscous friction, say) starts at 0 on a scale of its range.
+    x0: list[float] = []
+    scales: list[float] = []
+    lower: list[float] = []
+    upper: list[float] = []
+    for p in free:
+        low, high = p.bounds(base)
+        start = start_values[p.name]
+        if start > 0:
+            scale, low, high = start, max(low, start / 50.0), min(high, start * 50.0)
+        else:
+            scale = (high - low) / 1000.0 or 1.0
+        x0.append(start / scale)
+        scales.append(scale)
+        lower.append(low / scale)
+        upper.append(high / scale)
     load_scale = 0.25 * base.motor.kt_nm_per_a * base.motor.rated_current_a
-    lower = [max(p.bounds(base)[0], start_values[p.name] / 50.0) / s for p, s in zip(free, scales, strict=True)]
-    upper = [min(p.bounds(base)[1], start_values[p.name] * 50.0) / s for p, s in zip(free, scales, strict=True)]
     if fit_load:
+        x0.append(1.0)
         lower.append(0.0)
         upper.append(20.0)
-    lower = [min(lo, 0.999) for lo in lower]
     recorded = {a: np.array([e.value * COMPARED[a][2] for e in reads]) for a, reads in compared.items()}
     weights = {a: 1.0 / (sigmas[a] * math.sqrt(len(reads))) for a, reads in compared.items()}
     evaluations = [0]

@@ -245,3 +245,31 @@ def test_pole_pairs_and_hall_codes_that_do_not_add_up() -> None:
         "wrong on the drive, or its speed is measured another way",
         "Hall codes (3009H): [3, 7]; [7] is no healthy sensor's code: check the Hall wiring",
     ]
+
+
+def test_a_base_value_of_zero_is_fitted_too(capture_file: Path) -> None:
+    shipped = load_profile()
+    base = dataclasses.replace(shipped, motor=dataclasses.replace(shipped.motor, viscous_nm_per_krpm=0.0))
+    result = fit(load_capture(str(capture_file), base), base)
+    viscous = next(f for f in result.fitted if f.parameter.key == "viscous_nm_per_krpm")
+    assert viscous.identified and viscous.base == 0.0
+    assert viscous.value == pytest.approx(0.030, rel=0.08)
+
+
+@pytest.mark.parametrize(("wire", "expected_ms"), [(False, 2.0), (True, 2.0)])
+def test_the_turnaround_with_and_without_the_replys_wire_time(tmp_path: Path, wire: bool, expected_ms: float) -> None:
+    from c20sim.wire.protocol import frame_time
+
+    reply = encode(ReadResponse(1, (480,)))
+    delay = 0.002 + (frame_time(len(reply), 19200) if wire else 0.0)  # a sniffer on the line, or a pty
+    lines = []
+    for i in range(20):
+        lines.append(json.dumps({"t": i * 0.1, "dir": "rx", "hex": encode(ReadRequest(1, 0x3008, 1)).hex()}))
+        lines.append(json.dumps({"t": i * 0.1 + delay, "dir": "tx", "hex": reply.hex()}))
+    path = tmp_path / "log.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    base = load_profile()
+    result = fit(load_capture(str(path), base), base)
+    assert result.turnaround is not None
+    assert result.turnaround.value == pytest.approx(2.0, abs=1e-6)  # ms: auto tells which the log holds
+    assert {f.parameter.name for f in result.fitted if f.identified} == {"supply.voltage_v"}
