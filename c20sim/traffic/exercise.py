@@ -241,6 +241,12 @@ class SerialLink:
         self.baud = baud
 
     def exchange(self, frame: bytes, timeout: float) -> bytes:
+        try:
+            return self._exchange(frame, timeout)
+        except OSError as exc:  # pyserial's SerialException is one: an adapter unplugged
+            raise C20SimError(f"{self.port.port}: the port failed: {exc}") from None
+
+    def _exchange(self, frame: bytes, timeout: float) -> bytes:
         port = self.port
         port.reset_input_buffer()
         port.write(frame)
@@ -750,7 +756,8 @@ def cmd_exercise(args: argparse.Namespace) -> int:
         raise C20SimError(f"unknown action {action!r}: read, write, or none for the identification programme")
     if not 0 < args.rate <= 100:
         raise C20SimError(f"--rate {args.rate:g}: give reads a second, above 0 and at most 100")
-    link = open_link(args.port, args.baud or 19200, args.parity, args.stopbits)
+    baud = args.baud or BAUD_RATES[min(profile.default(Reg.BAUD), len(BAUD_RATES) - 1)]
+    link = open_link(args.port, baud, args.parity, args.stopbits)
     try:
         if action == "read":
             master = Master(link, registers, args.address, timeout=args.timeout)
@@ -836,7 +843,9 @@ def add_exercise_command(sub: argparse._SubParsersAction[argparse.ArgumentParser
     parser.add_argument("action", nargs="?", help="read or write (none: the identification programme)")
     parser.add_argument("words", nargs="*", help="registers to read; or the register and value to write")
     parser.add_argument("--address", type=int, default=1, help="the drive's address (default 1)")
-    parser.add_argument("--baud", type=int, choices=BAUD_RATES, help="the serial line's baud (default 19200)")
+    parser.add_argument(
+        "--baud", type=int, choices=BAUD_RATES, help="the serial line's baud (default: the profile's, 19200 as shipped)"
+    )
     parser.add_argument("--parity", default="N", choices=["N", "E", "O"], help="serial parity (default N)")
     parser.add_argument("--stopbits", type=int, default=1, choices=[1, 2], help="serial stop bits (default 1)")
     parser.add_argument("--timeout", type=float, default=0.5, help="seconds to wait for a reply (default 0.5)")

@@ -199,3 +199,20 @@ def test_ctrl_c_stops_the_drive_first(served: dict[str, str], tmp_path: Path) ->
         assert client.read_holding_registers(0x2000, count=1, device_id=1).registers == [5]
     finally:
         client.close()
+
+
+def test_the_load_change_is_asked_for_and_marked(served: dict[str, str], tmp_path: Path) -> None:
+    out = tmp_path / "capture.jsonl"
+    args = (served["pty"], "--out", str(out), "--hold", "0.3", "--rate", "20", "--speeds", "1500", "--load-change")
+    result = subprocess.run(c20sim("exercise", *args), input="\n\n", capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "apply the load now, then press Enter (Ctrl-C stops the drive)" in result.stdout
+    assert "take the load off now, then press Enter" in result.stdout
+    marks = [r for r in load_frame_log(str(out)) if r.kind == "mark"]
+    assert [(m.note, m.data) for m in marks] == [("load-on", b""), ("load-off", b"")]
+    # nobody answers (stdin closed): the drive is stopped, and the programme says why
+    result = subprocess.run(c20sim("exercise", *args), input="", capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr == (
+        "c20sim: no answer to 'apply the load now' (stdin closed); the drive was told to stop (2000H = 5)\n"
+    )
