@@ -91,6 +91,9 @@ COMPARED: dict[int, tuple[str, str, float]] = {
     Reg.RAMP_FREQUENCY: ("ramp frequency", "Hz", 0.01),  # no parameter moves it: it shows the ramps' behaviour
 }
 
+#: The state reads compared as states (not fitted): status word 1 and the fault code.
+STATES = (Reg.STATUS1, Reg.FAULT_CODE)
+
 #: Reads the least squares look at, at most, per quantity: a long capture is thinned evenly (an hour at 10
 #: reads a second keeps its transients and every setting; what is dropped are reads of a steady drive).
 MAX_FIT_READS = 2500
@@ -378,7 +381,7 @@ def simulate(
             reader = READ_MODEL.get(event.address)
             if reader is not None:
                 values[event.address].append(reader(drive))
-            elif event.address in (Reg.STATUS1, Reg.FAULT_CODE):
+            elif event.address in STATES:
                 states.append((event, drive.read(event.address)))
     return values, states
 
@@ -438,10 +441,12 @@ def fit(
     notes: list[str] = []
     compared = {a: _thin(capture.reads[a], MAX_FIT_READS) for a in COMPARED if a in capture.reads}
     chosen = {id(e) for reads in compared.values() for e in reads}
-    events = [e for e in capture.events if e.kind != "read" or id(e) in chosen or e.address in (0x2100, 0x2102)]
+    events = [e for e in capture.events if e.kind != "read" or id(e) in chosen or e.address in STATES]
     sigmas = {a: _sigma(a, capture) for a in compared}
 
-    running = [e for e in capture.reads.get(Reg.STATUS1, []) if e.value in (1, 2)]
+    running = any(e.value in (1, 2) for e in capture.reads.get(Reg.STATUS1, ())) or any(
+        e.value for e in capture.reads.get(Reg.MOTOR_SPEED, ())
+    )
     temps = [e.value / 10.0 for e in capture.reads.get(Reg.TEMPERATURE, [])]
     rise = (max(temps) - min(temps)) if temps else 0.0
     speeds = {round(e.value / 10.0) for e in capture.reads.get(Reg.MOTOR_SPEED, []) if e.value > 50}
@@ -512,19 +517,23 @@ def fit(
         f"fitting {len(names)} parameter(s){' and the load' if fit_load else ''} to {sum(map(len, compared.values()))} reads"
     )
     _, _, before_values, _ = model(x0)
-    result = least_squares(
-        residuals, x0, bounds=(lower, upper), method="trf", loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=60
-    )
-    x = result.x
+    if x0:
+        result = least_squares(
+            residuals, x0, bounds=(lower, upper), method="trf", loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=60
+        )
+        if result.status == 0:
+            notes.append("the least squares stopped at their limit of model runs before they converged")
+        x, fun, jac = result.x, result.fun, result.jac
+    else:  # nothing to fit: the comparison and the turnaround only
+        x, fun, jac = np.array([]), residuals(x0), np.zeros((0, 0))
     profile_x, load, after_values, states = model(x)
     # Standard uncertainties from the Jacobian at the solution. Each quantity's residuals are weighted by
     # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
     # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
     # honest uncertainty is what one read at the register's resolution allows, times the misfit where it is worse.
-    jac = result.jac
-    spread = max(1.0, float(np.sum(result.fun**2)) / max(1, len(compared)))
+    spread = max(1.0, float(np.sum(fun**2)) / max(1, len(compared)))
     try:
-        covariance = np.linalg.pinv(jac.T @ jac) * spread
+        covariance = np.linalg.pinv(jac.T @ jac) * spread if len(x) else np.zeros((0, 0))
         sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     except np.linalg.LinAlgError:
         sigma_x = np.full(len(x), np.inf)

@@ -273,3 +273,14 @@ def test_the_turnaround_with_and_without_the_replys_wire_time(tmp_path: Path, wi
     assert result.turnaround is not None
     assert result.turnaround.value == pytest.approx(2.0, abs=1e-6)  # ms: auto tells which the log holds
     assert {f.parameter.name for f in result.fitted if f.identified} == {"supply.voltage_v"}
+
+
+def test_a_capture_of_a_drive_at_rest_fits_nothing_and_says_so(tmp_path: Path) -> None:
+    read = encode(ReadRequest(1, 0x3006, 1)), encode(ReadResponse(1, (0,)))  # speed only, never running
+    path = _log(tmp_path, [read] * 10)
+    base = load_profile()
+    result = fit(load_capture(str(path), base), base)
+    assert not any(f.identified for f in result.fitted)
+    kt = next(f for f in result.fitted if f.parameter.key == "kt_nm_per_a")
+    assert kt.why == "no reads of the output voltage (3003H) while running" and kt.value == 0.127
+    assert result.turnaround is not None and result.turnaround.value == pytest.approx(4.0)
