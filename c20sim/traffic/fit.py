@@ -6,7 +6,8 @@ each request with its reply; the first frame is model time 0, and the model
 runs exactly as long between two requests as the drive did). Each recorded
 read of a physical quantity is compared with the model's value at the same
 time, and bounded nonlinear least squares (:func:`scipy.optimize.least_squares`,
-trust-region reflective, a soft-L1 loss against timing outliers) moves the
+trust-region reflective, scaled by the Jacobian; a plain squared loss, since
+the few reads taken in a ramp are the ones that carry the inertia) moves the
 parameters the capture can reveal, within the ranges the profile format
 allows, until model and drive agree:
 
@@ -94,9 +95,12 @@ COMPARED: dict[int, tuple[str, str, float]] = {
 #: The state reads compared as states (not fitted): status word 1 and the fault code.
 STATES = (Reg.STATUS1, Reg.FAULT_CODE)
 
-#: Reads the least squares look at, at most, per quantity: a long capture is thinned evenly (an hour at 10
-#: reads a second keeps its transients and every setting; what is dropped are reads of a steady drive).
+#: Reads the least squares look at, at most, per quantity: a long capture is thinned (an hour at 10 reads a
+#: second keeps its transients, the seconds after each change; what is dropped are reads of a steady drive).
 MAX_FIT_READS = 2500
+
+#: Seconds after a write or a load change whose reads are always kept when a long capture is thinned.
+TRANSIENT = 5.0
 
 #: A fitted value is kept when its standard uncertainty is below this fraction of it.
 IDENTIFIABLE = 0.25
@@ -389,11 +393,29 @@ def simulate(
 # --- The fit.
 
 
-def _thin(reads: list[Event], limit: int) -> list[Event]:
+def _thin(reads: list[Event], limit: int, changes: Sequence[float]) -> list[Event]:
+    """At most ``limit`` of ``reads``: first those in the :data:`TRANSIENT` seconds after a change (a write, a
+    load mark: the ramps, where inertia shows), then the steady ones, evenly."""
     if len(reads) <= limit:
         return reads
-    stride = len(reads) / limit
-    return [reads[int(i * stride)] for i in range(limit)]
+    moving: list[Event] = []
+    steady: list[Event] = []
+    i = 0
+    for read in reads:
+        while i + 1 < len(changes) and changes[i + 1] <= read.t:
+            i += 1
+        near = bool(changes) and changes[i] <= read.t < changes[i] + TRANSIENT
+        (moving if near else steady).append(read)
+    moving = _evenly(moving, limit)
+    kept = {id(e) for e in moving} | {id(e) for e in _evenly(steady, limit - len(moving))}
+    return [e for e in reads if id(e) in kept]
+
+
+def _evenly(reads: list[Event], count: int) -> list[Event]:
+    if len(reads) <= count:
+        return reads
+    stride = len(reads) / count
+    return [reads[int(i * stride)] for i in range(count)]
 
 
 def _sigma(address: int, capture: Capture) -> float:
@@ -439,7 +461,8 @@ def fit(
     started = time.perf_counter()
     say = progress or (lambda text: None)
     notes: list[str] = []
-    compared = {a: _thin(capture.reads[a], MAX_FIT_READS) for a in COMPARED if a in capture.reads}
+    changes = [e.t for e in capture.events if e.kind != "read"]
+    compared = {a: _thin(capture.reads[a], MAX_FIT_READS, changes) for a in COMPARED if a in capture.reads}
     chosen = {id(e) for reads in compared.values() for e in reads}
     events = [e for e in capture.events if e.kind != "read" or id(e) in chosen or e.address in STATES]
     sigmas = {a: _sigma(a, capture) for a in compared}
@@ -519,7 +542,7 @@ def fit(
     _, _, before_values, _ = model(x0)
     if x0:
         result = least_squares(
-            residuals, x0, bounds=(lower, upper), method="trf", loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=60
+            residuals, x0, bounds=(lower, upper), method="trf", x_scale="jac", diff_step=1e-3, max_nfev=60
         )
         if result.status == 0:
             notes.append("the least squares stopped at their limit of model runs before they converged")
