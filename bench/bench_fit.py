@@ -4,7 +4,8 @@ The capture is the identification programme (speed steps, a load change, a
 stop) run on c20sim in virtual time by the same master ``c20sim exercise``
 uses (:func:`c20sim.traffic.exercise.simulated_capture`), with each hold long
 enough that the whole lasts an hour, on a drive the fit does not see (inertia,
-friction, Kt, supply resistance, turnaround changed, read noise on). The fit
+friction, Kt, supply resistance, turnaround, the thermal constants changed,
+read noise on). The fit
 starts from the shipped profile. Printed: the capture's size, the wall and CPU
 seconds of loading and fitting it, the same figures for one ``c20sim replay``
 of it in the same process (a reference), and what the fit found.
@@ -18,7 +19,9 @@ import dataclasses
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
@@ -32,6 +35,8 @@ from c20sim.traffic.exercise import simulated_capture  # noqa: E402
 from c20sim.traffic.fit import fit, load_capture, summary  # noqa: E402
 from c20sim.traffic.replay import replay  # noqa: E402
 
+T = TypeVar("T")
+
 SPEEDS = (900.0, 1800.0, 2700.0, 1500.0)
 HOLD = 595.0  # s: 4 speeds and the load on and off, each held this long: an hour in all
 
@@ -44,10 +49,11 @@ def bench_drive() -> Profile:
         supply=dataclasses.replace(base.supply, source_resistance_ohm=0.30),
         protocol=dataclasses.replace(base.protocol, turnaround_ms=3.5),
         control=dataclasses.replace(base.control, speed_noise_rpm=5.0, noise_seed=11),
+        thermal=dataclasses.replace(base.thermal, time_constant_s=300.0, resistance_k_per_w=1.5),
     )
 
 
-def timed(work):  # type: ignore[no-untyped-def]
+def timed(work: Callable[[], T]) -> tuple[T, float, float]:
     wall, cpu = time.perf_counter(), time.process_time()
     result = work()
     return result, time.perf_counter() - wall, time.process_time() - cpu

@@ -472,7 +472,7 @@ def fit(
     )
     temps = [e.value / 10.0 for e in capture.reads.get(Reg.TEMPERATURE, [])]
     rise = (max(temps) - min(temps)) if temps else 0.0
-    speeds = {round(e.value / 10.0) for e in capture.reads.get(Reg.MOTOR_SPEED, []) if e.value > 50}
+    speeds = _held_speeds(capture)
     reasons: dict[str, str] = {}
     if Reg.OUTPUT_VOLTAGE not in compared or not running:
         reasons["motor.kt_nm_per_a"] = "no reads of the output voltage (3003H) while running"
@@ -615,6 +615,19 @@ def fit(
         notes,
         final,
     )
+
+
+def _held_speeds(capture: Capture) -> set[int]:
+    """The speeds the drive was held at: the set speeds written (2001H), or else the speeds read often
+    (at least 10 reads within 50 rpm of each other)."""
+    written = {e.value for e in capture.events if e.kind == "write" and e.address == Reg.SPEED_SETPOINT and e.value}
+    if written:
+        return written
+    counts: dict[int, int] = {}
+    for read in capture.reads.get(Reg.MOTOR_SPEED, ()):
+        if read.value > 50:
+            counts[round(read.value / 50.0)] = counts.get(round(read.value / 50.0), 0) + 1
+    return {key * 50 for key, count in counts.items() if count >= 10}
 
 
 def _consistency(capture: Capture) -> list[str]:

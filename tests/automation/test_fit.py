@@ -284,3 +284,25 @@ def test_a_capture_of_a_drive_at_rest_fits_nothing_and_says_so(tmp_path: Path) -
     kt = next(f for f in result.fitted if f.parameter.key == "kt_nm_per_a")
     assert kt.why == "no reads of the output voltage (3003H) while running" and kt.value == 0.127
     assert result.turnaround is not None and result.turnaround.value == pytest.approx(4.0)
+
+
+def test_a_long_capture_under_load_identifies_the_thermal_constants(tmp_path: Path) -> None:
+    true = bench_drive()
+    true = dataclasses.replace(
+        true, thermal=dataclasses.replace(true.thermal, time_constant_s=300.0, resistance_k_per_w=1.5)
+    )
+    path = tmp_path / "long.jsonl"
+    sim = Simulator(true, [1], clock=VirtualClock())
+    with path.open("w") as out:  # 20 minutes: the drive warms by about 6 K under the load, and cools
+        simulated_capture(sim, out, speeds=(1500,), hold=400.0, rate=5.0, load_nm=0.6)
+    base = load_profile()
+    result = fit(load_capture(str(path), base), base)
+    found = {f.parameter.name: f for f in result.fitted}
+    for name, value in (("thermal.time_constant_s", 300.0), ("thermal.resistance_k_per_w", 1.5)):
+        assert found[name].identified, found[name].why
+        assert found[name].value == pytest.approx(value, rel=0.03)
+        assert abs(found[name].value - value) <= 3 * found[name].sigma
+    # one speed only: friction and viscous friction are one sum, and the fit says so
+    assert found["motor.viscous_nm_per_krpm"].why == (
+        "the capture holds one speed only: friction and viscous are one sum"
+    )
