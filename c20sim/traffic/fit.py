@@ -470,7 +470,7 @@ def fit(
     running = any(e.value in (1, 2) for e in capture.reads.get(Reg.STATUS1, ())) or any(
         e.value for e in capture.reads.get(Reg.MOTOR_SPEED, ())
     )
-    temps = [e.value / 10.0 for e in capture.reads.get(Reg.TEMPERATURE, [])]
+    temps = [_units(e) for e in capture.reads.get(Reg.TEMPERATURE, [])]
     rise = (max(temps) - min(temps)) if temps else 0.0
     speeds = _held_speeds(capture)
     reasons: dict[str, str] = {}
@@ -519,7 +519,7 @@ def fit(
         x0.append(1.0)
         lower.append(0.0)
         upper.append(20.0)
-    recorded = {a: np.array([e.value * COMPARED[a][2] for e in reads]) for a, reads in compared.items()}
+    recorded = {a: np.array([_units(e) for e in reads]) for a, reads in compared.items()}
     weights = {a: 1.0 / (sigmas[a] * math.sqrt(len(reads))) for a, reads in compared.items()}
     evaluations = [0]
 
@@ -617,6 +617,11 @@ def fit(
     )
 
 
+def _units(read: Event) -> float:
+    """A read's value in its register's units (the temperature is signed)."""
+    return FIXED_REGISTERS[read.address].engineering(read.value)
+
+
 def _held_speeds(capture: Capture) -> set[int]:
     """The speeds the drive was held at: the set speeds written (2001H), or else the speeds read often
     (at least 10 reads within 50 rpm of each other)."""
@@ -696,7 +701,7 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
     temps = result.capture.reads.get(Reg.TEMPERATURE)
     if temps:
         changes[("thermal", "ambient_c")] = (
-            f"{temps[0].value / 10.0:.4g}  # the drive's temperature when {log_name} began (was {_format(base.thermal.ambient_c)})"
+            f"{_units(temps[0]):.4g}  # the drive's temperature when {log_name} began (was {_format(base.thermal.ambient_c)})"
         )
     lines = text.splitlines()
     section = ""
@@ -874,7 +879,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     replayed = replay(records, sim)
     print(
         f"replay against {out}: {replayed.exchanges - len(replayed.differences)} of {replayed.exchanges} replies "
-        "match byte for byte (the rest within the noise above)"
+        "match byte for byte; the rms differences above say by how much the rest differ"
     )
     return 0
 
