@@ -43,7 +43,6 @@ from ..wire.decode import describe
 from ..wire.errors import C20SimError
 from ..wire.protocol import (
     ExceptionCode,
-    ExceptionResponse,
     ReadRequest,
     ReadResponse,
     Request,
@@ -146,6 +145,10 @@ STATUS_STOPPED = 3
 
 #: The marks of a load change in the log: ``{"dir": "rx", "hex": "", "kind": "mark", "note": "load-on"}``.
 LOAD_ON, LOAD_OFF = "load-on", "load-off"
+
+
+#: The exceptions a Modbus TCP gateway adds (Modbus application protocol, 7).
+GATEWAY = {0x0A: "gateway path unavailable", 0x0B: "gateway: the drive did not answer"}
 
 
 class DriveSilent(C20SimError):
@@ -482,13 +485,13 @@ class Master:
         self.log = log
         self.frames = 0
 
-    def _record(self, t: float, direction: str, data: bytes, message: Request | Response | None, after: Any) -> None:
+    def _record(
+        self, t: float, direction: str, data: bytes, message: Request | Response | None, after: Any, words: str = ""
+    ) -> None:
         if self.log is None:
             return
-        kind = "request" if direction == "rx" else "reply"
-        if isinstance(message, ExceptionResponse):
-            kind = "exception"
-        text = describe(message, self.registers, after) if message is not None else "broken reply"
+        kind = "request" if direction == "rx" else "exception" if words else "reply"
+        text = words or (describe(message, self.registers, after) if message is not None else "broken reply")
         item = {"t": round(t, 6), "dir": direction, "hex": data.hex(" ").upper(), "kind": kind}
         item |= {"slave": self.address, "text": text}
         self.log.write(json.dumps(item) + "\n")
@@ -511,15 +514,18 @@ class Master:
         if not crc_ok(reply):
             self._record(t, "tx", reply, None, request)
             raise DriveSilent(f"a broken reply (bad CRC) to {what}: {reply.hex(' ').upper()}")
-        response = decode_response(reply)
+        if len(reply) == 5 and reply[1] & 0x80:  # an exception: the sheet's, or a gateway's (0x0A, 0x0B)
+            code = reply[2]
+            name = ExceptionCode(code).meaning if code in ExceptionCode._value2member_map_ else GATEWAY.get(code, "")
+            words = f"exception 0x{code:02X}{' (' + name + ')' if name else ''}"
+            self._record(t, "tx", reply, None, request, words)
+            raise DriveRefused(f"the drive answered {words} to {what}", code)
+        try:
+            response = decode_response(reply)
+        except ValueError as exc:
+            self._record(t, "tx", reply, None, request)
+            raise DriveSilent(f"a broken reply to {what}: {exc}: {reply.hex(' ').upper()}") from None
         self._record(t, "tx", reply, response, request)
-        if isinstance(response, ExceptionResponse):
-            code = int(response.code)
-            name = ExceptionCode(code).meaning if code in ExceptionCode._value2member_map_ else ""
-            raise DriveRefused(
-                f"the drive answered exception 0x{int(response.code):02X}{' (' + name + ')' if name else ''} to {what}",
-                int(response.code),
-            )
         return response
 
     def read(self, address: int) -> int:

@@ -216,3 +216,14 @@ def test_the_load_change_is_asked_for_and_marked(served: dict[str, str], tmp_pat
     assert result.stderr == (
         "c20sim: no answer to 'apply the load now' (stdin closed); the drive was told to stop (2000H = 5)\n"
     )
+
+
+async def test_a_gateways_exception_is_named(serve: ServeFactory, capsys: pytest.CaptureFixture[str]) -> None:
+    served = await serve()
+    served.sim.link_faults(1).offline = True  # the drive behind the gateway says nothing: the gateway answers 0x0B
+    port = f"modbus-tcp://127.0.0.1:{served.modbus_tcp_port}"
+    loop = asyncio.get_running_loop()
+    assert await loop.run_in_executor(None, main, ["exercise", port, "read", "bus", "--timeout", "3"]) == 2
+    assert capsys.readouterr().err == (
+        "c20sim: the drive answered exception 0x0B (gateway: the drive did not answer) to read 3008H (DC bus voltage)\n"
+    )
