@@ -762,6 +762,10 @@ def cmd_exercise(args: argparse.Namespace) -> int:
         raise C20SimError(f"unknown action {action!r}: read, write, or none for the identification programme")
     if not 0 < args.rate <= 100:
         raise C20SimError(f"--rate {args.rate:g}: give reads a second, above 0 and at most 100")
+    if not 0 <= args.hold <= 86400:
+        raise C20SimError(f"--hold {args.hold:g}: give seconds, from 0 to 86400 (a day)")
+    if not 0 < args.timeout <= 60:
+        raise C20SimError(f"--timeout {args.timeout:g}: give seconds, above 0 and at most 60")
     baud = args.baud or BAUD_RATES[min(profile.default(Reg.BAUD), len(BAUD_RATES) - 1)]
     link = open_link(args.port, baud, args.parity, args.stopbits)
     try:

@@ -77,6 +77,9 @@ def test_read_and_write_by_name_in_units_on_every_transport(served: dict[str, st
         (["write", "setpoint", "4000"], "c20sim: 2001H communication speed setting: 4000 is outside 0 rpm to 3000 rpm"),
         (["write", "speed", "10"], "c20sim: 3006H motor speed is read-only"),
         ([], "c20sim: give --out FILE for the capture, or an action"),
+        (["--out", "x.jsonl", "--hold", "-1"], "c20sim: --hold -1: give seconds, from 0 to 86400 (a day)"),
+        (["--out", "x.jsonl", "--rate", "0"], "c20sim: --rate 0: give reads a second, above 0 and at most 100"),
+        (["read", "speed", "--timeout", "0"], "c20sim: --timeout 0: give seconds, above 0 and at most 60"),
     ],
 )
 def test_bad_words_are_one_line(served: dict[str, str], words: list[str], message: str) -> None:
