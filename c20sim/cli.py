@@ -27,6 +27,8 @@ from .scenario.schema import add_schema_command
 from .scenario.suite import add_run_scenario_command
 from .serve import ServeOptions, pty_supported, run, run_server
 from .traffic.capture import add_decode_command
+from .traffic.exercise import add_exercise_command
+from .traffic.fit import add_fit_command
 from .traffic.record import add_record_command
 from .traffic.replay import add_replay_command
 from .wire.errors import C20SimError
@@ -375,6 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_plant_commands(sub)
     add_record_command(sub)
     add_replay_command(sub)
+    add_exercise_command(sub)
+    add_fit_command(sub)
     return parser
 
 
