@@ -455,8 +455,13 @@ def fit(
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
     """Fit the parameters the capture reveals; the rest stay as in ``base``."""
-    import numpy as np
-    from scipy.optimize import least_squares
+    try:
+        import numpy as np
+        from scipy.optimize import least_squares
+    except ImportError:
+        raise C20SimError(
+            "c20sim fit needs scipy, which the simulator itself does not: pip install 'c20sim[fit]'"
+        ) from None
 
     started = time.perf_counter()
     say = progress or (lambda text: None)

@@ -306,3 +306,24 @@ def test_a_long_capture_under_load_identifies_the_thermal_constants(tmp_path: Pa
     assert found["motor.viscous_nm_per_krpm"].why == (
         "the capture holds one speed only: friction and viscous are one sum"
     )
+
+
+def test_without_scipy_fit_says_what_to_install(capture_file: Path, tmp_path: Path) -> None:
+    """scipy is the fit's extra, not the simulator's: where it is missing, one line says how to get it."""
+    import subprocess
+    import sys
+
+    blocked = "import sys; sys.modules['scipy'] = None; from c20sim.cli import main; sys.exit(main(sys.argv[1:]))"
+    out = tmp_path / "out.toml"
+    done = subprocess.run(
+        [sys.executable, "-c", blocked, "fit", str(capture_file), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert (done.returncode, done.stderr) == (
+        2,
+        "c20sim: c20sim fit needs scipy, which the simulator itself does not: pip install 'c20sim[fit]'\n",
+    )
+    assert not out.exists()
