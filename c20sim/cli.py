@@ -28,6 +28,8 @@ from .scenario.suite import add_run_scenario_command
 from .serve import ServeOptions, pty_supported, run, run_server
 from .traffic.auditlog import add_audit_command
 from .traffic.capture import add_decode_command
+from .traffic.exercise import add_exercise_command
+from .traffic.fit import add_fit_command
 from .traffic.record import add_record_command
 from .traffic.replay import add_replay_command
 from .wire.errors import C20SimError
@@ -384,6 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_plant_commands(sub)
     add_record_command(sub)
     add_replay_command(sub)
+    add_exercise_command(sub)
+    add_fit_command(sub)
     return parser
 
 
