@@ -346,6 +346,9 @@ def overheat_seconds(profile: Profile, from_c: float | None = None) -> float:
 
 
 def _words(change: Mapping[str, object]) -> str:
-    return ", ".join(
-        f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}" for key, value in change.items()
-    )
+    def said(value: object) -> str:
+        if isinstance(value, float):
+            return f"{value:g}"
+        return "none" if value is None else str(value)  # a mended Hall sensor: hall_fault none
+
+    return ", ".join(f"{key} {said(value)}" for key, value in change.items())

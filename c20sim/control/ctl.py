@@ -26,6 +26,7 @@ from typing import Any
 
 from ..drive.files import FileReadError, read_bytes
 from ..wire.errors import C20SimError
+from ..wire.registers import RUN_CHANNELS, Command, RunChannel
 from . import routes
 
 __all__ = ["add_ctl_command", "call", "render", "rounded"]
@@ -114,13 +115,13 @@ def call(
         ) from None
 
 
-def _pairs(words: list[str]) -> dict[str, object]:
+def _pairs(words: list[str], example: str = "supply_v=30") -> dict[str, object]:
     """``supply_v=30 hall_fault=stuck0 offline=true`` -> values, each read as JSON where it parses."""
     out: dict[str, object] = {}
     for word in words:
         key, eq, text = word.partition("=")
         if not eq or not key:
-            raise C20SimError(f"{word!r}: give KEY=VALUE, such as supply_v=30")
+            raise C20SimError(f"{word!r}: give KEY=VALUE, such as {example}")
         try:
             out[key] = json.loads(text)
         except json.JSONDecodeError:
@@ -216,9 +217,17 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
     """Why the drive refused what was asked, or None if it did it."""
     if not isinstance(result, dict):
         return None
+    no_fault = result.get("state") != "fault"
     if action == "key" and result.get("accepted") is False:
-        return f"key {args.key}: refused by the drive ({result.get('state')}, run channel {result.get('run_channel')})"
-    if action == "clear" and not args.no_reset and result.get("reset") is False:
+        if _is_reset(args.key) and no_fault:
+            return None  # nothing to reset: the panel's reset does nothing then, and that is no refusal
+        channel = result.get("run_channel")
+        said = f"key {args.key}: refused by the drive ({result.get('state')}, run channel {channel}"
+        if channel != RunChannel.KEYPAD and not _is_reset(args.key):
+            said += f" = {RUN_CHANNELS.get(int(channel), channel) if isinstance(channel, int) else channel}"
+            return said + "); the panel's run keys need the keypad channel: ctl run-channel keypad"
+        return said + ")"
+    if action == "clear" and not args.no_reset and result.get("reset") is False and not no_fault:
         return (
             f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}; "
             "the cause is ended, but the drive may need time to recover (the bus to charge, the module to cool): "
@@ -342,7 +351,7 @@ def _derived_call(api: Callable[..., Any], row: routes.Route, args: argparse.Nam
             parameters[name] = getattr(args, name)
     data: dict[str, object] = {}
     if row.whole is not None:
-        data = _pairs(args.values)
+        data = _pairs(args.values, "offline=true" if "link" in row.path else "supply_v=30")
     elif row.method == "DELETE" and isinstance(getattr(args, "clear", None), str):
         if args.clear:
             data = {row.fields[0].name: args.clear}
@@ -364,7 +373,9 @@ def _shaped_call(api: Callable[..., Any], action: str, args: argparse.Namespace)
         return row.method, row.url(**parameters)
 
     if action == "fault":
-        if (args.code is None) == (args.cause is None):
+        if args.code is not None and args.cause is not None:
+            raise C20SimError("ctl fault: give a fault code or --cause NAME, not both")
+        if args.code is None and args.cause is None:
             raise C20SimError("ctl fault: give a fault code (such as 16) or --cause NAME (such as undervoltage)")
         request = (
             {"cause": args.cause} if args.cause is not None else {"code": args.code, "persistent": args.persistent}
@@ -393,7 +404,11 @@ def _drive_words(state: Mapping[str, Any]) -> str:
     )
 
 
-def summary(action: str, result: Any) -> str:
+def _is_reset(key: object) -> bool:
+    return str(key) in ("reset", str(int(Command.RESET)))
+
+
+def summary(action: str, result: Any, key: object = None) -> str:
     """One line in words of what an action did, read from its answer (``--format json`` prints the answer)."""
     if not isinstance(result, dict):
         return json.dumps(result)
@@ -401,9 +416,13 @@ def summary(action: str, result: Any) -> str:
     if result.get("note"):
         said.append(str(result["note"]))
     if "accepted" in result:
-        said.append("accepted" if result["accepted"] else "refused")
+        if action == "key" and not result["accepted"] and result.get("state") != "fault" and _is_reset(key):
+            said.append("no fault to reset")
+        else:
+            said.append("accepted" if result["accepted"] else "refused")
     if action == "clear" and "reset" in result:
-        said.append("reset done" if result["reset"] else "no reset")
+        no_fault = result.get("state") != "fault"
+        said.append("reset done" if result["reset"] else ("no fault to reset" if no_fault else "no reset"))
     if "state" in result and "address" in result:
         said.append(_drive_words(result))
     elif "register" in result and "text" in result:
@@ -461,7 +480,7 @@ def cmd_ctl(args: argparse.Namespace) -> int:
         _write(_frame_lines(result["frames"]))
         return 0
     if args.format is None and _changes(action):
-        _write(f"{_asked(action, args)}: {summary(action, result)}\n")
+        _write(f"{_asked(action, args)}: {summary(action, result, getattr(args, 'key', None))}\n")
     else:
         _write(render(result, args.format or "json"))
     why = _refused(action, args, result)
@@ -506,7 +525,7 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
             _add_derived(parser, rows)
     shaped = actions.choices
     fault = shaped["fault"]
-    fault.add_argument("code", type=int, nargs="?", help="a fault code to latch, such as 16")
+    fault.add_argument("code", type=_raw, nargs="?", help="a fault code to latch, such as 16 or 0x10")
     fault.add_argument("--cause", metavar="NAME", help="a cause, such as undervoltage (see: ctl causes)")
     fault.add_argument("--persistent", action="store_true", help="a reset fails until the fault is cleared")
     clear = shaped["clear"]

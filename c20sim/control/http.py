@@ -217,6 +217,8 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
     """The aiohttp application serving ``api``'s simulator: every row of ``table`` (the control surface's)."""
     sim = api.sim
     table = routes.table() if table is None else table
+    #: what a 404 points to: GET / where it is served, else this listener's own routes (serve --metrics)
+    served = "index" if any(row.name == "index" for row in table.values()) else ", ".join(table)
 
     def reply(data: object, status: int = 200) -> web.Response:
         return web.json_response(data, status=status)
@@ -237,7 +239,9 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             if exc.status >= 400:
                 message = f"{request.method} {request.path}: {exc.reason}"
                 if exc.status == 404:
-                    message += "; see GET / for the routes"
+                    message += (
+                        "; see GET / for the routes" if served == "index" else f"; this listener serves {served} only"
+                    )
                 return reply({"error": message}, exc.status)
             raise
         except Exception as exc:  # a bug: say so in JSON, log the traceback, keep serving

@@ -290,9 +290,19 @@ def write_register(sim: Simulator, address: int, register: str | int, value: obj
     response = sim.slaves[address].handle(WriteSingleRequest(address, reg, raw), sim.now(), communicated=False)
     if isinstance(response, ExceptionResponse):
         code = response.code
-        label = sim.profile.registers[reg].label
+        spec = sim.profile.registers[reg]
+        why = ""
+        if code == ExceptionCode.ILLEGAL_VALUE and not spec.minimum <= raw <= spec.maximum:
+            why = f": {spec.label} takes {spec.minimum}-{spec.maximum}"
+        elif (
+            code == ExceptionCode.OPERATION_FAILED
+            and is_fcode(sim.profile.registers.canonical(reg))
+            and sim.drives[address].read(Reg.WRITE_ENABLE) == 0
+        ):
+            why = ": function codes are locked while 200EH = 0 (write 200EH = 1 first)"
         raise ControlError(
-            f"{label} = {raw} refused: exception 0x{int(code):02X} ({code.meaning}), as a master would get it",
+            f"{spec.label} = {raw} refused: exception 0x{int(code):02X} ({code.meaning}), as a master would get it"
+            + why,
             status=409,
             exception=int(code),
         )

@@ -58,9 +58,14 @@ MBAP_PIPELINE = 4
 WRITE_HIGH_WATER = 16 * 1024
 
 
+#: The port an option's example names, where it is not a wire port's (the README's ports).
+_EXAMPLE_PORTS = {"--control": 8020, "--metrics": 9120, "--modbus-tcp": 1502}
+
+
 def parse_host_port(text: str, option: str) -> tuple[str, int]:
     """``HOST:PORT``, ``[IPV6]:PORT`` (a zone too: ``[fe80::1%eth0]:502``); port 0 asks for a free one."""
-    usage = "give HOST:PORT, such as 127.0.0.1:5020 or [::1]:5020 (port 0 picks a free port)"
+    port = _EXAMPLE_PORTS.get(option, 5020)
+    usage = f"give HOST:PORT, such as 127.0.0.1:{port} or [::1]:{port} (port 0 picks a free port)"
     if text.startswith("["):
         end = text.find("]")
         if end < 0:

@@ -275,7 +275,8 @@ async def test_register_table_edit_and_counters(client: Callable[[Simulator], Aw
     assert await api("PUT", "/drives/1/registers/F00.10", {"value": 2500}) == (
         409,
         {
-            "error": "F00.10 = 2500 refused: exception 0x04 (operation failed), as a master would get it",
+            "error": "F00.10 = 2500 refused: exception 0x04 (operation failed), as a master would get it: "
+            "function codes are locked while 200EH = 0 (write 200EH = 1 first)",
             "exception": 4,
         },
     )

@@ -206,7 +206,7 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
         "c20sim: PUT /drives/1/registers/F00.10: 409: F00.10 = 2500 refused: exception 0x04 (operation failed), "
-        "as a master would get it\n"
+        "as a master would get it: function codes are locked while 200EH = 0 (write 200EH = 1 first)\n"
     )
 
 

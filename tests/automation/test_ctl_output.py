@@ -69,7 +69,10 @@ def test_a_refused_key_exits_1_with_a_line_saying_so(served: tuple[dict[str, str
     result = ctl(ready, "key", "forward")  # the run channel is communication: the panel's forward is refused
     assert result.returncode == 1
     assert result.stdout == "key forward: refused; drive 1: stopped, 0 rpm, bus 48.0 V, no fault\n"
-    assert result.stderr == "c20sim: key forward: refused by the drive (stopped, run channel 2)\n"
+    assert result.stderr == (
+        "c20sim: key forward: refused by the drive (stopped, run channel 2 = communication); "
+        "the panel's run keys need the keypad channel: ctl run-channel keypad\n"
+    )
     result = ctl(ready, "key", "stop", "--format", "json")
     assert (result.returncode, result.stderr) == (0, "")
     assert json.loads(result.stdout)["accepted"] is True
@@ -140,3 +143,32 @@ def test_an_action_prints_one_line_of_what_it_did_and_json_when_asked(served: tu
     as_json = json.loads(ctl(ready, "set", "supply_v=48", "--format", "json").stdout)
     assert (as_json["address"], as_json["conditions"]["supply_v"]) == (1, 48.0)
     assert json.loads(ctl(ready, "causes").stdout)["causes"]["undervoltage"] is False  # a reading: JSON
+
+
+def test_the_new_users_first_refusals_say_why(served: tuple[dict[str, str], Path]) -> None:
+    """What a new user met (a review of the first hour): a reset with no fault is no refusal, a refused run key
+    names the channel and how to change it, a locked function code says so, a fault code may be hex."""
+    _, ready = served
+    result = ctl(ready, "key", "reset")
+    assert (result.returncode, result.stderr) == (0, "")
+    assert result.stdout.startswith("key reset: no fault to reset; drive 1: stopped, 0 rpm, ")
+    result = ctl(ready, "clear")
+    assert (result.returncode, result.stderr) == (0, "")
+    assert result.stdout.startswith("clear: no fault to reset; drive 1: stopped, ")
+    result = ctl(ready, "key", "forward")
+    assert (result.returncode, result.stderr) == (
+        1,
+        "c20sim: key forward: refused by the drive (stopped, run channel 2 = communication); "
+        "the panel's run keys need the keypad channel: ctl run-channel keypad\n",
+    )
+    result = ctl(ready, "write", "2001H", "5000")
+    assert result.stderr.endswith(
+        "2001H = 5000 refused: exception 0x03 (illegal data value), as a master would get it: 2001H takes 0-3000\n"
+    )
+    assert ctl(ready, "fault", "16", "--cause", "overheat").stderr == (
+        "c20sim: ctl fault: give a fault code or --cause NAME, not both\n"
+    )
+    result = ctl(ready, "fault", "0x10")
+    assert (result.returncode, result.stderr) == (0, "")
+    assert result.stdout.endswith(", fault 16 OH2: power module overheat\n")
+    assert ctl(ready, "link", "delay").stderr == "c20sim: 'delay': give KEY=VALUE, such as offline=true\n"

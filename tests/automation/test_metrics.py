@@ -3,6 +3,7 @@ counts a pymodbus master made on the wire."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -98,6 +99,8 @@ def test_serve_metrics_listener_answers_metrics_alone(tmp_path: Path) -> None:
             with pytest.raises(urllib.error.HTTPError) as refused:
                 urllib.request.urlopen(url.removesuffix("/metrics") + other, timeout=10)
             assert refused.value.code == 404
+            said = json.loads(refused.value.read())["error"]
+            assert said == f"GET {other}: Not Found; this listener serves GET /metrics only"
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err

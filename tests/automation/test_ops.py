@@ -241,3 +241,13 @@ def test_whether_a_cause_is_present_is_the_drives_answer_whoever_set_the_conditi
     assert {name for name, on in found.items() if on} == {"external", "stall"}
     for name, cause in causes.CAUSES.items():
         assert found[name] == any(drive.cause_present(fault) for fault in cause.faults)
+
+
+def test_a_mended_hall_sensor_is_said_in_words() -> None:
+    from c20sim.core.clock import VirtualClock
+    from c20sim.core.simulator import Simulator
+    from c20sim.drive.profile import load_profile
+
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    assert causes.trip(sim, 1, "hall") == "drive 1: hall: hall_fault stuck0"
+    assert causes.release(sim, 1, "hall") == "drive 1: hall gone: hall_fault none (reset to clear the fault)"
