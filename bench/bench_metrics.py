@@ -1,8 +1,8 @@
 """What a Prometheus scrape costs the wire: reply latency with ``GET /metrics`` scraped, against without.
 
 One ``c20sim serve`` process (RTU over TCP, a ``--metrics`` listener, the
-default profile with its turnaround set to 0 so that the server's own time
-is what is measured) and one lean blocking master (bench/_common.py) reading
+default profile with its turnaround set to 0 and ``--no-bus-timing``, so that
+the server's own time is what is measured; ``--bus-timing`` for the line's) and one lean blocking master (bench/_common.py) reading
 2100H in a loop. Rounds alternate: quiet (no scrape) and scraped (a thread
 fetching /metrics every ``--every`` seconds, 1 s by default, as a Prometheus
 would; ``--every 0.01`` is a hundred times that). The figure is the ratio of
@@ -31,12 +31,14 @@ from c20sim.wire.protocol import ReadRequest, encode
 from c20sim.wire.registers import Reg
 
 
-def start_server(tmp: Path) -> tuple[subprocess.Popen[bytes], int, str]:
+def start_server(tmp: Path, bus_timing: bool) -> tuple[subprocess.Popen[bytes], int, str]:
     profile = tmp / "fast.toml"
     text = profile_path("c20-400hr").read_text(encoding="utf-8")
     profile.write_text(text.replace("turnaround_ms = 2.0", "turnaround_ms = 0.0", 1), encoding="utf-8")
     ready = tmp / "ready.json"
     command = [sys.executable, "-m", "c20sim", "serve", "--profile", str(profile), "--tcp", "127.0.0.1:0"]
+    if not bus_timing:
+        command.append("--no-bus-timing")  # the server's own time, not the RS485 line's 11.5 ms a read
     proc = subprocess.Popen([*command, "--metrics", "127.0.0.1:0", "--ready-file", str(ready)])
     deadline = time.monotonic() + 20
     while not ready.exists():
@@ -70,9 +72,10 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0, help="each round's length")
     parser.add_argument("--rounds", type=int, default=3, help="rounds of each kind, alternating")
     parser.add_argument("--every", type=float, default=1.0, help="seconds between scrapes")
+    parser.add_argument("--bus-timing", action="store_true", help="serve with bus timing (the line's real time)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        proc, port, url = start_server(Path(tmp))
+        proc, port, url = start_server(Path(tmp), args.bus_timing)
         try:
             client = RawRtuClient("127.0.0.1", port)
             poll(client, 1.0)  # warm up
@@ -91,7 +94,10 @@ def main() -> None:
         finally:
             proc.terminate()
             proc.wait(10)
-    print(f"# {machine()}; {args.rounds} x {args.seconds:g} s rounds of each kind; a scrape every {args.every:g} s")
+    timing = "bus timing on" if args.bus_timing else "--no-bus-timing"
+    print(
+        f"# {machine()}; {args.rounds} x {args.seconds:g} s rounds of each kind; a scrape every {args.every:g} s; {timing}"
+    )
     print(f"{'':<22} {'requests':>9} {'p50 us':>8} {'p99 us':>8} {'max us':>8}")
     figures = {}
     for name, latencies in (("quiet", quiet), (f"scraped ({scrapes[0]} scrapes)", scraped)):
