@@ -29,10 +29,10 @@ with its steady segments (:mod:`~c20sim.drive.integrator`), the Hall sensors
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from . import face
+from .bench import BenchSetters
 from .config import (
     CHANNEL_KEYPAD,
     F_COMM_ACTION,
@@ -68,7 +68,7 @@ __all__ = [
 ]
 
 
-class Drive:
+class Drive(BenchSetters):
     """A ZBLD.C20 brushless drive in virtual time; a :class:`~c20sim.drive.base.DrivePort`.
 
     Its parts: ``bench`` (the conditions as set), ``hall``, ``motion`` (the integrator and its config),
@@ -188,76 +188,6 @@ class Drive:
     def held_fault(self) -> int | None:
         """The code of a fault forced with ``persistent`` and not yet released (resets fail), else None."""
         return self.machine.held_fault
-
-    def set_supply_voltage(self, volts: float) -> None:
-        """The supply behind the DC bus (0 = switched off)."""
-        self.bench.supply = max(0.0, float(volts))
-        self._changed()
-
-    def set_load_torque(self, nm: float) -> None:
-        """Load torque on the shaft, opposing motion (N m)."""
-        self.bench.load = max(0.0, float(nm))
-        self._changed()
-
-    def set_active_load(self, nm: float) -> None:
-        """Signed load torque that acts whatever the motion (a hoist's weight), N m; positive pushes forward.
-
-        Unlike :meth:`set_load_torque` it can drive the rotor: a forward run
-        with a positive active load regenerates, and a held load draws current.
-        """
-        nm = float(nm)
-        if not math.isfinite(nm):
-            raise ValueError(f"active load must be a finite torque in N m, not {nm}")
-        self.bench.active = nm
-        self._changed()
-
-    @property
-    def active_load(self) -> float:
-        """The signed active load torque as set (N m)."""
-        return self.bench.active
-
-    def set_load_inertia(self, kg_m2: float) -> None:
-        """Inertia coupled to the shaft, added to the profile's (kg m^2)."""
-        self.bench.load_inertia = max(0.0, float(kg_m2))
-        self._changed()
-
-    def set_ambient(self, celsius: float) -> None:
-        self.bench.ambient = float(celsius)
-        self._changed()
-
-    def set_hall_fault(self, fault: HallFault | str | None) -> None:
-        """Break the Hall sensor ('stuck0', 'stuck7', 'sequence') or mend it (None)."""
-        self.hall.fault = None if fault is None else HallFault(fault)
-        self._changed()
-
-    def set_ai(self, channel: int, volts: float) -> None:
-        """Analog input 1, 2 or 3 (0-10 V; AI1 is the knob)."""
-        if channel not in (1, 2, 3):
-            raise ValueError(f"analog input must be 1, 2 or 3, not {channel}")
-        self.bench.ai[channel - 1] = min(max(float(volts), 0.0), 10.0)
-        self._changed()
-
-    @property
-    def dial_switches(self) -> tuple[bool, bool, bool]:
-        """The dial switches (SW1, SW2, SW3) as set; True is on."""
-        return self.bench.dial
-
-    def set_dial_switches(self, sw1: bool, sw2: bool, sw3: bool) -> None:
-        """Set the dial switches SW1-SW3; they act where 2005H = 3, 2006H = 3 or 2007H = 5 select them.
-
-        SW1 (2005H = 3) picks the control mode, which the model does not simulate; SW3 (2006H = 3)
-        the run channel; SW2 and SW3 (2007H = 5) the speed source: see
-        :data:`~c20sim.drive.config.DIAL_SPEED_SOURCE`.
-        """
-        self.bench.dial = (bool(sw1), bool(sw2), bool(sw3))
-        self._changed()
-
-    def set_terminal_inputs(self, bits: int) -> None:
-        """The physical input terminals (bits of :class:`~c20sim.drive.terminals.Input`)."""
-        before = self._cfg.inputs
-        self.bench.physical_inputs = int(bits) & 0x1FF
-        self._changed()
-        self.machine.inputs_changed(before)
 
     def force_fault(self, code: int, *, persistent: bool = False) -> None:
         """Latch fault ``code`` now; with ``persistent`` a reset fails until :meth:`release_fault`."""
