@@ -25,6 +25,7 @@ from typing import IO
 
 from ..audit import RULES, Auditor, Finding, Severity
 from ..audit.engine import LineDemand
+from ..drive.files import MAX_DEPTH, json_depth
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES
@@ -71,6 +72,8 @@ def _slow(line: str, number: int, where: str) -> Iterator[tuple[float, str, byte
     def bad(message: str) -> C20SimError:
         return C20SimError(f"{where}: line {number}: {message}")
 
+    if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse (as the frame log's reader checks)
+        raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
     try:
         item = json.loads(line)
     except json.JSONDecodeError:

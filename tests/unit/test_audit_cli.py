@@ -165,3 +165,13 @@ def test_a_modbus_tcp_log_is_judged_by_its_rtu_frames(tmp_path: Path, capsys: py
     report = json.loads(capsys.readouterr().out)
     assert report["frames"] == 600
     assert [(f["rule"], round(f["value"])) for f in report["findings"]] == [("line-demand", 135)]
+
+
+def test_a_deeply_nested_line_is_one_line_not_a_traceback(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A line the fast path does not take (keys in another order) is read by json: its depth is checked first."""
+    log = tmp_path / "deep.jsonl"
+    log.write_text('{"x": ' + "[" * 5000 + "]" * 5000 + ', "t": 1, "dir": "rx", "hex": "01"}\n')
+    assert main(["audit", str(log)]) == 2
+    assert capsys.readouterr().err == (
+        f"c20sim: {log}: line 1: nested deeper than 64 levels; a frame log has one flat JSON object a line\n"
+    )
