@@ -223,6 +223,10 @@ class Link(Protocol):
 
     def exchange(self, frame: bytes, timeout: float) -> bytes: ...
 
+    def receive(self, timeout: float) -> bytes:
+        """The next reply, without sending (after a late reply to an abandoned request was read instead)."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -254,6 +258,16 @@ class SerialLink:
         port.reset_input_buffer()
         port.write(frame)
         port.flush()  # the request is on the wire: the reply's time counts from here
+        return self._receive(timeout)
+
+    def receive(self, timeout: float) -> bytes:
+        try:
+            return self._receive(timeout)
+        except OSError as exc:
+            raise C20SimError(f"{self.port.port}: the port failed: {exc}") from None
+
+    def _receive(self, timeout: float) -> bytes:
+        port = self.port
         deadline = time.monotonic() + timeout
         buffer = bytearray()
         wanted = 3  # enough to know the reply's length (an exception's, or a read's byte count)
@@ -315,6 +329,9 @@ class TcpLink:
     def exchange(self, frame: bytes, timeout: float) -> bytes:
         _drain(self.sock)  # a late reply to an earlier request is not this one's
         _send(self.sock, frame, self.where)
+        return self.receive(timeout)
+
+    def receive(self, timeout: float) -> bytes:
         deadline = time.monotonic() + timeout
         buffer = bytearray()
         while not _reply_complete(buffer) and len(buffer) < 256:
@@ -382,6 +399,9 @@ class MbapLink:
             if transaction == self.transaction:  # an older answer, after its timeout: skip it
                 return with_crc(bytes((reply_unit,)) + body)
 
+    def receive(self, timeout: float) -> bytes:
+        return b""  # the transaction id has told every reply apart already: none is late here
+
     def close(self) -> None:
         self.sock.close()
 
@@ -422,6 +442,9 @@ class SimulatedLink:
         if not reply:
             sim.advance(timeout)
         return reply
+
+    def receive(self, timeout: float) -> bytes:
+        return b""  # each exchange is whole, in virtual time: no reply comes late
 
     def close(self) -> None:
         """Nothing to close."""
@@ -486,7 +509,14 @@ class Master:
         self.frames = 0
 
     def _record(
-        self, t: float, direction: str, data: bytes, message: Request | Response | None, after: Any, words: str = ""
+        self,
+        t: float,
+        direction: str,
+        data: bytes,
+        message: Request | Response | None,
+        after: Any,
+        words: str = "",
+        note: str = "",
     ) -> None:
         if self.log is None:
             return
@@ -494,6 +524,8 @@ class Master:
         text = words or (describe(message, self.registers, after) if message is not None else "broken reply")
         item = {"t": round(t, 6), "dir": direction, "hex": data.hex(" ").upper(), "kind": kind}
         item |= {"slave": self.address, "text": text}
+        if note:
+            item["note"] = note
         self.log.write(json.dumps(item) + "\n")
         self.frames += 1
 
@@ -509,6 +541,16 @@ class Master:
         reply = self.link.exchange(frame, self.timeout)
         t = self.clock.now()
         what = describe(request, self.registers)
+        for _ in range(2):  # a late reply to a request abandoned before (Ctrl-C in a wait) is not this one's
+            if not reply or not crc_ok(reply) or _answers(request, frame, reply):
+                break
+            try:
+                late: Response | None = decode_response(reply)
+            except ValueError:
+                late = None
+            self._record(t, "tx", reply, late, None, note="a late reply to an earlier request: not this one's")
+            reply = self.link.receive(self.timeout)
+            t = self.clock.now()
         if not reply:
             raise DriveSilent(f"no reply to {what} within {self.timeout:g} s")
         if not crc_ok(reply):
@@ -582,6 +624,19 @@ def programme(
     steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True))
     steps.append(Step("at rest after the stop", hold=min(hold, 3.0)))
     return steps
+
+
+def _answers(request: Request, frame: bytes, reply: bytes) -> bool:
+    """Whether ``reply`` can answer ``request``: its slave and function, a write's echo, a read's byte count."""
+    if len(reply) < 5 or reply[0] != frame[0] or reply[1] & 0x7F != frame[1]:
+        return False
+    if reply[1] & 0x80:
+        return True  # an exception to this function
+    if isinstance(request, WriteSingleRequest):
+        return reply == frame
+    if isinstance(request, ReadRequest):
+        return reply[2] == 2 * request.count
+    return True
 
 
 Progress = Callable[[int, int, Step, float, float, dict[int, int]], None]

@@ -59,7 +59,7 @@ WRITE_HIGH_WATER = 16 * 1024
 
 
 #: The port an option's example names, where it is not a wire port's (the README's ports).
-_EXAMPLE_PORTS = {"--control": 8020, "--metrics": 9120, "--modbus-tcp": 1502}
+_EXAMPLE_PORTS = {"--control": 8020, "--metrics": 9120}
 
 
 def parse_host_port(text: str, option: str) -> tuple[str, int]:
