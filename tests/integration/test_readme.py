@@ -208,15 +208,23 @@ class Pane:
     def __init__(self, command: str, folder: Path) -> None:
         self.session = f"c20sim-readme-{uuid.uuid4().hex[:8]}"
         self.status = folder / f"{self.session}.status"
-        subprocess.run(["tmux", "new-session", "-d", "-s", self.session, "-x", "240", "-y", "40"], check=True)
-        subprocess.run(["tmux", "set-option", "-w", "-t", self.session, "remain-on-exit", "on"], check=True)
+        subprocess.run(
+            ["tmux", "-L", self.session, "new-session", "-d", "-s", self.session, "-x", "240", "-y", "40"], check=True
+        )
+        subprocess.run(
+            ["tmux", "-L", self.session, "set-option", "-w", "-t", self.session, "remain-on-exit", "on"], check=True
+        )
         # The pane's environment is the tmux server's, which may be the test run's, COLUMNS and LINES included:
         # left out, the program asks the terminal for its size
         wrapped = f"env -u COLUMNS -u LINES {command}; echo $? > {self.status}"
-        subprocess.run(["tmux", "respawn-pane", "-k", "-t", self.session, "-c", str(ROOT), wrapped], check=True)
+        subprocess.run(
+            ["tmux", "-L", self.session, "respawn-pane", "-k", "-t", self.session, "-c", str(ROOT), wrapped], check=True
+        )
 
     def screen(self) -> str:
-        done = subprocess.run(["tmux", "capture-pane", "-p", "-t", self.session], capture_output=True, text=True)
+        done = subprocess.run(
+            ["tmux", "-L", self.session, "capture-pane", "-p", "-t", self.session], capture_output=True, text=True
+        )
         return done.stdout
 
     def wait_for(self, what: str, check: Callable[[str], bool]) -> None:
@@ -227,17 +235,19 @@ class Pane:
         self.wait_for("the dashboard", lambda screen: "connect: " in screen)
         # a pane made without a client may give the program its size late: a resize makes the screen take it
         for width in ("239", "240"):
-            subprocess.run(["tmux", "resize-window", "-t", self.session, "-x", width, "-y", "40"], check=True)
+            subprocess.run(
+                ["tmux", "-L", self.session, "resize-window", "-t", self.session, "-x", width, "-y", "40"], check=True
+            )
         self.wait_for(f"the title bar: {title}", lambda screen: title in screen)
 
     def quit(self) -> str:
         """Press q; the program's exit status."""
-        subprocess.run(["tmux", "send-keys", "-t", self.session, "q"], check=True)
+        subprocess.run(["tmux", "-L", self.session, "send-keys", "-t", self.session, "q"], check=True)
         wait_for("the program's exit", lambda: self.status.exists() and self.status.read_text().endswith("\n"))
         return self.status.read_text().strip()
 
     def close(self) -> None:
-        subprocess.run(["tmux", "kill-session", "-t", self.session], check=False)
+        subprocess.run(["tmux", "-L", self.session, "kill-session", "-t", self.session], check=False)
 
 
 def python_c20sim(line: str) -> str:

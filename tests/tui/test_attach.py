@@ -48,17 +48,17 @@ def serve(tmp_path: Path) -> Iterator[tuple[Path, dict[str, str]]]:
 def terminal(serve: tuple[Path, dict[str, str]]) -> Iterator[Terminal]:
     ready, _ = serve
     session = f"c20sim-{uuid.uuid4().hex[:8]}"
-    tmux = TMUX or "tmux"
+    tmux = [TMUX or "tmux", "-L", session]  # a tmux server of its own, as Terminal's calls expect
     cwd = Path(__file__).parents[2]
     command = f"{sys.executable} -m c20sim dashboard --attach {ready}"
-    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
+    subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
-        subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
+        subprocess.run([*tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
         terminal = Terminal(session)
         terminal.run(command, cwd, ready.with_name("status"))
         yield terminal
     finally:
-        subprocess.run([tmux, "kill-session", "-t", session], check=False)
+        subprocess.run([*tmux, "kill-session", "-t", session], check=False)
 
 
 def read(info: dict[str, str], register: int) -> int:

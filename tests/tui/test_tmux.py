@@ -42,12 +42,15 @@ class Terminal:
 
     def screen(self) -> str:
         result = subprocess.run(
-            [TMUX or "tmux", "capture-pane", "-p", "-t", self.session], capture_output=True, text=True, check=False
+            [TMUX or "tmux", "-L", self.session, "capture-pane", "-p", "-t", self.session],
+            capture_output=True,
+            text=True,
+            check=False,
         )
         return result.stdout
 
     def keys(self, *keys: str) -> None:
-        subprocess.run([TMUX or "tmux", "send-keys", "-t", self.session, *keys], check=True)
+        subprocess.run([TMUX or "tmux", "-L", self.session, "send-keys", "-t", self.session, *keys], check=True)
 
     def wait_for_text(self, text: str) -> str:
         wait_for(repr(text), lambda: text in self.screen(), show=self.screen)
@@ -56,7 +59,7 @@ class Terminal:
     def pane(self, fmt: str) -> str:
         """A tmux format of the session's pane, such as ``#{pane_dead}``."""
         result = subprocess.run(
-            [TMUX or "tmux", "display-message", "-p", "-t", self.session, fmt],
+            [TMUX or "tmux", "-L", self.session, "display-message", "-p", "-t", self.session, fmt],
             capture_output=True,
             text=True,
             check=True,
@@ -68,7 +71,10 @@ class Terminal:
         sometimes never filled in once the pane is dead, so the shell writes it)."""
         self.status_file = status_file
         wrapped = f"{command}; echo $? > {status_file}"
-        subprocess.run([TMUX or "tmux", "respawn-pane", "-k", "-t", self.session, "-c", str(cwd), wrapped], check=True)
+        subprocess.run(
+            [TMUX or "tmux", "-L", self.session, "respawn-pane", "-k", "-t", self.session, "-c", str(cwd), wrapped],
+            check=True,
+        )
 
     def exit_status(self) -> str:
         """Wait for the program in the pane to end; how it ended: ``status N`` or ``signal N``."""
@@ -84,17 +90,19 @@ class Terminal:
 def terminal_running(tmp_path: Path, command: str) -> Iterator[Terminal]:
     """``command`` in a tmux pane (100x30) that is kept when it ends, its exit status written to a file."""
     session = f"c20sim-{uuid.uuid4().hex[:8]}"
-    tmux = TMUX or "tmux"
+    # a tmux server of its own (-L): a session killed by one test takes a shared server down while the next
+    # test's new-session may be connecting to it (seen once in CI: new-session exited 1)
+    tmux = [TMUX or "tmux", "-L", session]
     cwd = Path(__file__).parents[2]
     # A shell first, so the pane is kept when the program ends (remain-on-exit) before the program starts.
-    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
+    subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
     try:
-        subprocess.run([tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
+        subprocess.run([*tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
         terminal = Terminal(session)
         terminal.run(command, cwd, tmp_path / "status")
         yield terminal
     finally:
-        subprocess.run([tmux, "kill-session", "-t", session], check=False)
+        subprocess.run([*tmux, "kill-session", "-t", session], check=False)
 
 
 @pytest.fixture
@@ -158,7 +166,7 @@ def test_a_dashboard_ended_from_outside_stops_its_server(dashboard: tuple[Termin
         os.kill(int(terminal.pane("#{pane_pid}")), signal.SIGTERM)  # the shell: it passes nothing on
         os.kill(_dashboard_pid(terminal.ready), signal.SIGTERM)
     else:
-        subprocess.run([TMUX or "tmux", "kill-session", "-t", terminal.session], check=True)
+        subprocess.run([TMUX or "tmux", "-L", terminal.session, "kill-session", "-t", terminal.session], check=True)
 
     def port_closed() -> bool:
         with socket.socket() as probe:
