@@ -25,10 +25,10 @@ from typing import IO
 
 from ..audit import RULES, Auditor, Finding, Severity
 from ..audit.engine import LineDemand
-from ..drive.files import MAX_DEPTH, json_depth
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES
+from .capture import frame_bytes, log_item, time_and_direction
 from .pcap import is_capture, read_capture
 
 __all__ = ["MAX_LINE", "add_audit_command", "audit_log", "junit_xml", "read_frames"]
@@ -72,34 +72,16 @@ def _slow(line: str, number: int, where: str) -> Iterator[tuple[float, str, byte
     def bad(message: str) -> C20SimError:
         return C20SimError(f"{where}: line {number}: {message}")
 
-    if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse (as the frame log's reader checks)
-        raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
-    try:
-        item = json.loads(line)
-    except json.JSONDecodeError:
-        raise bad("not JSON; a frame log has one JSON object a line with t, dir and hex") from None
-    if not isinstance(item, dict):
-        raise bad("expected a JSON object with t, dir and hex")
+    item = log_item(line, bad, "not JSON; a frame log has one JSON object a line with t, dir and hex")
     if "hex" not in item and "dir" not in item:
         return  # a notice of the log itself (log-dropped), not a frame
-    t = item.get("t")
-    if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t) or t < 0:
-        raise bad("key 't': expected the frame's time in seconds, a finite number >= 0")
-    direction = item.get("dir")
-    if direction not in ("rx", "tx"):
-        raise bad('key \'dir\': expected "rx" (master to drive) or "tx" (drive to master)')
+    t, direction = time_and_direction(item, bad)
     text = item.get("hex")
     if "rtu" in item:  # a Modbus TCP frame: "hex" is its MBAP frame, "rtu" the frame on the line behind the gateway
         text = item["rtu"]
         if text is None:
             return  # the gateway's own answer (0x0B after silence): never on the line
-    if not isinstance(text, str):
-        raise bad("key 'hex': expected the frame's bytes in hex, such as \"01 03 21 00 00 01 8E 36\"")
-    try:
-        data = bytes.fromhex(text)
-    except ValueError:
-        raise bad(f"key 'hex': not hex bytes: {text[:60]!r}") from None
-    yield float(t), direction, data
+    yield t, direction, frame_bytes(text, bad)
 
 
 def audit_log(path: str, auditor: Auditor, *, server_port: int | None = None) -> Auditor:

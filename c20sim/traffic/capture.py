@@ -23,9 +23,9 @@ import math
 import os
 import re
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import Any, cast
 
 from ..drive.files import MAX_DEPTH, FileReadError, json_depth, read_bytes
 from ..drive.profile import DEFAULT_PROFILE, load_profile
@@ -172,6 +172,43 @@ def _modbus_tcp(
         raise bad(f"key 'rtu': not hex bytes: {rtu[:60]!r}") from None
 
 
+Bad = Callable[[str], C20SimError]
+
+
+def log_item(line: str, bad: Bad, not_json: str = "not JSON; a frame log has one JSON object a line") -> dict[str, Any]:
+    """A frame log line's JSON object; its nesting is measured before json reads it (``bad`` makes the error)."""
+    if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse
+        raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
+    try:
+        item = json.loads(line)
+    except json.JSONDecodeError:
+        raise bad(not_json) from None
+    if not isinstance(item, dict):
+        raise bad("expected a JSON object with t, dir and hex")
+    return item
+
+
+def time_and_direction(item: Mapping[str, Any], bad: Bad) -> tuple[float, str]:
+    """A frame record's ``t`` (seconds, finite, >= 0) and ``dir`` (rx or tx), checked."""
+    t = item.get("t")
+    if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t) or t < 0:
+        raise bad("key 't': expected the frame's time in seconds, a finite number >= 0")
+    direction = item.get("dir")
+    if direction not in ("rx", "tx"):
+        raise bad('key \'dir\': expected "rx" (master to drive) or "tx" (drive to master)')
+    return float(t), str(direction)
+
+
+def frame_bytes(text: object, bad: Bad) -> bytes:
+    """A frame record's ``hex``, as bytes."""
+    if not isinstance(text, str):
+        raise bad("key 'hex': expected the frame's bytes in hex, such as \"01 03 21 00 00 01 8E 36\"")
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        raise bad(f"key 'hex': not hex bytes: {text[:60]!r}") from None
+
+
 def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
     """Frame-log records; raises C20SimError naming the file, line and key of a bad one."""
     records: list[LogRecord] = []
@@ -184,27 +221,9 @@ def parse_log(lines: Iterable[str], where: str = "<log>") -> list[LogRecord]:
         def bad(message: str, n: int = number) -> C20SimError:
             return C20SimError(f"{where}: line {n}: {message}")
 
-        if json_depth(line) > MAX_DEPTH:  # before json.loads could recurse
-            raise bad(f"nested deeper than {MAX_DEPTH} levels; a frame log has one flat JSON object a line")
-        try:
-            item = json.loads(line)
-        except json.JSONDecodeError:
-            raise bad("not JSON; a frame log has one JSON object a line") from None
-        if not isinstance(item, dict):
-            raise bad("expected a JSON object with t, dir and hex")
-        t = item.get("t")
-        if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t) or t < 0:
-            raise bad("key 't': expected the frame's time in seconds, a finite number >= 0")
-        direction = item.get("dir")
-        if direction not in ("rx", "tx"):
-            raise bad('key \'dir\': expected "rx" (master to drive) or "tx" (drive to master)')
-        text = item.get("hex")
-        if not isinstance(text, str):
-            raise bad("key 'hex': expected the frame's bytes in hex, such as \"01 03 21 00 00 01 8E 36\"")
-        try:
-            data = bytes.fromhex(text)
-        except ValueError:
-            raise bad(f"key 'hex': not hex bytes: {text[:60]!r}") from None
+        item = log_item(line, bad)
+        t, direction = time_and_direction(item, bad)
+        data = frame_bytes(item.get("hex"), bad)
         kind, note = item.get("kind", ""), item.get("note", "")
         mbap, rtu = _modbus_tcp(item, data, bad) if "modbus_tcp" in item else (None, None)
         records.append(
