@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import json
 import logging
 import multiprocessing as mp
 import os
@@ -18,6 +19,7 @@ import platform
 import random
 import resource
 import socket
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -116,7 +118,10 @@ class RawRtuClient:
 
 @dataclass
 class ServerSpec:
-    """What to serve in the child: ``kind`` is "c20sim" or "pymodbus"."""
+    """What to serve in the child: ``kind`` is "c20sim", "pymodbus" or "floor".
+
+    "floor" is the Python floor: an asyncio protocol on uvloop that answers every read with a canned reply,
+    parsing nothing. No Python server of RTU over TCP can be faster; the ratio to it is the figure."""
 
     kind: str = "c20sim"
     addresses: tuple[int, ...] = (1,)
@@ -129,6 +134,7 @@ class ServerSpec:
     fault_period: float = 0.5
     log_size: int = 2000
     audit: bool = True  #: c20sim: the live audit (serve's default; --no-audit: False)
+    bus_timing: bool = False  #: c20sim: hold the line for each transaction's RS485 time (serve's default: on)
 
 
 @dataclass
@@ -179,7 +185,7 @@ class ChildServer:
 
 def _server_main(spec: ServerSpec, conn: Connection) -> None:
     try:
-        if spec.kind == "c20sim":
+        if spec.kind in ("c20sim", "floor"):
             from c20sim.serve import run  # the loop `c20sim serve` runs on (uvloop where installed)
 
             run(_serve(spec, conn))
@@ -228,7 +234,7 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
         ports = []
         for i in range(spec.buses):
             sim = Simulator(profile, spec.addresses, clock=RealtimeClock(), seed=spec.seed + i, log_size=spec.log_size)
-            server = Server(sim, ServeOptions(tcp="127.0.0.1:0", audit=spec.audit))
+            server = Server(sim, ServeOptions(tcp="127.0.0.1:0", audit=spec.audit, bus_timing=spec.bus_timing))
             await server.start()
             assert server.endpoints.tcp is not None
             ports.append(server.endpoints.tcp.port)
@@ -246,6 +252,19 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
                 loop.call_later(spec.fault_period, flip)
 
             loop.call_later(spec.fault_period, flip)
+    elif spec.kind == "floor":
+        canned = bytes.fromhex("01 03 02 00 00 B8 44")  # read 2001H = 0, the same bytes c20sim answers
+
+        class Floor(asyncio.Protocol):
+            def connection_made(self, transport: Any) -> None:
+                self.transport = transport
+
+            def data_received(self, data: bytes) -> None:
+                self.transport.write(canned)
+
+        server = await loop.create_server(Floor, "127.0.0.1", 0)
+        ports = [server.sockets[0].getsockname()[1]]
+        closers.append(server.close)
     elif spec.kind == "pymodbus":
         from pymodbus import FramerType
         from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
@@ -320,3 +339,56 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+# --- the C load client (bench/loadgen.c)
+
+LOADGEN_SOURCE = Path(__file__).with_name("loadgen.c")
+
+
+def loadgen_binary() -> Path:
+    """bench/loadgen.c, built with the machine's C compiler into the user's cache on first use (and anew when
+    the source changes)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "c20sim-bench"
+    binary = cache / f"loadgen-{int(LOADGEN_SOURCE.stat().st_mtime)}"
+    if not binary.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        compiler = os.environ.get("CC", "cc")
+        result = subprocess.run(
+            [compiler, "-O2", "-o", str(binary), str(LOADGEN_SOURCE)], capture_output=True, text=True
+        )
+        if result.returncode:
+            raise SystemExit(f"cannot build {LOADGEN_SOURCE} with {compiler}: {result.stderr.strip()}")
+    return binary
+
+
+def loadgen(
+    ports: Sequence[int],
+    frames: Sequence[bytes],
+    *,
+    conns: int = 1,
+    seconds: float | None = None,
+    requests: int | None = None,
+    warmup: float = 0.0,
+    rate: float | None = None,
+    due_us: float | None = None,
+) -> dict[str, float]:
+    """Run the C load client to its end; its JSON figures (see bench/loadgen.c)."""
+    args = [str(loadgen_binary()), "--conns", str(conns), "--warmup", str(warmup)]
+    for port in ports:
+        args += ["--port", str(port)]
+    for frame in frames:
+        args += ["--frame", frame.hex()]
+    if seconds is not None:
+        args += ["--seconds", str(seconds)]
+    if requests is not None:
+        args += ["--requests", str(requests)]
+    if rate is not None:
+        args += ["--rate", str(rate)]
+    if due_us is not None:
+        args += ["--due-us", str(due_us)]
+    result = subprocess.run(args, capture_output=True, text=True)
+    if result.returncode:
+        raise RuntimeError(f"loadgen failed: {result.stderr.strip()}")
+    figures: dict[str, float] = json.loads(result.stdout)
+    return figures
