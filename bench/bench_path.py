@@ -169,13 +169,14 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--requests", type=int, default=50000, help="requests per case and round")
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--profile", action="store_true", help="cProfile the path (the live audit on), and print it")
+    parser.add_argument("--profile", action="store_true", help="cProfile the path, and print it")
+    parser.add_argument("--no-audit", action="store_true", help="with --profile: the live audit off")
     args = parser.parse_args()
     n = args.requests
 
     if args.profile:
         profile = cProfile.Profile()
-        run(c20sim_case(True, n, profile))
+        run(c20sim_case(not args.no_audit, n, profile))
         pstats.Stats(profile).sort_stats("tottime").print_stats(30)
         calls = sum(stat[1] for stat in pstats.Stats(profile).stats.values())  # type: ignore[attr-defined]
         print(f"function calls a request: {calls / n:.0f}")

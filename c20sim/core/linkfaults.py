@@ -85,10 +85,21 @@ class LinkFaults:
         """Names of the faults switched on, for display."""
         return [name for name in KNOBS if getattr(self, name) != _DEFAULTS[name]]
 
+    def __setattr__(self, name: str, value: object) -> None:
+        # Every reply asks whether a reply fault is armed: the answer is worked out when a switch moves
+        # (seldom), not on every reply (15,000 times a second), and forgotten whenever one does.
+        object.__setattr__(self, name, value)
+        if name in KNOBS:
+            object.__setattr__(self, "_reply_armed", None)
+
     @property
     def active_reply_faults(self) -> bool:
         """True if :meth:`mangle` would change anything (a cheap test on every reply)."""
-        return any(getattr(self, name) != default for name, default in _REPLY_DEFAULTS)
+        armed: bool | None = self.__dict__.get("_reply_armed")
+        if armed is None:
+            armed = any(getattr(self, name) != default for name, default in _REPLY_DEFAULTS)
+            object.__setattr__(self, "_reply_armed", armed)
+        return armed
 
     def mangle(self, data: bytes, delay: float, rng: random.Random) -> Mangled:
         """Apply the reply faults to ``data`` sent after ``delay`` seconds."""

@@ -109,6 +109,10 @@ def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None
     communication timeout's stop) drop it: 2000H then reads 0000h, as at power-up. A C20 does not restart
     by itself after a reset, so "forward run" would no longer be true.
     """
+    if d.ram.get(address) == value and address != Reg.VIRTUAL_INPUTS:
+        # A RAM register written with the value it holds (a master that writes its set speed every cycle)
+        # changes nothing: the settings and the steady stretch the drive is in stay as they are.
+        return
     d.motion.segment = None
     if address == Reg.COMMAND:
         d.machine.apply(Event(value))

@@ -129,8 +129,11 @@ class RtuEndpoint:
             assert deadline is not None
             now = min(now, deadline - self.framer.t35 + len(data) * char_time(self.framer.baud))
         self._just_resumed = False
-        self._unfed += data
-        self._unfed_t = now
+        if not self._unfed and self._held is None and len(data) <= FEED_SLICE:
+            self.framer.feed(data, now)  # the usual read, framed at once: what a first slice would be
+        else:
+            self._unfed += data
+            self._unfed_t = now
         self._collect()
 
     def close(self) -> None:
@@ -235,7 +238,8 @@ class RtuEndpoint:
         self._outstanding -= 1
         if self._closed:
             return
-        self._schedule_collect()
+        if self._held is not None or self._unfed or self._paused:
+            self._schedule_collect()  # else nothing waits: the next read frames and submits by itself
         if reply is None:
             return
         try:

@@ -15,6 +15,7 @@ whatever lies between two silences of t3.5 is one frame, good or bad.
 from __future__ import annotations
 
 import enum
+import functools
 import struct
 from collections import deque
 from dataclasses import dataclass
@@ -380,6 +381,7 @@ def silence_times(baud: int, bits: int = SHEET_CHAR_BITS) -> tuple[float, float]
     return 1.5 * char_time(baud, bits), 3.5 * char_time(baud, bits)
 
 
+@functools.lru_cache(maxsize=4096)  # on every request's path (bus timing, the audit): a master sends few lengths
 def frame_time(length: int, baud: int, bits: int = SHEET_CHAR_BITS) -> float:
     """Seconds a frame of ``length`` bytes holds an RS485 line: its characters and the t3.5 before it."""
     return length * char_time(baud, bits) + silence_times(baud, bits)[1]
@@ -424,7 +426,7 @@ class MbapHeader(NamedTuple):
 def mbap_adus(data: bytes) -> list[MbapHeader] | None:
     """The MBAP headers of ``data`` if it is nothing but whole Modbus TCP frames (one or more, back to back) and
     not a good RTU frame; else None. A master speaking Modbus TCP to an RTU port sends exactly that."""
-    if len(data) < 8 or crc_ok(data):
+    if len(data) < 8 or data[2] or data[3] or crc_ok(data):  # an MBAP header's protocol id (bytes 2-3) is 0
         return None
     found: list[MbapHeader] = []
     at = 0
@@ -534,6 +536,14 @@ class RtuFramer:
                 self._close()
             elif self.check_gaps and gap > self.t15 + _EPSILON and not self._broken:
                 self._broken = f"gap of {gap * 1000:.2f} ms (> t1.5 = {self.t15 * 1000:.2f} ms) inside the frame"
+        if self.complete_on_length and not self._buffer and not self._broken:
+            # The common read on TCP: exactly one whole request. It is what _split would find, found without
+            # copying it through the buffer.
+            n = len(data)
+            if n >= 4 and expected_length(data, self.direction) == n and crc_ok(data):
+                self._last_t = t
+                self._events.append(FrameEvent(FrameKind.FRAME, bytes(data), t))
+                return
         self._last_t = t
         if self.strict:
             room = MAX_ADU - len(self._buffer)

@@ -210,3 +210,20 @@ def test_drop_percent_drops_that_share_of_the_replies(profile: Profile, percent:
     sigma = (requests * percent / 100 * (1 - percent / 100)) ** 0.5
     assert abs(dropped - mean) <= 5 * sigma, f"{dropped} of {requests} dropped at {percent:g} %"
     assert line.bus.counters_of(1).silences == dropped
+
+
+def test_a_fault_switched_between_replies_acts_on_the_next_one(profile: Profile) -> None:
+    # Whether a reply fault is armed is remembered between replies, and forgotten whenever a switch moves.
+    line = Line(Bus([make_slave(profile, 1)], seed=1))
+    good = encode(ReadResponse(1, (0,)))
+    link = line.bus.link_of(line.bus.slaves[0])
+    assert line.send(read(1, 0x2001)) == good
+    link.corrupt_crc = True
+    assert line.send(read(1, 0x2001)) == good[:-2] + bytes((good[-2] ^ 0xFF, good[-1] ^ 0xFF))
+    link.clear()
+    assert line.send(read(1, 0x2001)) == good
+    line.bus.link.drop_next = 2  # the whole line's: counted down by the replies it drops
+    assert [line.send(read(1, 0x2001)) for _ in range(3)] == [None, None, good]
+    assert line.bus.link.drop_next == 0 and not line.bus.link.active_reply_faults
+    line.bus.link.garbage_after = b"\x00"
+    assert line.send(read(1, 0x2001)) == good + b"\x00"

@@ -504,3 +504,39 @@ def test_a_transaction_holds_the_line_for_its_characters_and_silences(
 
 def test_a_19200_line_carries_about_86_single_register_reads_a_second() -> None:
     assert int(1 / transaction_time(8, 7, 19200)) == 87  # the "about 86": 87.27 with no turnaround
+
+
+def _framed(chunks: list[bytes]) -> list[tuple[FrameKind, bytes, float]]:
+    framer = stream_framer(19200)
+    for chunk in chunks:
+        framer.feed(chunk, 1.0)
+    framer.flush()
+    return [(e.kind, e.data, e.t) for e in framer.events()]
+
+
+_WHOLE_READS = [
+    encode(ReadRequest(1, 0x2001, 1)),
+    encode(WriteSingleRequest(1, 0x2001, 1500)),
+    encode(WriteMultipleRequest(1, 0x2000, (1, 1500))),
+    H("01 03 20 01 00 01 DE 0B"),  # a bad CRC
+    encode(ReadRequest(1, 0x2001, 1))[:-1],  # cut short
+    encode(ReadRequest(1, 0x2001, 1)) + encode(ReadRequest(2, 0x2100, 1)),  # two in one read
+    encode(ReadRequest(1, 0x2001, 1)) + b"\x00",  # a byte glued behind
+    encode(UnsupportedRequest(1, 0x04, H("20 00 00 01"))),  # a function the C20 lacks
+]
+
+
+@pytest.mark.parametrize("data", _WHOLE_READS, ids=lambda d: d.hex(" "))
+def test_a_whole_read_frames_as_the_same_bytes_through_the_buffer(data: bytes) -> None:
+    # A read holding exactly one whole request skips the buffer (the common case on TCP); anything else takes
+    # the buffer's way. Either way the events are those of the same bytes fed in two pieces (which always go
+    # through the buffer).
+    assert _framed([data]) == _framed([data[:1], data[1:]])
+    if data == _WHOLE_READS[0]:
+        assert _framed([data]) == [(FrameKind.FRAME, data, 1.0)]
+
+
+@given(st.binary(min_size=1, max_size=40))
+@settings(max_examples=400, deadline=None)
+def test_any_read_frames_as_the_same_bytes_through_the_buffer(data: bytes) -> None:
+    assert _framed([data]) == _framed([data[:1], data[1:]])

@@ -155,3 +155,15 @@ def test_the_new_physics_is_as_deterministic(profile: Profile) -> None:
     assert fine[16_000][1].current_a < 0.0  # regenerating
     assert fine[22_000][1].state == "stopped" and fine[22_000][1].fault_code == 0
     assert all(fine[ms][1].fault_code == 0 for ms in fine)
+
+
+def test_writing_the_set_speed_it_holds_changes_nothing(profile: Profile) -> None:
+    # A master that writes its set speed every cycle: the drive takes the same value again as a write of
+    # nothing, and ends exactly where a drive written once does (a value that changes still acts at once).
+    once = {0: [write(Reg.SPEED_SETPOINT, 2500), write(Reg.COMMAND, 1)], 4000: [write(Reg.SPEED_SETPOINT, 1000)]}
+    every = {ms: [write(Reg.SPEED_SETPOINT, 2500 if ms < 4000 else 1000)] for ms in range(0, 8000, 10)}
+    every[0].append(write(Reg.COMMAND, 1))
+    a = simulate(profile, once, 8000, 10, 1000)
+    b = simulate(profile, every, 8000, 10, 1000)
+    assert a == b
+    assert a[3000][1].speed_rpm == 2500 and a[8000][1].speed_rpm == 1000
