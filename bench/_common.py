@@ -253,14 +253,14 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
 
             loop.call_later(spec.fault_period, flip)
     elif spec.kind == "floor":
-        canned = bytes.fromhex("01 03 02 00 00 B8 44")  # read 2001H = 0, the same bytes c20sim answers
+        canned = bytes.fromhex("01 03 02 00 00 B8 44")  # a one-register read's reply (2001H = 0)
 
         class Floor(asyncio.Protocol):
             def connection_made(self, transport: Any) -> None:
                 self.transport = transport
 
             def data_received(self, data: bytes) -> None:
-                self.transport.write(canned)
+                self.transport.write(data if data[1] == 0x06 else canned)  # a write's echo, or the read's reply
 
         server = await loop.create_server(Floor, "127.0.0.1", 0)
         ports = [server.sockets[0].getsockname()[1]]
@@ -372,8 +372,9 @@ def loadgen(
     warmup: float = 0.0,
     rate: float | None = None,
     due_us: float | None = None,
+    cpus: set[int] | None = None,
 ) -> dict[str, float]:
-    """Run the C load client to its end; its JSON figures (see bench/loadgen.c)."""
+    """Run the C load client to its end; its JSON figures (see bench/loadgen.c). ``cpus``: the cores it may use."""
     args = [str(loadgen_binary()), "--conns", str(conns), "--warmup", str(warmup)]
     for port in ports:
         args += ["--port", str(port)]
@@ -387,7 +388,8 @@ def loadgen(
         args += ["--rate", str(rate)]
     if due_us is not None:
         args += ["--due-us", str(due_us)]
-    result = subprocess.run(args, capture_output=True, text=True)
+    pin = None if cpus is None else lambda: os.sched_setaffinity(0, cpus)
+    result = subprocess.run(args, capture_output=True, text=True, preexec_fn=pin)
     if result.returncode:
         raise RuntimeError(f"loadgen failed: {result.stderr.strip()}")
     figures: dict[str, float] = json.loads(result.stdout)

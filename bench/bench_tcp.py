@@ -1,160 +1,147 @@
-"""Throughput and latency over RTU-over-TCP: c20sim beside pymodbus's own server, in the same run.
+"""Throughput and latency over RTU over TCP: c20sim beside pymodbus's own server and the Python floor, in one run.
 
-Each server runs in a child process of its own; one lean blocking client
-(bench/_common.py, the same for every server) sends sequential requests,
-alternately ``write 2001H = v`` and ``read 2001H`` to drive 1, and checks every
-reply. The servers take turns in rounds so that the machine's noise falls on
-all of them alike; the ratio is the figure.
+Each server runs in a child process of its own, pinned to core 0; the load comes from the C client
+(bench/loadgen.c) on core 1, which costs the measurement about 2 us a request where a Python client
+costs 20-30. Its requests are write 2001H = v and read 2001H, alternately, v changing every write, and it
+checks every reply (length, CRC, address, function). The servers take turns in rounds, so that the
+machine's noise falls on all of them alike: the ratios are the figures.
 
-Servers: c20sim with turnaround 0 (a profile copy, ``dataclasses.replace`` of
-``profile.protocol``), c20sim with the default profile (turnaround 2 ms, a
-deliberate delay per reply), and pymodbus 3.16's ``ModbusTcpServer`` with
-``FramerType.RTU`` and a ``ModbusSequentialDataBlock`` holding the registers.
+Servers:
+- c20sim as ``c20sim serve`` runs it (the live audit on) with its bus timing off and a turnaround of 0
+  (a profile copy): the server's own speed, not the RS485 line's, which bus timing would impose;
+- the same with ``--no-audit``;
+- pymodbus 3.16's ``ModbusTcpServer`` with ``FramerType.RTU`` over a ``ModbusSequentialDataBlock``;
+- the floor: an asyncio protocol on uvloop that answers a canned reply and parses nothing (the fastest a
+  Python server on this loop can be).
 
-    .venv/bin/python bench/bench_tcp.py --requests 20000 --rounds 5
+Sequential: one connection, one request at a time (a master's rhythm): requests/s, latency p50/p99, and
+the server's CPU per request. Saturated: ``--clients`` connections at once: requests/s and CPU per
+request, and the fewest and most requests any connection got through.
+
+    .venv/bin/python bench/bench_tcp.py --seconds 3 --rounds 5 --clients 4
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing
+import os
 import sys
 import time
-from typing import Any
+from statistics import median
 
 import pymodbus
-from _common import ChildServer, RawRtuClient, ServerSpec, machine, percentile
+from _common import ChildServer, ServerSpec, loadgen, machine
 
 from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
 from c20sim.wire.registers import Reg
 
+C20SIM = "c20sim (serve's default, bus timing off, turnaround 0)"
+NO_AUDIT = "c20sim --no-audit (bus timing off, turnaround 0)"
+PYMODBUS = f"pymodbus {pymodbus.__version__} ModbusTcpServer (RTU framer)"
+FLOOR = "floor (uvloop protocol, canned reply)"
+
 SERVERS = {
-    "c20sim (turnaround 0)": ServerSpec("c20sim", turnaround_ms=0.0),
-    "c20sim (default profile, turnaround 2 ms)": ServerSpec("c20sim", turnaround_ms=None),
-    f"pymodbus {pymodbus.__version__} ModbusTcpServer": ServerSpec("pymodbus"),
+    C20SIM: ServerSpec("c20sim", turnaround_ms=0.0),
+    NO_AUDIT: ServerSpec("c20sim", turnaround_ms=0.0, audit=False),
+    PYMODBUS: ServerSpec("pymodbus"),
+    FLOOR: ServerSpec("floor"),
 }
 
+#: write 2001H = v, read 2001H, for eight values of v: every write changes the set speed
+FRAMES = [
+    frame
+    for v in range(100, 900, 100)
+    for frame in (encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, v)), encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1)))
+]
 
-def run(client: RawRtuClient, count: int, first: int) -> list[float]:
-    """``count`` sequential requests; their latencies in seconds."""
-    latencies: list[float] = []
-    perf = time.perf_counter
-    for i in range(count // 2):
-        value = (first + i) % 3001
-        write = encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, value))
-        read = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))
-        t = perf()
-        reply = client.transact(write)
-        t1 = perf()
-        if reply != write:
-            raise AssertionError(f"write {value}: reply {reply.hex(' ')}")
-        reply = client.transact(read)
-        t2 = perf()
-        if int.from_bytes(reply[3:5], "big") != value:
-            raise AssertionError(f"read after write {value}: reply {reply.hex(' ')}")
-        latencies += (t1 - t, t2 - t1)
-    return latencies
+SERVER_CPU, CLIENT_CPU = {0}, {1}
 
 
-def _client_process(port: int, count: int, out: Any) -> None:
-    """Sequential reads of 2001H (the clients share the drive, so each checks the reply's form only)."""
-    client = RawRtuClient("127.0.0.1", port, timeout=5.0)
-    read = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))
-    try:
-        for _ in range(count):
-            reply = client.transact(read)
-            if reply[:3] != b"\x01\x03\x02":
-                raise AssertionError(f"read 2001H: reply {reply.hex(' ')}")
-    finally:
-        client.close()
-    out.send(count)
+def measure(server: ChildServer, conns: int, seconds: float) -> dict[str, float]:
+    cpu0 = server.cpu_rss()[0]
+    figures = loadgen([server.port], FRAMES, conns=conns, seconds=seconds, warmup=0.3, cpus=CLIENT_CPU)
+    cpu = server.cpu_rss()[0] - cpu0
+    # the server's CPU over warm-up and run, per request answered in both (at the measured rate)
+    figures["cpu_us"] = cpu / (figures["req_s"] * (seconds + 0.3)) * 1e6
+    return figures
 
 
-def saturate(servers: dict[str, ChildServer], clients: int, count: int, rounds: int) -> dict[str, tuple[float, float]]:
-    """``clients`` client processes at once against each server in turn: (req/s, server CPU us/req)."""
-    ctx = multiprocessing.get_context("fork")
-    totals: dict[str, list[float]] = {name: [0.0, 0.0, 0.0] for name in servers}  # requests, wall, cpu
-    for _ in range(rounds):
-        for name, server in servers.items():
-            pipes = [ctx.Pipe() for _ in range(clients)]
-            procs = [ctx.Process(target=_client_process, args=(server.port, count, child)) for _, child in pipes]
-            cpu0 = server.cpu_rss()[0]
-            t0 = time.perf_counter()
-            for proc in procs:
-                proc.start()
-            done = sum(parent.recv() for parent, _ in pipes)
-            wall = time.perf_counter() - t0
-            for proc in procs:
-                proc.join()
-            totals[name][0] += done
-            totals[name][1] += wall
-            totals[name][2] += server.cpu_rss()[0] - cpu0
-    return {name: (n / wall, cpu / n * 1e6) for name, (n, wall, cpu) in totals.items()}
+def table(rows: dict[str, dict[str, float]], columns: list[tuple[str, str, str]]) -> None:
+    header = f"| {'server':<58} |" + "".join(f" {title:>{len(title)}} |" for title, _, _ in columns)
+    print(header)
+    print("|" + "|".join("-" * len(cell) for cell in header.split("|")[1:-1]) + "|")
+    for name, figures in rows.items():
+        print(f"| {name:<58} |" + "".join(f" {figures[key]:>{len(title)}{fmt}} |" for title, key, fmt in columns))
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--requests", type=int, default=20000, help="requests per server, over all rounds")
+    parser.add_argument("--seconds", type=float, default=3.0, help="seconds of load per server and round")
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--warmup", type=int, default=500)
-    parser.add_argument("--clients", type=int, default=4, help="client processes at once, for the saturated run")
+    parser.add_argument("--clients", type=int, default=4, help="connections at once, for the saturated run")
     args = parser.parse_args()
 
     servers = {name: ChildServer(spec) for name, spec in SERVERS.items()}
-    clients = {name: RawRtuClient("127.0.0.1", server.port, timeout=5.0) for name, server in servers.items()}
-    latencies: dict[str, list[float]] = {name: [] for name in servers}
-    wall: dict[str, float] = dict.fromkeys(servers, 0.0)
-    cpu: dict[str, float] = dict.fromkeys(servers, 0.0)
-    per_round = args.requests // args.rounds
-    saturated: dict[str, tuple[float, float]] = {}
+    sequential: dict[str, list[dict[str, float]]] = {name: [] for name in servers}
+    saturated: dict[str, list[dict[str, float]]] = {name: [] for name in servers}
     try:
-        for client in clients.values():
-            run(client, args.warmup, 0)
-        for r in range(args.rounds):
-            for name, client in clients.items():
-                cpu0 = servers[name].cpu_rss()[0]
-                t0 = time.perf_counter()
-                latencies[name] += run(client, per_round, r * per_round)
-                wall[name] += time.perf_counter() - t0
-                cpu[name] += servers[name].cpu_rss()[0] - cpu0
-        fast_servers = {n: s for n, s in servers.items() if "default profile" not in n}
-        saturated = saturate(fast_servers, args.clients, args.requests // args.rounds // args.clients, args.rounds)
+        for server in servers.values():
+            os.sched_setaffinity(server.process.pid, SERVER_CPU)
+        for _ in range(args.rounds):
+            for name, server in servers.items():
+                sequential[name].append(measure(server, 1, args.seconds))
+            for name, server in servers.items():
+                saturated[name].append(measure(server, args.clients, args.seconds))
     finally:
-        for client in clients.values():
-            client.close()
         for server in servers.values():
             server.stop()
 
-    print(f"RTU over TCP, sequential requests, {time.strftime('%Y-%m-%d')}, {machine()}")
-    print(f"{args.requests} requests per server in {args.rounds} alternating rounds (write 2001H / read 2001H)")
+    def medians(runs: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, float]]:
+        return {name: {key: median(r[key] for r in rs) for key in rs[0]} for name, rs in runs.items()}
+
+    seq, sat = medians(sequential), medians(saturated)
+    print(f"RTU over TCP, {time.strftime('%Y-%m-%d')}, {machine()}; servers on core 0, the C client on core 1")
+    print(f"{args.rounds} alternating rounds of {args.seconds:g} s per server (medians of the rounds);")
+    print("write 2001H = v and read 2001H alternately, v changing every write")
     print()
-    header = f"| {'server':<42} | {'req/s':>7} | {'p50 ms':>7} | {'p99 ms':>7} | {'server CPU us/req':>17} |"
-    print(header)
-    print("|" + "|".join("-" * (len(c)) for c in header.split("|")[1:-1]) + "|")
-    rates = {}
-    p = {}
-    for name in servers:
-        lat = sorted(latencies[name])
-        rates[name] = len(lat) / wall[name]
-        p[name] = (percentile(lat, 50) * 1000, percentile(lat, 99) * 1000)
-        per_req = cpu[name] / len(lat) * 1e6
-        print(f"| {name:<42} | {rates[name]:>7.0f} | {p[name][0]:>7.3f} | {p[name][1]:>7.3f} | {per_req:>17.1f} |")
-    fast, default, pym = list(servers)
+    print("Sequential: one connection, one request at a time")
     print()
-    print(f"throughput ratio c20sim (turnaround 0) / pymodbus: {rates[fast] / rates[pym]:.2f}x (target >= 1.5x)")
-    print(f"c20sim p99 {p[fast][1]:.3f} ms vs pymodbus p50 {p[pym][0]:.3f} ms (target: below)")
-    print(f"default profile / pymodbus: {rates[default] / rates[pym]:.2f}x (the 2 ms turnaround is deliberate)")
+    table(
+        seq,
+        [
+            ("req/s", "req_s", ".0f"),
+            ("p50 us", "p50_us", ".1f"),
+            ("p99 us", "p99_us", ".1f"),
+            ("CPU us/req", "cpu_us", ".1f"),
+        ],
+    )
     print()
-    print(f"saturated: {args.clients} client processes at once, each reading 2001H sequentially, same totals")
+    print(f"c20sim / floor: {seq[C20SIM]['req_s'] / seq[FLOOR]['req_s']:.2f}x requests/s (target >= 0.6x)")
+    print(f"c20sim / pymodbus: {seq[C20SIM]['req_s'] / seq[PYMODBUS]['req_s']:.2f}x requests/s (target >= 1.5x)")
+    print(f"c20sim p99 {seq[C20SIM]['p99_us']:.1f} us, pymodbus p50 {seq[PYMODBUS]['p50_us']:.1f} us (target: below)")
+    print(
+        f"--no-audit / floor: {seq[NO_AUDIT]['req_s'] / seq[FLOOR]['req_s']:.2f}x; / pymodbus: "
+        f"{seq[NO_AUDIT]['req_s'] / seq[PYMODBUS]['req_s']:.2f}x"
+    )
     print()
-    header = f"| {'server':<42} | {'req/s':>7} | {'server CPU us/req':>17} |"
-    print(header)
-    print("|" + "|".join("-" * (len(c)) for c in header.split("|")[1:-1]) + "|")
-    for name, (rate, per_req) in saturated.items():
-        print(f"| {name:<42} | {rate:>7.0f} | {per_req:>17.1f} |")
-    sat_fast, sat_pym = (saturated[n][0] for n in saturated)
+    print(f"Saturated: {args.clients} connections at once")
     print()
-    print(f"saturated throughput ratio c20sim (turnaround 0) / pymodbus: {sat_fast / sat_pym:.2f}x (target >= 1.5x)")
+    table(
+        sat,
+        [
+            ("req/s", "req_s", ".0f"),
+            ("CPU us/req", "cpu_us", ".1f"),
+            ("fewest", "fewest", ".0f"),
+            ("most", "most", ".0f"),
+        ],
+    )
+    print()
+    print(f"c20sim / floor: {sat[C20SIM]['req_s'] / sat[FLOOR]['req_s']:.2f}x requests/s (target >= 0.6x)")
+    print(f"c20sim / pymodbus: {sat[C20SIM]['req_s'] / sat[PYMODBUS]['req_s']:.2f}x requests/s (target >= 1.5x)")
+    print(
+        f"--no-audit / floor: {sat[NO_AUDIT]['req_s'] / sat[FLOOR]['req_s']:.2f}x; / pymodbus: "
+        f"{sat[NO_AUDIT]['req_s'] / sat[PYMODBUS]['req_s']:.2f}x"
+    )
     return 0
 
 

@@ -55,6 +55,7 @@ from ..wire.protocol import (
     transaction_time,
 )
 from ..wire.registers import RegisterMap
+from ..wire.values import quick_init
 from .linkfaults import LinkFaults
 from .slave import Slave
 
@@ -90,6 +91,7 @@ class RecordKind(enum.StrEnum):
         return self not in (RecordKind.REQUEST, RecordKind.REPLY)
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class FrameRecord:
     """One frame on the line, for the frame log.
@@ -200,6 +202,7 @@ class Counters:
         }
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class Reply:
     """Bytes to send back, after ``delay`` seconds of turnaround."""

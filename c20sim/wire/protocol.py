@@ -21,6 +21,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
+from .values import quick_init
+
 __all__ = [
     "BROADCAST",
     "MAX_ADU",
@@ -143,6 +145,7 @@ def crc_ok(frame: bytes) -> bool:
 # --- Frame values.
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class ReadRequest:
     """0x03: read ``count`` registers from ``start``."""
@@ -153,6 +156,7 @@ class ReadRequest:
     function: int = FunctionCode.READ_REGISTERS
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class WriteSingleRequest:
     """0x06: write ``value`` to ``register``."""
@@ -185,6 +189,7 @@ class WriteMultipleRequest:
             object.__setattr__(self, "byte_count", 2 * len(self.values))
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class UnsupportedRequest:
     """A well-formed frame with a function code the C20 does not implement."""
@@ -197,6 +202,7 @@ class UnsupportedRequest:
 Request = ReadRequest | WriteSingleRequest | WriteMultipleRequest | UnsupportedRequest
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class ReadResponse:
     slave: int
@@ -204,6 +210,7 @@ class ReadResponse:
     function: int = FunctionCode.READ_REGISTERS
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class WriteSingleResponse:
     slave: int
@@ -212,6 +219,7 @@ class WriteSingleResponse:
     function: int = FunctionCode.WRITE_SINGLE
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class WriteMultipleResponse:
     slave: int
@@ -220,6 +228,7 @@ class WriteMultipleResponse:
     function: int = FunctionCode.WRITE_MULTIPLE
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class ExceptionResponse:
     """An exception reply: the request's function code with its MSB set."""
@@ -441,6 +450,7 @@ def mbap_adus(data: bytes) -> list[MbapHeader] | None:
     return found
 
 
+@quick_init
 @dataclass(frozen=True, slots=True)
 class FrameEvent:
     """One outcome of framing, for the bus and the frame log."""
