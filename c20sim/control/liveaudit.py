@@ -16,13 +16,12 @@ from __future__ import annotations
 import asyncio
 import time
 import weakref
-from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
 from ..audit import Auditor, Finding, Limits, LineDemand
 from ..audit.engine import F_COMM_TIMEOUT, F_MAX_SPEED
-from ..core.bus import FrameRecord
+from ..core.bus import Direction, FrameRecord
 from ..core.simulator import Simulator
 
 __all__ = ["MAX_QUEUE", "LiveAudit", "of", "start"]
@@ -38,14 +37,18 @@ class LiveAudit:
         self.sim = sim
         self.ignore = tuple(ignore)
         self.limits = limits
+        self._bus = sim.bus
         self.auditor = self._fresh()
-        self._queue: deque[tuple[float, str, bytes, int]] = deque()
+        # the records the audit has still to see, and the line's baud they all went at (a baud change audits
+        # the queue first: it is seldom, and a record then needs no baud of its own)
+        self._queue: list[FrameRecord] = []
+        self._baud = self._bus.line_baud
         self._scheduled = False
-        self._unsubscribe = sim.bus.subscribe(self._feed)
+        self._unsubscribe = self._bus.subscribe(self._feed)
 
     def _fresh(self) -> Auditor:
         sim = self.sim
-        auditor = Auditor(sim.profile, baud=sim.bus.line_baud, ignore=self.ignore, limits=self.limits)
+        auditor = Auditor(sim.profile, baud=self._bus.line_baud, ignore=self.ignore, limits=self.limits)
         spec = sim.profile.registers.get(F_COMM_TIMEOUT)
         for address, drive in sim.drives.items():
             timeout = drive.read(F_COMM_TIMEOUT) * spec.scale if spec is not None else None
@@ -58,7 +61,10 @@ class LiveAudit:
         and the audit runs once the reply has gone (``call_soon``), so it never delays one."""
         if record.from_gateway:
             return  # the Modbus TCP gateway's own answer (0x0B after silence): never on the line
-        self._queue.append((record.t, record.direction.value, record.data, self.sim.bus.line_baud))
+        if self._bus.line_baud != self._baud:
+            self.drain()  # those queued went at the old baud (a 2009H write the line followed)
+            self._baud = self._bus.line_baud
+        self._queue.append(record)
         if self._scheduled:
             if len(self._queue) >= MAX_QUEUE:
                 self.drain()  # the loop is not getting round to it: keep the queue bounded
@@ -74,12 +80,19 @@ class LiveAudit:
     def drain(self) -> None:
         """Audit the records queued so far."""
         self._scheduled = False
-        queue, auditor = self._queue, self.auditor
-        while queue:
-            t, direction, data, baud = queue.popleft()
-            if baud != auditor.baud:
-                auditor.set_baud(baud)
-            auditor.feed(t, direction, data)
+        records = self._queue
+        if not records:
+            return
+        self._queue = []
+        auditor = self.auditor
+        if self._baud != auditor.baud:
+            auditor.set_baud(self._baud)
+        request, reply, rx = auditor.request, auditor.reply, Direction.RX
+        for record in records:
+            if record.direction is rx:
+                request(record.t, record.data)
+            else:
+                reply(record.t, record.data)
 
     def findings(self) -> list[Finding]:
         """The findings so far; 200EH left on is judged at the line's time now (the monotonic clock the ports
@@ -123,6 +136,7 @@ class LiveAudit:
         """Forget what was seen: the next frames are judged afresh (the drives' settings read again)."""
         self._queue.clear()
         self.auditor = self._fresh()
+        self._baud = self._bus.line_baud
 
     def close(self) -> None:
         self._unsubscribe()
