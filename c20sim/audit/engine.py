@@ -288,8 +288,7 @@ class Auditor:
 
     def request(self, t: float, data: bytes) -> None:
         """A frame from the master to the drives (``feed`` with ``rx``)."""
-        self.frames += 1
-        seq = self.frames
+        self.frames = seq = self.frames + 1
         meaning = self._requests.get(data)
         if meaning is None:
             meaning = self._meaning(data)
@@ -304,9 +303,9 @@ class Auditor:
         slave = meaning.slave
         if slave == BROADCAST:
             for address in list(self._drives):  # a broadcast feeds every drive's timer
-                self._silence(address, seq, t)
+                self._silence(self._drives[address], address, seq, t)
         else:
-            self._silence(slave, seq, t)
+            self._silence(self._drives.get(slave) or self._drive(slave), slave, seq, t)
             if meaning.judged:
                 self._written(meaning, seq, t)
         if self._enabled:
@@ -401,23 +400,26 @@ class Auditor:
         )
 
     def _demand(self, seq: int, t: float, cost: float) -> None:
-        if self._first_t is None:
-            self._first_t = t
+        first = self._first_t
+        if first is None:
+            first = self._first_t = t
         self._last_t = t
         self._transactions += 1
         self._busy += cost
         window = self._window
         window.append((t, seq, cost))
         self._window_sum += cost
-        horizon = t - self.limits.window + _EPSILON  # a frame log's times are rounded to the microsecond
+        span = self.limits.window
+        horizon = t - span + _EPSILON  # a frame log's times are rounded to the microsecond
         if window[0][0] <= horizon or len(window) > MAX_WINDOW:
             self._expire(horizon)
-        if t - self._first_t < self.limits.window:
+        if t - first < span:
             return  # not yet a whole window seen
-        percent = 100.0 * self._window_sum / self.limits.window
+        percent = 100.0 * self._window_sum / span
         self._now = percent
-        if percent <= self._peak + 0.5:
-            if percent > self._peak:
+        peak = self._peak
+        if percent <= peak + 0.5:
+            if percent > peak:
                 self._peak = percent
             return
         self._peak = percent
@@ -438,9 +440,8 @@ class Auditor:
             "(F08.01); the replies of a real line would queue and time out",
         )
 
-    def _silence(self, address: int, seq: int, t: float) -> None:
+    def _silence(self, drive: _Drive, address: int, seq: int, t: float) -> None:
         """comm-watchdog: the longest silence towards the drive, against its communication timeout."""
-        drive = self._drive(address)
         last = drive.last_t
         drive.last_t, last_seq, drive.last_seq = t, drive.last_seq, seq
         if last is None or drive.comm_timeout <= 0.0:
