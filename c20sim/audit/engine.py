@@ -109,19 +109,24 @@ def _format(bits: int) -> str:
     return {10: "8N1", 11: "8E1"}.get(bits, f"{bits}-bit")
 
 
-@dataclass(slots=True)
-class _Pending:
-    """The last request, until its reply (or the next request)."""
+@dataclass(frozen=True, slots=True)
+class _Request:
+    """What a request's bytes mean on the line: worked out once per distinct frame (:meth:`Auditor._meaning`),
+    since a master polls the same few frames over and over. It holds nothing that the stream changes, only
+    what follows from the bytes and the line's baud (a baud change forgets them all)."""
 
-    seq: int
-    t: float
-    data: bytes
+    good: bool  #: a request (4 bytes or more, CRC good); else noise, which only holds the line
+    cost: float  #: seconds of line: the transaction's (noise: its own frame's)
     slave: int
     function: int
-    register: int
+    register: int  #: the register read or written (the first of a 0x10), else -1
     value: int  #: the value written (0x06, first of a 0x10), else -1
-    cost: float  #: seconds of line the transaction needs
-    reply_t: float | None = None
+    judged: bool  #: a write to one drive that :meth:`Auditor._written` judges (2001H, 2000H = 7)
+    stores: bool  #: a write that :meth:`Auditor._stored` follows once the drive takes it
+
+
+#: A frame from a drive that answers no request: too short, or a bad CRC (slave -1 matches no request).
+_NOT_A_REPLY = (-1, -1, -1)
 
 
 @dataclass(slots=True)
@@ -183,15 +188,26 @@ class Auditor:
         self._eeprom = frozenset(profile.mirrors) | frozenset(a for a in profile.defaults if is_fcode(a))
         self._timeout_cells = {F_COMM_TIMEOUT} | {r for r, f in profile.mirrors.items() if f == F_COMM_TIMEOUT}
         self._speed_cells = {F_MAX_SPEED} | {r for r, f in profile.mirrors.items() if f == F_MAX_SPEED}
+        #: the registers whose write, once stored, changes what the rules follow (see _stored)
+        self._followed = self._eeprom | {Reg.WRITE_ENABLE} | self._speed_cells
+        if self._timeout_override is None:
+            self._followed |= self._timeout_cells
         self.frames = 0
         self._enabled: set[int] = set()  #: drives with 200EH = 1
-        self._pending: _Pending | None = None
+        # the last request (until the next one): what it means, its place, time and bytes, and its reply's time
+        self._pending: _Request | None = None
+        self._pending_seq = 0
+        self._pending_t = 0.0
+        self._pending_data = b""
+        self._pending_reply: float | None = None
         self._drives: dict[int, _Drive] = {}
         self._counts: dict[tuple[str, int, int, int], _Count] = {}
         self._findings: dict[tuple[str, int | None, str], Finding] = {}
         self._events: deque[Finding] = deque(maxlen=MAX_EVENTS)
-        self._cost: dict[tuple[int, int], float] = {}
-        self._crcs: dict[bytes, bool] = {}  #: frames seen -> CRC good (at most MAX_SUBJECTS)
+        # what the frames seen mean, by their bytes (at most MAX_SUBJECTS each): requests, and replies as
+        # (slave, function, exception code or -1)
+        self._requests: dict[bytes, _Request] = {}
+        self._replies: dict[bytes, tuple[int, int, int]] = {}
         # the line-demand window: (t, seq, cost) of the last transactions, and their sum
         self._window: deque[tuple[float, int, float]] = deque()
         self._window_sum = 0.0
@@ -215,18 +231,18 @@ class Auditor:
         """The line's baud changed (a 2009H write the line followed): judge the next transactions at it."""
         if baud != self.baud:
             self.baud = baud
-            self._cost.clear()
+            self._requests.clear()  # their cost was at the old baud
 
     # -- the stream
 
     def feed(self, t: float, direction: str, data: bytes) -> None:
         """One frame: ``direction`` ``rx`` (master to drive) or ``tx`` (drive to master), at time ``t`` (seconds)."""
-        self.frames += 1
         if direction == "rx":
-            self._request(self.frames, t, data)
+            self.request(t, data)
         elif direction == "tx":
-            self._reply(self.frames, t, data)
+            self.reply(t, data)
         else:
+            self.frames += 1
             raise ValueError(f"direction {direction!r}: expected rx or tx")
 
     def feed_all(self, frames: Iterable[tuple[float, str, bytes]]) -> None:
@@ -270,53 +286,63 @@ class Auditor:
 
     # -- requests
 
-    def _request(self, seq: int, t: float, data: bytes) -> None:
-        ref = FrameRef(seq, t)
-        n = len(data)
-        good = self._crcs.get(data)
-        if good is None:
-            good = self._crc_ok(data)
-        if n < 4 or not good:
-            self._demand(ref, frame_time(n, self.baud, self.bits))  # noise still holds the line
+    def request(self, t: float, data: bytes) -> None:
+        """A frame from the master to the drives (``feed`` with ``rx``)."""
+        self.frames = seq = self.frames + 1
+        meaning = self._requests.get(data)
+        if meaning is None:
+            meaning = self._meaning(data)
+        if not meaning.good:
+            self._demand(seq, t, meaning.cost)  # noise still holds the line
             return
-        slave, function = data[0], data[1]
-        register, value, reply = -1, -1, 5
-        if function in (_READ, _WRITE1) and n == 8:
-            register, value = struct.unpack_from(">HH", data, 2)
-            if function == _READ:
-                reply, value = 5 + 2 * value, -1
-            else:
-                reply = 8
-        elif function == _WRITEN and n >= 11 and n == 9 + data[6]:
-            register, value = struct.unpack_from(">HH", data, 2)[0], struct.unpack_from(">H", data, 7)[0]
-            reply = 8
-        if slave == BROADCAST:
-            reply = 0
-        key = (n, reply)
-        cost = self._cost.get(key)
-        if cost is None:
-            cost = self._cost[key] = transaction_time(n, reply, self.baud, self.bits, self.turnaround)
-        self._timing(ref, data, slave, cost)
-        self._pending = _Pending(seq, t, data, slave, function, register, value, cost)
-        self._demand(ref, cost)
+        if self._pending is not None:
+            self._timing(seq, t, data)
+        self._pending, self._pending_seq, self._pending_t, self._pending_data = meaning, seq, t, data
+        self._pending_reply = None
+        self._demand(seq, t, meaning.cost)
+        slave = meaning.slave
         if slave == BROADCAST:
             for address in list(self._drives):  # a broadcast feeds every drive's timer
-                self._silence(address, ref)
+                self._silence(self._drives[address], address, seq, t)
         else:
-            self._silence(slave, ref)
-            if function in (_WRITE1, _WRITEN) and register >= 0:
-                self._written(slave, register, value, data, ref, function)
+            self._silence(self._drives.get(slave) or self._drive(slave), slave, seq, t)
+            if meaning.judged:
+                self._written(meaning, seq, t)
         if self._enabled:
             self.check_idle(t)
 
-    def _crc_ok(self, data: bytes) -> bool:
-        """:func:`crc_ok`, remembered: a master polls the same few frames over and over."""
-        known = self._crcs.get(data)
-        if known is None:
-            if len(self._crcs) >= MAX_SUBJECTS:
-                self._crcs.clear()
-            known = self._crcs[data] = crc_ok(data)
-        return known
+    def _meaning(self, data: bytes) -> _Request:
+        """What the request ``data`` means, remembered: a master polls the same few frames over and over."""
+        n = len(data)
+        if n < 4 or not crc_ok(data):
+            meaning = _Request(False, frame_time(n, self.baud, self.bits), -1, -1, -1, -1, False, False)
+        else:
+            slave, function = data[0], data[1]
+            register, value, reply = -1, -1, 5
+            if function in (_READ, _WRITE1) and n == 8:
+                register, value = struct.unpack_from(">HH", data, 2)
+                if function == _READ:
+                    reply, value = 5 + 2 * value, -1
+                else:
+                    reply = 8
+            elif function == _WRITEN and n >= 11 and n == 9 + data[6]:
+                register, value = struct.unpack_from(">H", data, 2)[0], struct.unpack_from(">H", data, 7)[0]
+                reply = 8
+            if slave == BROADCAST:
+                reply = 0
+            cost = transaction_time(n, reply, self.baud, self.bits, self.turnaround)
+            write = function in (_WRITE1, _WRITEN) and register >= 0
+            judged = (
+                write
+                and slave != BROADCAST
+                and (register == Reg.SPEED_SETPOINT or (register == Reg.COMMAND and value == Command.RESET))
+            )
+            stores = function != _READ and register in self._followed
+            meaning = _Request(True, cost, slave, function, register, value, judged, stores)
+        if len(self._requests) >= MAX_SUBJECTS:
+            self._requests.clear()
+        self._requests[data] = meaning
+        return meaning
 
     def _drive(self, address: int) -> _Drive:
         found = self._drives.get(address)
@@ -324,12 +350,16 @@ class Auditor:
             found = self._drives[address] = _Drive(self._default_timeout, self._default_max_speed)
         return found
 
-    def _timing(self, ref: FrameRef, data: bytes, slave: int, cost: float) -> None:
+    def _pending_ref(self) -> FrameRef:
+        return FrameRef(self._pending_seq, self._pending_t)
+
+    def _timing(self, seq: int, t: float, data: bytes) -> None:
         """collision, early-retry, broadcast-turnaround: did this request leave too soon after the last one?"""
         last = self._pending
         if last is None:
             return
-        gap = ref.t - last.t
+        last_t = self._pending_t
+        gap = t - last_t
         if last.slave == BROADCAST:
             if gap < self.broadcast_delay:
                 self._report(
@@ -337,29 +367,31 @@ class Auditor:
                     Severity.WARNING,
                     None,
                     "",
-                    (FrameRef(last.seq, last.t), ref),
+                    (self._pending_ref(), FrameRef(seq, t)),
                     f"a request {gap * 1000:.1f} ms after a broadcast; the drive needs "
                     f"{self.broadcast_delay * 1000:.0f} ms (the profile's broadcast_delay_ms)",
                     gap,
                     "wait the turnaround delay after every broadcast before the next request",
                 )
             return
-        if last.reply_t is not None:
-            early = ref.t < last.reply_t - _TIMER_SLACK  # sent before the reply to the last one came out
-            need = last.reply_t - last.t
+        reply_t = self._pending_reply
+        if reply_t is not None:
+            early = t < reply_t - _TIMER_SLACK  # sent before the reply to the last one came out
+            need = reply_t - last_t
         else:
             need = last.cost
             early = gap < need - _EPSILON  # no reply: sent before one could have finished on the line
         if not early:
             return
-        what = "a retry" if data == last.data else "a request"
-        rule = "early-retry" if data == last.data else "collision"
+        retry = data == self._pending_data
+        what = "a retry" if retry else "a request"
+        rule = "early-retry" if retry else "collision"
         self._report(
             rule,
             Severity.ERROR,
             last.slave,
             "",
-            (FrameRef(last.seq, last.t), ref),
+            (self._pending_ref(), FrameRef(seq, t)),
             f"{what} {gap * 1000:.1f} ms after the last, before its reply could have finished "
             f"({need * 1000:.1f} ms on {self.baud} {_format(self.bits)})",
             gap,
@@ -367,25 +399,27 @@ class Auditor:
             bump=True,
         )
 
-    def _demand(self, ref: FrameRef, cost: float) -> None:
-        t = ref.t
-        if self._first_t is None:
-            self._first_t = t
+    def _demand(self, seq: int, t: float, cost: float) -> None:
+        first = self._first_t
+        if first is None:
+            first = self._first_t = t
         self._last_t = t
         self._transactions += 1
         self._busy += cost
         window = self._window
-        window.append((t, ref.seq, cost))
+        window.append((t, seq, cost))
         self._window_sum += cost
-        horizon = t - self.limits.window + _EPSILON  # a frame log's times are rounded to the microsecond
+        span = self.limits.window
+        horizon = t - span + _EPSILON  # a frame log's times are rounded to the microsecond
         if window[0][0] <= horizon or len(window) > MAX_WINDOW:
             self._expire(horizon)
-        if t - self._first_t < self.limits.window:
+        if t - first < span:
             return  # not yet a whole window seen
-        percent = 100.0 * self._window_sum / self.limits.window
+        percent = 100.0 * self._window_sum / span
         self._now = percent
-        if percent <= self._peak + 0.5:
-            if percent > self._peak:
+        peak = self._peak
+        if percent <= peak + 0.5:
+            if percent > peak:
                 self._peak = percent
             return
         self._peak = percent
@@ -398,7 +432,7 @@ class Auditor:
             severity,
             None,
             "",
-            (FrameRef(window[0][1], window[0][0]), ref),
+            (FrameRef(window[0][1], window[0][0]), FrameRef(seq, t)),
             f"line demand {percent:.0f} % of {self.baud} {_format(self.bits)}: {count} transactions in "
             f"{self.limits.window:g} s need {self._window_sum:.3f} s of line",
             percent,
@@ -406,14 +440,13 @@ class Auditor:
             "(F08.01); the replies of a real line would queue and time out",
         )
 
-    def _silence(self, address: int, ref: FrameRef) -> None:
+    def _silence(self, drive: _Drive, address: int, seq: int, t: float) -> None:
         """comm-watchdog: the longest silence towards the drive, against its communication timeout."""
-        drive = self._drive(address)
         last = drive.last_t
-        drive.last_t, last_seq, drive.last_seq = ref.t, drive.last_seq, ref.seq
+        drive.last_t, last_seq, drive.last_seq = t, drive.last_seq, seq
         if last is None or drive.comm_timeout <= 0.0:
             return
-        gap = ref.t - last
+        gap = t - last
         if gap <= drive.longest:
             return
         drive.longest = gap
@@ -426,15 +459,16 @@ class Auditor:
             Severity.ERROR if tripped else Severity.WARNING,
             address,
             "",
-            (FrameRef(last_seq, last), ref),
+            (FrameRef(last_seq, last), FrameRef(seq, t)),
             f"longest silence {gap:.2f} s is {100 * ratio:.0f} % of the communication timeout "
             f"F08.02 = {drive.comm_timeout:g} s" + (": the drive trips CE" if tripped else ""),
             100.0 * ratio,
             "talk to the drive well within its timeout (a poll at most half of F08.02 apart), or raise F08.02",
         )
 
-    def _written(self, slave: int, register: int, value: int, data: bytes, ref: FrameRef, function: int) -> None:
+    def _written(self, request: _Request, seq: int, t: float) -> None:
         """The request side of writes: speed-above-max, reset-loop."""
+        slave, register, value = request.slave, request.register, request.value
         drive = self._drive(slave)
         if register == Reg.SPEED_SETPOINT and value > drive.max_speed:
             self._report(
@@ -442,13 +476,14 @@ class Auditor:
                 Severity.WARNING,
                 slave,
                 "2001H",
-                (ref,),
+                (FrameRef(seq, t),),
                 f"speed reference 2001H = {value} rpm above the maximum speed F00.03 = {drive.max_speed} rpm",
                 float(value),
                 f"keep 2001H within F00.03 ({drive.max_speed} rpm): the drive limits it or refuses it (0x03)",
                 bump=True,
             )
         elif register == Reg.COMMAND and value == Command.RESET:
+            ref = FrameRef(seq, t)
             resets = drive.resets
             resets.append(ref)
             while resets and resets[0].t < ref.t - self.limits.reset_window:
@@ -468,22 +503,36 @@ class Auditor:
 
     # -- replies
 
-    def _reply(self, seq: int, t: float, data: bytes) -> None:
+    def reply(self, t: float, data: bytes) -> None:
+        """A frame from a drive to the master (``feed`` with ``tx``)."""
+        self.frames += 1
         pending = self._pending
-        if pending is None or pending.reply_t is not None or pending.slave == BROADCAST:
+        if pending is None or self._pending_reply is not None or pending.slave == BROADCAST:
             return
-        if len(data) < 5 or data[0] != pending.slave or (data[1] & 0x7F) != pending.function:
+        meaning = self._replies.get(data)
+        if meaning is None:
+            meaning = self._reply_meaning(data)
+        slave, function, code = meaning
+        if slave != pending.slave or function != pending.function:
             return  # a dropped reply (no bytes), noise, or not the answer to the last request
-        good = self._crcs.get(data)
-        if not (good if good is not None else self._crc_ok(data)):
-            return
-        pending.reply_t = t
-        if data[1] & 0x80:
-            self._refused(pending, data[2], FrameRef(seq, t))
-        elif pending.function != _READ:
-            self._stored(pending, FrameRef(seq, t))
+        self._pending_reply = t
+        if code >= 0:
+            self._refused(pending, code, FrameRef(self.frames, t))
+        elif pending.stores:
+            self._stored(pending)
 
-    def _refused(self, request: _Pending, code: int, ref: FrameRef) -> None:
+    def _reply_meaning(self, data: bytes) -> tuple[int, int, int]:
+        """(slave, function, exception code or -1) of the reply ``data``, remembered like a request's meaning."""
+        if len(data) < 5 or not crc_ok(data):
+            meaning = _NOT_A_REPLY
+        else:
+            meaning = (data[0], data[1] & 0x7F, data[2] if data[1] & 0x80 else -1)
+        if len(self._replies) >= MAX_SUBJECTS:
+            self._replies.clear()
+        self._replies[data] = meaning
+        return meaning
+
+    def _refused(self, request: _Request, code: int, ref: FrameRef) -> None:
         register = request.register
         if register == Reg.SPEED_SETPOINT and code == ExceptionCode.ILLEGAL_VALUE:
             return  # speed-above-max says it
@@ -507,7 +556,7 @@ class Auditor:
         if count is None:
             return
         count.n += 1
-        count.first = count.first or FrameRef(request.seq, request.t)
+        count.first = count.first or self._pending_ref()
         count.last = ref
         if count.n < self.limits.repeats:
             return
@@ -528,7 +577,7 @@ class Auditor:
             advice,
         )
 
-    def _stored(self, request: _Pending, ref: FrameRef) -> None:
+    def _stored(self, request: _Request) -> None:
         """A write the drive took: follow the settings the rules use; eeprom-wear, write-enable-left-on."""
         register, value, slave = request.register, request.value, request.slave
         drive = self._drive(slave)
@@ -538,7 +587,7 @@ class Auditor:
                 self._enabled.add(slave)
             else:
                 self._enabled.discard(slave)
-            drive.enable_ref = FrameRef(request.seq, request.t) if value else None
+            drive.enable_ref = self._pending_ref() if value else None
             drive.last_fcode_write = None
             return
         if register in self._timeout_cells and self._timeout_override is None:
@@ -548,15 +597,15 @@ class Auditor:
             drive.max_speed = value
         if register not in self._eeprom:
             return
-        drive.last_fcode_write = request.t
+        drive.last_fcode_write = self._pending_t
         count = self._count(("eeprom-wear", slave, register, 0))
         if count is None:
             return
         count.n += 1
         count.same_value = count.same_value and (count.value in (-1, value))
         count.value = value
-        count.first = count.first or FrameRef(request.seq, request.t)
-        count.last = FrameRef(request.seq, request.t)
+        count.first = count.first or self._pending_ref()
+        count.last = self._pending_ref()
         if count.n < self.limits.cyclic_writes:
             return
         span = count.last.t - count.first.t

@@ -315,3 +315,60 @@ def test_every_rule_has_a_section_in_the_docs() -> None:
 
     text = (Path(__file__).resolve().parents[2] / "docs" / "audit.md").read_text()
     assert [rule for rule in RULES if f"### `{rule}`" not in text] == []
+
+
+# -- what a frame means is remembered by its bytes (a master polls the same few): never what the stream changed
+
+
+def test_the_same_request_after_a_baud_change_costs_the_new_baud(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    request = encode(ReadRequest(1, Reg.STATUS1, 1))
+    auditor.feed(1.0, "rx", request)
+    auditor.set_baud(9600)
+    auditor.feed(2.0, "rx", request)
+    demand = auditor.line_demand()
+    assert (demand.baud, demand.transactions) == (9600, 2)
+    assert demand.busy == READ_TX + transaction_time(8, 7, 9600, 10, 0.002)
+
+
+def test_a_remembered_poll_is_judged_by_the_timeout_written_since(profile: Profile) -> None:
+    auditor = Auditor(profile)  # F08.02 = 0 by default: no watchdog
+    poll, answer = encode(ReadRequest(1, Reg.STATUS1, 1)), encode(ReadResponse(1, (5,)))
+    write = encode(WriteSingleRequest(1, F08_02, 20))  # 2.0 s
+    t = 0.0
+    for gap in (3.0, 3.0, 0.5):
+        t += gap
+        auditor.feed(t, "rx", poll)
+        auditor.feed(t + 0.002, "tx", answer)
+    assert auditor.findings() == []
+    auditor.feed(t + 0.1, "rx", write)
+    auditor.feed(t + 0.102, "tx", write)  # the drive took it (0x06 echoes the request)
+    auditor.feed(t + 2.0, "rx", poll)  # 1.9 s after the write: 95 % of the new timeout
+    (finding,) = auditor.findings()
+    assert (finding.rule, finding.severity, finding.drive) == ("comm-watchdog", Severity.WARNING, 1)
+    assert finding.figure == "longest silence 1.90 s is 95 % of the communication timeout F08.02 = 2 s"
+
+
+async def test_the_live_audit_judges_each_frame_at_the_baud_it_went_at(profile: Profile) -> None:
+    """Frames queued on both sides of a 2009H write the line followed (no loop turn between them): those
+    before it cost the old baud, those after the new one, as a frame at a time would."""
+    from c20sim.control import liveaudit
+    from c20sim.core.simulator import Simulator
+    from c20sim.wire.protocol import FrameEvent, FrameKind
+
+    sim = Simulator(profile, (1,), seed=1)
+    audit = liveaudit.start(sim)
+    try:
+        poll = encode(ReadRequest(1, Reg.STATUS1, 1))
+        frames = [poll, encode(WriteSingleRequest(1, Reg.BAUD, 5)), poll, poll]  # 5: 38400 baud
+        for k, frame in enumerate(frames):
+            assert sim.bus.handle(FrameEvent(FrameKind.FRAME, frame, 1.0 + k), sim.now()) is not None
+        assert sim.bus.line_baud == 38400
+        assert len(audit._queue) > 0  # not yet audited: the loop has not turned
+        demand = audit.line_demand()
+        assert (demand.baud, demand.transactions, audit.auditor.frames) == (38400, 4, 8)
+        write = transaction_time(8, 8, 19200, 10, 0.002)
+        fast = transaction_time(8, 7, 38400, 10, 0.002)
+        assert demand.busy == READ_TX + write + fast + fast
+    finally:
+        audit.close()
