@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from bisect import bisect_left
 from collections import deque
@@ -42,7 +43,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["LATENCY_BUCKETS", "Latency", "Line", "Respond", "SelfTimed"]
+__all__ = ["LATENCY_BUCKETS", "Latency", "Line", "Respond", "SelfTimed", "call_no_earlier"]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,25 @@ class Latency:
         self.sum += seconds
 
 
+def call_no_earlier(
+    loop: asyncio.AbstractEventLoop, due: float, callback: Callable[..., object], *args: object
+) -> asyncio.TimerHandle:
+    """Call ``callback(*args)`` once ``time.perf_counter()`` has reached ``due``: never before, and within about a
+    millisecond after (the loop's timer resolution).
+
+    asyncio's loop counts in float seconds on the same monotonic clock and never fires early. uvloop counts
+    whole milliseconds (libuv's): it rounds a delay to the nearest one and counts from a clock truncated to
+    the millisecond, so a plain ``call_later(0.013458)`` fires up to 1.5 ms early (bench/bench_plant.py, part
+    0). Here the delay is whole milliseconds from the loop's own millisecond to the first millisecond at or
+    after ``due``: libuv then fires at ``due`` or up to 1 ms later, never earlier.
+    """
+    if type(loop).__module__.partition(".")[0] == "uvloop":
+        delay = (math.ceil(due * 1000.0) - round(loop.time() * 1000.0)) / 1000.0
+    else:
+        delay = due - time.perf_counter()
+    return loop.call_later(max(0.0, delay), callback, *args)
+
+
 def _nothing(reply: Reply | None) -> None:
     """The respond of a delay whose reply was handed over already."""
 
@@ -116,6 +136,8 @@ class Line:
         self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
         self._busy = False
         self._timer: asyncio.TimerHandle | None = None
+        self._free_at = 0.0
+        self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
         #: the replies' latency (request's last byte to reply handed over), for GET /metrics
@@ -140,8 +162,14 @@ class Line:
 
     @property
     def free_at(self) -> float | None:
-        """The event loop's time at which the transaction holding the line ends; None while the line is free."""
-        return self._timer.when() if self._timer is not None else None
+        """When the transaction holding the line ends (``time.perf_counter``, the monotonic clock the ports stamp
+        frames with); None while the line is free."""
+        return self._free_at if self._timer is not None else None
+
+    def _loop(self) -> asyncio.AbstractEventLoop:
+        if self._event_loop is None:
+            self._event_loop = asyncio.get_running_loop()  # once: each call costs a getpid() system call
+        return self._event_loop
 
     @property
     def waiting(self) -> int:
@@ -189,8 +217,8 @@ class Line:
                     _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
-                loop = asyncio.get_running_loop()
-                self._timer = loop.call_later(hold, self._release, reply, respond, event.t)
+                self._free_at = time.perf_counter() + hold
+                self._timer = call_no_earlier(self._loop(), self._free_at, self._release, reply, respond, event.t)
                 return
             if reply is not None:
                 self.latency.observe(time.perf_counter() - event.t)

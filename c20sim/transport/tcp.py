@@ -120,6 +120,7 @@ class _Connection(asyncio.Protocol):
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = cast(asyncio.Transport, transport)  # uvloop's transports do not subclass asyncio's
+        self.loop = asyncio.get_running_loop()  # once: each get_running_loop() costs a getpid() system call
         self.transport.set_write_buffer_limits(high=WRITE_HIGH_WATER)
         self.owner.connections.add(self)
 
@@ -294,7 +295,7 @@ class _MbapConnection(_Connection):
         """One request answered (or left unanswered, a broadcast): room for the next."""
         self._outstanding -= 1
         if self.transport is not None:
-            asyncio.get_running_loop().call_soon(self._parse)
+            self.loop.call_soon(self._parse)
 
     def _parse(self) -> None:
         buf = self._buffer
@@ -315,7 +316,7 @@ class _MbapConnection(_Connection):
 
     def _request(self, transaction: int, unit: int, pdu: bytes) -> None:
         line = self.owner.line
-        loop = asyncio.get_running_loop()
+        loop = self.loop
         framer = RtuFramer(line.sim.bus.line_baud, check_gaps=False)
         framer.feed(with_crc(bytes((unit,)) + pdu), loop.time())
         framer.flush()
