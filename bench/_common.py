@@ -9,8 +9,11 @@ reports its CPU time and RSS when told to stop.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import dataclasses
+import functools
+import gc
 import json
 import logging
 import multiprocessing as mp
@@ -22,7 +25,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -144,6 +147,24 @@ class ServerReport:
     rss_end_kib: int
     faults_switched: int = 0
     errors_logged: int = 0  #: log records at ERROR or above: a bug in serving
+    #: the garbage collector's pauses (a stop-the-world pause holds every reply): (time.monotonic() at its start,
+    #: generation, seconds), the last 100000 of them
+    gc_pauses: list[tuple[float, int, float]] = dataclasses.field(default_factory=list)
+
+
+class _GcPauses:
+    """Times the garbage collector's pauses (gc.callbacks)."""
+
+    def __init__(self) -> None:
+        self.started = 0.0
+        self.pauses: collections.deque[tuple[float, int, float]] = collections.deque(maxlen=100_000)
+        gc.callbacks.append(self)
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self.started = time.monotonic()
+        else:
+            self.pauses.append((self.started, info.get("generation", -1), time.monotonic() - self.started))
 
 
 class ChildServer:
@@ -221,6 +242,7 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
     loop = asyncio.get_running_loop()
     errors = _ErrorCounter()
     logging.getLogger().addHandler(errors)
+    pauses = _GcPauses()
     rss_start = rss_kib()
     closers: list[Callable[[], Any]] = []
     switched = 0
@@ -297,7 +319,14 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
             conn.send((_main_thread_cpu() - cpu0, time.monotonic() - wall0))
         else:
             break
-    report = ServerReport(cpu_seconds(), rss_start, rss_kib(), switched, errors.count)
+    report = ServerReport(
+        cpu_seconds(),
+        rss_start,
+        rss_kib(),
+        switched,
+        errors.count,
+        list(pauses.pauses),
+    )
     for close in closers:
         with contextlib.suppress(Exception):
             result = close()
@@ -332,6 +361,13 @@ def _random_faults(link: Any, rng: random.Random, *, wrong: bool = False) -> Non
         link.garbage_before = b"\x00\x00" + bytes(rng.randrange(256) for _ in range(rng.randint(0, 3)))
     elif choice == "drop_next":
         link.drop_next = rng.randint(1, 3)
+
+
+def pin_process(pid: int, cpus: Collection[int]) -> None:
+    """Pin every thread of process ``pid`` to ``cpus`` (sched_setaffinity on a pid pins that thread alone)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(ProcessLookupError):
+            os.sched_setaffinity(int(task.name), set(cpus))
 
 
 def free_port() -> int:
@@ -372,9 +408,13 @@ def loadgen(
     warmup: float = 0.0,
     rate: float | None = None,
     due_us: float | None = None,
-    cpus: set[int] | None = None,
+    cpus: Collection[int] | None = None,
+    dump: Path | None = None,
 ) -> dict[str, float]:
-    """Run the C load client to its end; its JSON figures (see bench/loadgen.c). ``cpus``: the cores it may use."""
+    """Run the C load client to its end; its JSON figures (see bench/loadgen.c).
+
+    ``cpus``: the cores the client may run on (so that it does not share the server's); ``dump``: a file to
+    which the client writes every measured latency (us, one a line, ascending)."""
     args = [str(loadgen_binary()), "--conns", str(conns), "--warmup", str(warmup)]
     for port in ports:
         args += ["--port", str(port)]
@@ -388,7 +428,9 @@ def loadgen(
         args += ["--rate", str(rate)]
     if due_us is not None:
         args += ["--due-us", str(due_us)]
-    pin = None if cpus is None else lambda: os.sched_setaffinity(0, cpus)
+    if dump is not None:
+        args += ["--dump", str(dump)]
+    pin = None if cpus is None else functools.partial(os.sched_setaffinity, 0, set(cpus))
     result = subprocess.run(args, capture_output=True, text=True, preexec_fn=pin)
     if result.returncode:
         raise RuntimeError(f"loadgen failed: {result.stderr.strip()}")

@@ -9,7 +9,8 @@
    --rate HZ paces each connection: request k is due at start + k / HZ (a master's polling cycle), sent at
    that time or when the previous reply came, whichever is later. --due-us US is the time each reply is
    due after its request (a real line's transaction time): the lateness of each reply (latency - due) is
-   reported too.
+   reported too. --dump PATH writes every measured latency (us, one a line, ascending) to PATH, for a
+   histogram of them.
 
    Prints one JSON object: requests, seconds, req_s, latency percentiles (us), the fewest and most requests
    any connection got through (fairness), and lateness percentiles when --due-us is given.
@@ -116,6 +117,7 @@ static void send_next(conn_t *c, double t) {
 
 int main(int argc, char **argv) {
     const char *host = "127.0.0.1";
+    const char *dump = NULL;
     int ports[MAX_PORTS], nports = 0, conns = 1;
     long requests = 0;
     double seconds = 0, rate = 0, due_us = -1, warmup = 0;
@@ -135,12 +137,14 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--rate")) rate = atof(v);
         else if (!strcmp(a, "--due-us")) due_us = atof(v);
         else if (!strcmp(a, "--frame")) add_frame(v);
+        else if (!strcmp(a, "--dump")) dump = v;
         else { fprintf(stderr, "loadgen: unknown option %s\n", a); return 2; }
         i++;
     }
     if (!nports || !nframes || conns < 1 || (!requests && seconds <= 0)) {
         fprintf(stderr, "usage: loadgen --port P [--port P2 ...] --frame HEX [--frame HEX ...] [--conns N]\n"
-                        "               (--requests N | --seconds S) [--warmup S] [--rate HZ] [--due-us US]\n");
+                        "               (--requests N | --seconds S) [--warmup S] [--rate HZ] [--due-us US]\n"
+                        "               [--dump PATH]\n");
         return 2;
     }
     conn_t *cs = calloc(conns, sizeof(conn_t));
@@ -238,6 +242,12 @@ int main(int argc, char **argv) {
         close(cs[i].fd);
     }
     qsort(lat, nlat, sizeof(double), cmp);
+    if (dump) {
+        FILE *out = fopen(dump, "w");
+        if (!out) { perror("loadgen: --dump"); return 1; }
+        for (long i = 0; i < nlat; i++) fprintf(out, "%.1f\n", lat[i]);
+        fclose(out);
+    }
     printf("{\"requests\": %ld, \"seconds\": %.6f, \"req_s\": %.1f, \"p50_us\": %.1f, \"p90_us\": %.1f, "
            "\"p99_us\": %.1f, \"p999_us\": %.1f, \"max_us\": %.1f, \"fewest\": %ld, \"most\": %ld",
            nlat, elapsed, nlat / elapsed, pct(lat, nlat, 50), pct(lat, nlat, 90), pct(lat, nlat, 99),
