@@ -308,6 +308,8 @@ async def _serve(spec: ServerSpec, conn: Connection) -> None:
         closers.append(lambda: task)
     else:
         raise ValueError(spec.kind)
+    if spec.kind == "c20sim":
+        gc.freeze()  # as c20sim serve does once it has started (serve.run_server)
     conn.send(("ready", ports))
     while True:
         message = await loop.run_in_executor(None, conn.recv)

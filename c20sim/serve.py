@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import gc
 import json
 import os
 import signal
@@ -377,6 +378,9 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
     restore = _on_stop_signals(stop)
     try:
         await server.start()
+        # What start-up made (modules, the profile, the drives, the listeners) lives as long as serving: keep
+        # it out of every full garbage collection, which would otherwise walk it while the wire waits.
+        gc.freeze()
         print(server.ready_line(), file=out, flush=True)
         stopped = asyncio.ensure_future(stop.wait())
         ends: list[asyncio.Future[Any]] = [stopped]
