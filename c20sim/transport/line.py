@@ -43,7 +43,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["LATENCY_BUCKETS", "Latency", "Line", "Respond", "SelfTimed", "call_no_earlier"]
+__all__ = ["LATENCY_BUCKETS", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
@@ -103,23 +103,42 @@ class Latency:
         self.sum += seconds
 
 
-def call_no_earlier(
-    loop: asyncio.AbstractEventLoop, due: float, callback: Callable[..., object], *args: object
-) -> asyncio.TimerHandle:
-    """Call ``callback(*args)`` once ``time.perf_counter()`` has reached ``due``: never before, and within about a
-    millisecond after (the loop's timer resolution).
+class DueTimer:
+    """Calls ``callback(*args)`` once ``time.perf_counter()`` has reached ``due``: never before, and within about
+    a millisecond after (the loop's timer resolution). ``cancel()`` as a timer handle's.
 
-    asyncio's loop counts in float seconds on the same monotonic clock and never fires early. uvloop counts
-    whole milliseconds (libuv's): it rounds a delay to the nearest one and counts from a clock truncated to
-    the millisecond, so a plain ``call_later(0.013458)`` fires up to 1.5 ms early (bench/bench_plant.py, part
-    0). Here the delay is whole milliseconds from the loop's own millisecond to the first millisecond at or
-    after ``due``: libuv then fires at ``due`` or up to 1 ms later, never earlier.
+    asyncio's loop counts float seconds on the same monotonic clock and never fires early. uvloop counts whole
+    milliseconds (libuv's): it rounds a delay to the nearest one and counts from a clock truncated to the
+    millisecond, so a plain ``call_later(0.013458)`` fired 0.3-1.5 ms early (bench/bench_plant.py, part 0).
+    Here the delay asked of the loop is rounded up to whole milliseconds, which an idle loop waits out in full;
+    a busy loop fires at the first turn past its millisecond, which can still be before ``due``: the timer then
+    looks at the clock and waits the rest.
     """
-    if type(loop).__module__.partition(".")[0] == "uvloop":
-        delay = (math.ceil(due * 1000.0) - round(loop.time() * 1000.0)) / 1000.0
-    else:
-        delay = due - time.perf_counter()
-    return loop.call_later(max(0.0, delay), callback, *args)
+
+    __slots__ = ("_args", "_callback", "_handle", "_loop", "_ms", "due")
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, due: float, callback: Callable[..., object], *args: object):
+        self._loop = loop
+        self.due = due
+        self._callback = callback
+        self._args = args
+        self._ms = type(loop).__module__.partition(".")[0] == "uvloop"  # whole-millisecond timers
+        self._handle = self._arm()
+
+    def _arm(self) -> asyncio.TimerHandle | asyncio.Handle:
+        delay = self.due - time.perf_counter()
+        if self._ms:
+            delay = math.ceil(delay * 1000.0) / 1000.0
+        return self._loop.call_later(max(0.0, delay), self._fire)
+
+    def _fire(self) -> None:
+        if time.perf_counter() < self.due:
+            self._handle = self._arm()  # a busy loop's millisecond came before the due time: the rest
+            return
+        self._callback(*self._args)
+
+    def cancel(self) -> None:
+        self._handle.cancel()
 
 
 def _nothing(reply: Reply | None) -> None:
@@ -135,8 +154,7 @@ class Line:
         self.bus_timing = bus_timing
         self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
         self._busy = False
-        self._timer: asyncio.TimerHandle | None = None
-        self._free_at = 0.0
+        self._timer: DueTimer | None = None
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
@@ -164,7 +182,7 @@ class Line:
     def free_at(self) -> float | None:
         """When the transaction holding the line ends (``time.perf_counter``, the monotonic clock the ports stamp
         frames with); None while the line is free."""
-        return self._free_at if self._timer is not None else None
+        return self._timer.due if self._timer is not None else None
 
     def _loop(self) -> asyncio.AbstractEventLoop:
         if self._event_loop is None:
@@ -217,8 +235,7 @@ class Line:
                     _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
-                self._free_at = time.perf_counter() + hold
-                self._timer = call_no_earlier(self._loop(), self._free_at, self._release, reply, respond, event.t)
+                self._timer = DueTimer(self._loop(), time.perf_counter() + hold, self._release, reply, respond, event.t)
                 return
             if reply is not None:
                 self.latency.observe(time.perf_counter() - event.t)

@@ -20,7 +20,7 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
 from c20sim.serve import ServeOptions, Server
-from c20sim.transport.line import call_no_earlier
+from c20sim.transport.line import DueTimer
 from c20sim.wire.protocol import (
     FrameEvent,
     FrameKind,
@@ -160,26 +160,38 @@ async def test_a_silent_request_holds_the_line_for_its_frame(started: list[Serve
     assert free_at is not None and free_at >= before + frame_time(8, 19200, 10)
 
 
-async def _fire_times(hold: float, count: int) -> list[float]:
-    """How long after each due time ``call_no_earlier`` called back (negative: early), on the running loop."""
+async def _fire_times(hold: float, count: int, *, busy: bool = False) -> list[float]:
+    """How long after each due time a ``DueTimer`` called back (negative: early), on the running loop; ``busy``:
+    while another task turns the loop without a pause (a serving loop under load)."""
     loop = asyncio.get_running_loop()
     lateness: list[float] = []
+    if busy:
+
+        async def spin() -> None:
+            while True:
+                await asyncio.sleep(0)
+
+        spinner = asyncio.ensure_future(spin())
+        lateness = await _fire_times(hold, count)
+        spinner.cancel()
+        return lateness
     for i in range(count):
         fired = loop.create_future()
         due = time.perf_counter() + hold
-        call_no_earlier(loop, due, lambda f=fired: f.set_result(time.perf_counter()))
+        DueTimer(loop, due, lambda f=fired: f.set_result(time.perf_counter()))
         lateness.append(await fired - due)
         await asyncio.sleep(0.0003 * (i % 5))  # start at other points of the loop's millisecond
     return lateness
 
 
+@pytest.mark.parametrize("busy", [False, True], ids=["idle", "busy"])
 @pytest.mark.parametrize("hold", [0.013458, 0.0005, 0.002])
-def test_a_held_reply_is_never_handed_over_before_its_time_on_uvloop(hold: float) -> None:
+def test_a_held_reply_is_never_handed_over_before_its_time_on_uvloop(hold: float, busy: bool) -> None:
     # uvloop rounds a delay to whole milliseconds from a truncated clock: a plain call_later(13.458 ms) fires
     # 0.3-1.5 ms early. A reply handed over early would make the line faster than the real one.
     import uvloop  # serve's loop (a dependency wherever serve runs on it)
 
-    lateness = uvloop.run(_fire_times(hold, 40))
+    lateness = uvloop.run(_fire_times(hold, 40, busy=busy))
     assert min(lateness) >= 0.0, f"{-min(lateness) * 1e6:.0f} us early"
 
 
