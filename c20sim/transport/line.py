@@ -43,7 +43,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["LATENCY_BUCKETS", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
+__all__ = ["EARLY", "LATENCY_BUCKETS", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
@@ -103,37 +103,35 @@ class Latency:
         self.sum += seconds
 
 
+#: How early a held reply may be handed over: half a millisecond, the rounding of a loop that counts whole ones.
+EARLY = 0.0005
+
+
 class DueTimer:
-    """Calls ``callback(*args)`` once ``time.perf_counter()`` has reached ``due``: never before, and within about
-    a millisecond after (the loop's timer resolution). ``cancel()`` as a timer handle's.
+    """Calls ``callback(*args)`` when ``time.perf_counter()`` reaches ``due``: at most :data:`EARLY` before, and
+    within about a millisecond after (the loop's timer resolution). ``cancel()`` as a timer handle's.
 
     asyncio's loop counts float seconds on the same monotonic clock and never fires early. uvloop counts whole
-    milliseconds (libuv's): it rounds a delay to the nearest one and counts from a clock truncated to the
-    millisecond, so a plain ``call_later(0.013458)`` fired 0.3-1.5 ms early (bench/bench_plant.py, part 0).
-    Here the delay asked of the loop is rounded up to whole milliseconds, which an idle loop waits out in full;
-    a busy loop fires at the first turn past its millisecond, which can still be before ``due``: the timer then
-    looks at the clock and waits the rest.
+    milliseconds (libuv's): it rounds the delay to the nearest one, which an idle loop waits out from now
+    (+-0.5 ms), but a busy loop fires at the first turn past that millisecond of a clock truncated to the
+    millisecond: a plain ``call_later(0.013458)`` there fired up to 1.5 ms early (bench/bench_plant.py, part
+    0). So when it fires, the timer looks at the clock: more than :data:`EARLY` before ``due``, it waits the
+    rest, rounded up to whole milliseconds (a shorter wait would be rounded to none, and spin the loop).
     """
 
-    __slots__ = ("_args", "_callback", "_handle", "_loop", "_ms", "due")
+    __slots__ = ("_args", "_callback", "_handle", "_loop", "due")
 
     def __init__(self, loop: asyncio.AbstractEventLoop, due: float, callback: Callable[..., object], *args: object):
         self._loop = loop
         self.due = due
         self._callback = callback
         self._args = args
-        self._ms = type(loop).__module__.partition(".")[0] == "uvloop"  # whole-millisecond timers
-        self._handle = self._arm()
-
-    def _arm(self) -> asyncio.TimerHandle | asyncio.Handle:
-        delay = self.due - time.perf_counter()
-        if self._ms:
-            delay = math.ceil(delay * 1000.0) / 1000.0
-        return self._loop.call_later(max(0.0, delay), self._fire)
+        self._handle = loop.call_later(max(0.0, due - time.perf_counter()), self._fire)
 
     def _fire(self) -> None:
-        if time.perf_counter() < self.due:
-            self._handle = self._arm()  # a busy loop's millisecond came before the due time: the rest
+        early = self.due - time.perf_counter()
+        if early > EARLY:
+            self._handle = self._loop.call_later(math.ceil(early * 1000.0) / 1000.0, self._fire)
             return
         self._callback(*self._args)
 

@@ -20,7 +20,7 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
 from c20sim.serve import ServeOptions, Server
-from c20sim.transport.line import DueTimer
+from c20sim.transport.line import EARLY, DueTimer
 from c20sim.wire.protocol import (
     FrameEvent,
     FrameKind,
@@ -186,13 +186,13 @@ async def _fire_times(hold: float, count: int, *, busy: bool = False) -> list[fl
 
 @pytest.mark.parametrize("busy", [False, True], ids=["idle", "busy"])
 @pytest.mark.parametrize("hold", [0.013458, 0.0005, 0.002])
-def test_a_held_reply_is_never_handed_over_before_its_time_on_uvloop(hold: float, busy: bool) -> None:
-    # uvloop rounds a delay to whole milliseconds from a truncated clock: a plain call_later(13.458 ms) fires
-    # 0.3-1.5 ms early. A reply handed over early would make the line faster than the real one.
+def test_a_held_reply_is_handed_over_at_most_half_a_millisecond_early_on_uvloop(hold: float, busy: bool) -> None:
+    # uvloop rounds a delay to whole milliseconds, and a busy loop counts from a truncated clock: a plain
+    # call_later(13.458 ms) fires 0.3-1.5 ms early, and a master would see a line faster than the real one.
     import uvloop  # serve's loop (a dependency wherever serve runs on it)
 
     lateness = uvloop.run(_fire_times(hold, 40, busy=busy))
-    assert min(lateness) >= 0.0, f"{-min(lateness) * 1e6:.0f} us early"
+    assert min(lateness) >= -EARLY, f"{-min(lateness) * 1e6:.0f} us early"
 
 
 @pytest.mark.parametrize("hold", [0.013458, 0.0005])
