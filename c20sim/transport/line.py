@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 from bisect import bisect_left
 from collections import deque
@@ -116,7 +115,8 @@ class DueTimer:
     (+-0.5 ms), but a busy loop fires at the first turn past that millisecond of a clock truncated to the
     millisecond: a plain ``call_later(0.013458)`` there fired up to 1.5 ms early (bench/bench_plant.py, part
     0). So when it fires, the timer looks at the clock: more than :data:`EARLY` before ``due``, it waits the
-    rest, rounded up to whole milliseconds (a shorter wait would be rounded to none, and spin the loop).
+    rest, which the loop rounds to a whole millisecond or more (more than 0.5 ms is never rounded to none, so
+    the loop does not spin), and looks again.
     """
 
     __slots__ = ("_args", "_callback", "_handle", "_loop", "due")
@@ -131,7 +131,7 @@ class DueTimer:
     def _fire(self) -> None:
         early = self.due - time.perf_counter()
         if early > EARLY:
-            self._handle = self._loop.call_later(math.ceil(early * 1000.0) / 1000.0, self._fire)
+            self._handle = self._loop.call_later(early, self._fire)
             return
         self._callback(*self._args)
 
