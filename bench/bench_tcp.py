@@ -2,8 +2,9 @@
 
 Each server runs in a child process of its own, pinned to core 0; the load comes from the C client
 (bench/loadgen.c) on core 1, which costs the measurement about 2 us a request where a Python client
-costs 20-30. Its requests are write 2001H = v and read 2001H, alternately, v changing every write, and it
-checks every reply (length, CRC, address, function). The servers take turns in rounds, so that the
+costs 20-30, and checks every reply (length, CRC, address, function). Two loads: single-register reads of
+2001H (a master polling: the issue's measurement), and write 2001H = v then read 2001H, v changing every
+write (the drive derives its settings anew at each write). The servers take turns in rounds, so that the
 machine's noise falls on all of them alike: the ratios are the figures.
 
 Servers:
@@ -18,7 +19,7 @@ Sequential: one connection, one request at a time (a master's rhythm): requests/
 the server's CPU per request. Saturated: ``--clients`` connections at once: requests/s and CPU per
 request, and the fewest and most requests any connection got through.
 
-    .venv/bin/python bench/bench_tcp.py --seconds 3 --rounds 5 --clients 4
+    .venv/bin/python bench/bench_tcp.py --seconds 2 --rounds 5 --clients 4 [--mix reads|write-read|both]
 """
 
 from __future__ import annotations
@@ -47,19 +48,27 @@ SERVERS = {
     FLOOR: ServerSpec("floor"),
 }
 
-#: write 2001H = v, read 2001H, for eight values of v: every write changes the set speed
-FRAMES = [
-    frame
-    for v in range(100, 900, 100)
-    for frame in (encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, v)), encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1)))
-]
+#: the loads: single-register reads of 2001H (the issue's measurement, a master polling), and write 2001H = v
+#: then read 2001H for eight values of v (every write changes the set speed, so the drive derives its
+#: settings anew each time: the dearer request)
+MIXES = {
+    "reads": [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))],
+    "write-read": [
+        frame
+        for v in range(100, 900, 100)
+        for frame in (
+            encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, v)),
+            encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1)),
+        )
+    ],
+}
 
 SERVER_CPU, CLIENT_CPU = {0}, {1}
 
 
-def measure(server: ChildServer, conns: int, seconds: float) -> dict[str, float]:
+def measure(server: ChildServer, frames: list[bytes], conns: int, seconds: float) -> dict[str, float]:
     cpu0 = server.cpu_rss()[0]
-    figures = loadgen([server.port], FRAMES, conns=conns, seconds=seconds, warmup=0.3, cpus=CLIENT_CPU)
+    figures = loadgen([server.port], frames, conns=conns, seconds=seconds, warmup=0.3, cpus=CLIENT_CPU)
     cpu = server.cpu_rss()[0] - cpu0
     # the server's CPU over warm-up and run, per request answered in both (at the measured rate)
     figures["cpu_us"] = cpu / (figures["req_s"] * (seconds + 0.3)) * 1e6
@@ -74,35 +83,8 @@ def table(rows: dict[str, dict[str, float]], columns: list[tuple[str, str, str]]
         print(f"| {name:<58} |" + "".join(f" {figures[key]:>{len(title)}{fmt}} |" for title, key, fmt in columns))
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=3.0, help="seconds of load per server and round")
-    parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--clients", type=int, default=4, help="connections at once, for the saturated run")
-    args = parser.parse_args()
-
-    servers = {name: ChildServer(spec) for name, spec in SERVERS.items()}
-    sequential: dict[str, list[dict[str, float]]] = {name: [] for name in servers}
-    saturated: dict[str, list[dict[str, float]]] = {name: [] for name in servers}
-    try:
-        for server in servers.values():
-            os.sched_setaffinity(server.process.pid, SERVER_CPU)
-        for _ in range(args.rounds):
-            for name, server in servers.items():
-                sequential[name].append(measure(server, 1, args.seconds))
-            for name, server in servers.items():
-                saturated[name].append(measure(server, args.clients, args.seconds))
-    finally:
-        for server in servers.values():
-            server.stop()
-
-    def medians(runs: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, float]]:
-        return {name: {key: median(r[key] for r in rs) for key in rs[0]} for name, rs in runs.items()}
-
-    seq, sat = medians(sequential), medians(saturated)
-    print(f"RTU over TCP, {time.strftime('%Y-%m-%d')}, {machine()}; servers on core 0, the C client on core 1")
-    print(f"{args.rounds} alternating rounds of {args.seconds:g} s per server (medians of the rounds);")
-    print("write 2001H = v and read 2001H alternately, v changing every write")
+def report(mix: str, seq: dict[str, dict[str, float]], sat: dict[str, dict[str, float]], clients: int) -> None:
+    print(f"### {mix}: " + ("single-register reads of 2001H" if mix == "reads" else "write 2001H = v, read 2001H"))
     print()
     print("Sequential: one connection, one request at a time")
     print()
@@ -124,7 +106,7 @@ def main() -> int:
         f"{seq[NO_AUDIT]['req_s'] / seq[PYMODBUS]['req_s']:.2f}x"
     )
     print()
-    print(f"Saturated: {args.clients} connections at once")
+    print(f"Saturated: {clients} connections at once")
     print()
     table(
         sat,
@@ -142,6 +124,40 @@ def main() -> int:
         f"--no-audit / floor: {sat[NO_AUDIT]['req_s'] / sat[FLOOR]['req_s']:.2f}x; / pymodbus: "
         f"{sat[NO_AUDIT]['req_s'] / sat[PYMODBUS]['req_s']:.2f}x"
     )
+    print()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=2.0, help="seconds of load per server, load and round")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--clients", type=int, default=4, help="connections at once, for the saturated run")
+    parser.add_argument("--mix", choices=[*MIXES, "both"], default="both", help="the requests (default: both loads)")
+    args = parser.parse_args()
+    mixes = list(MIXES) if args.mix == "both" else [args.mix]
+
+    servers = {name: ChildServer(spec) for name, spec in SERVERS.items()}
+    runs = {(mix, mode): {name: [] for name in servers} for mix in mixes for mode in ("seq", "sat")}
+    try:
+        for server in servers.values():
+            os.sched_setaffinity(server.process.pid, SERVER_CPU)
+        for _ in range(args.rounds):
+            for mix in mixes:
+                for mode, conns in (("seq", 1), ("sat", args.clients)):
+                    for name, server in servers.items():
+                        runs[mix, mode][name].append(measure(server, MIXES[mix], conns, args.seconds))
+    finally:
+        for server in servers.values():
+            server.stop()
+
+    def medians(found: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, float]]:
+        return {name: {key: median(r[key] for r in rs) for key in rs[0]} for name, rs in found.items()}
+
+    print(f"RTU over TCP, {time.strftime('%Y-%m-%d')}, {machine()}; servers on core 0, the C client on core 1")
+    print(f"{args.rounds} alternating rounds of {args.seconds:g} s per server, load and mode (medians of the rounds)")
+    print()
+    for mix in mixes:
+        report(mix, medians(runs[mix, "seq"]), medians(runs[mix, "sat"]), args.clients)
     return 0
 
 

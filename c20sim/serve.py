@@ -379,7 +379,9 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
     try:
         await server.start()
         # What start-up made (modules, the profile, the drives, the listeners) lives as long as serving: keep
-        # it out of every full garbage collection, which would otherwise walk it while the wire waits.
+        # it out of every full garbage collection, which would otherwise walk it while the wire waits (its
+        # garbage collected first, so that none is kept for good; thawed when serving ends).
+        gc.collect()
         gc.freeze()
         print(server.ready_line(), file=out, flush=True)
         stopped = asyncio.ensure_future(stop.wait())
@@ -394,6 +396,7 @@ async def run_server(sim: Simulator, options: ServeOptions, *, out: IO[str] = sy
         restore()
         task = server.scenario_task
         await server.aclose()
+        gc.unfreeze()
     if task is None or task.cancelled():
         return 0
     return 1 if task.exception() is not None or not task.result().ok else 0

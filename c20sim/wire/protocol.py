@@ -390,9 +390,13 @@ def silence_times(baud: int, bits: int = SHEET_CHAR_BITS) -> tuple[float, float]
     return 1.5 * char_time(baud, bits), 3.5 * char_time(baud, bits)
 
 
-@functools.lru_cache(maxsize=4096)  # on every request's path (bus timing, the audit): a master sends few lengths
 def frame_time(length: int, baud: int, bits: int = SHEET_CHAR_BITS) -> float:
     """Seconds a frame of ``length`` bytes holds an RS485 line: its characters and the t3.5 before it."""
+    return _frame_time(length, baud, bits)
+
+
+@functools.lru_cache(maxsize=4096)  # on every request's path (bus timing, the audit): a master sends few lengths
+def _frame_time(length: int, baud: int, bits: int) -> float:
     return length * char_time(baud, bits) + silence_times(baud, bits)[1]
 
 

@@ -22,18 +22,23 @@ T = TypeVar("T")
 def quick_init(cls: type[T]) -> type[T]:
     """Replace the generated ``__init__`` of ``cls``, a ``@dataclass(frozen=True, slots=True)``, with a faster one.
 
-    Only plain fields are supported (positional, with a default or none; no ``default_factory``, ``init=False``,
-    ``kw_only`` or ``__post_init__``): anything else raises TypeError here, at import, rather than building a wrong value.
+    Only plain fields are supported (the class's own, positional, with a default or none; no ``default_factory``,
+    ``init=False``, ``kw_only``, ``InitVar``, ``ClassVar`` or ``__post_init__``): anything else raises TypeError here, at import, rather than building a wrong value.
     """
     params = getattr(cls, "__dataclass_params__", None)
     if params is None or not params.frozen or "__slots__" not in cls.__dict__:
         raise TypeError(f"{cls.__name__}: quick_init is for @dataclass(frozen=True, slots=True) classes")
     if hasattr(cls, "__post_init__"):
         raise TypeError(f"{cls.__name__}: quick_init does not call __post_init__")
+    plain = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    if set(cls.__dataclass_fields__) != plain:  # type: ignore[attr-defined]
+        raise TypeError(f"{cls.__name__}: quick_init takes plain fields only (no InitVar, no ClassVar)")
     namespace: dict[str, Any] = {}
     arguments: list[str] = []
     body: list[str] = []
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if f.name not in cls.__dict__ or f.name == "self":  # a slot of a base class, or a name __init__ takes
+            raise TypeError(f"{cls.__name__}.{f.name}: quick_init takes the fields of the class's own slots")
         if not f.init or f.kw_only or f.default_factory is not dataclasses.MISSING:
             raise TypeError(f"{cls.__name__}.{f.name}: quick_init takes positional fields with a plain default or none")
         if f.default is dataclasses.MISSING:

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
+from typing import ClassVar
 
 import pytest
 
@@ -69,27 +70,41 @@ def test_classes_it_cannot_build_are_refused_at_import() -> None:
     class Keywords:
         a: int
 
-    for cls in (Posted, Factory, Thawed, Keywords):
+    @dataclass(frozen=True, slots=True)
+    class Init:
+        a: int
+        b: InitVar[int] = 0
+
+    @dataclass(frozen=True, slots=True)
+    class Shared:
+        a: int
+        limit: ClassVar[int] = 3
+
+    @dataclass(frozen=True, slots=True)
+    class Derived(Plain):  # its base's fields are the base's slots
+        e: int = 0
+
+    for cls in (Posted, Factory, Thawed, Keywords, Init, Shared, Derived):
         with pytest.raises(TypeError, match=cls.__name__):
             quick_init(cls)
 
 
 def test_the_values_of_every_request_are_built_whole() -> None:
-    record = FrameRecord(1.5, Direction.RX, b"\x01", RecordKind.REQUEST, 1, "words", model_t=2.0)
-    assert (record.t, record.direction, record.data, record.kind, record.slave, record.words) == (
+    request = ReadRequest(1, 0x2001, 2)
+    record = FrameRecord(1.5, Direction.RX, b"\x01", RecordKind.REQUEST, 1, "words", model_t=2.0, request=request)
+    assert [getattr(record, f.name) for f in dataclasses.fields(record)] == [
         1.5,
         Direction.RX,
         b"\x01",
         RecordKind.REQUEST,
         1,
         "words",
-    )
-    assert (record.note, record.model_t, record.registers, record.mbap, record.from_gateway) == (
         "",
         2.0,
         None,
+        request,
+        None,
         None,
         False,
-    )
-    assert ReadRequest(1, 0x2001, 2) == ReadRequest(slave=1, start=0x2001, count=2)
-    assert ReadRequest(1, 0x2001, 2).function == 0x03
+    ]
+    assert request == ReadRequest(slave=1, start=0x2001, count=2) and request.function == 0x03
