@@ -229,6 +229,8 @@ class Bus:
         self.rng = random.Random(seed)
         self.records: deque[FrameRecord] = deque(maxlen=log_size)
         self._listeners: list[Callable[[FrameRecord], None]] = []
+        #: the listeners as a tuple, made anew when one comes or goes: a record calls each without a copy
+        self._listening: tuple[Callable[[FrameRecord], None], ...] = ()
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
         self.counters: dict[int, Counters] = {}
         self.noise = 0
@@ -252,21 +254,25 @@ class Bus:
     def subscribe(self, listener: Callable[[FrameRecord], None]) -> Callable[[], None]:
         """Call ``listener`` with every new record; returns a function that unsubscribes."""
         self._listeners.append(listener)
+        self._listening = tuple(self._listeners)
 
         def unsubscribe() -> None:
             if listener in self._listeners:  # a failing listener may have been removed already
                 self._listeners.remove(listener)
+                self._listening = tuple(self._listeners)
 
         return unsubscribe
 
     def record(self, entry: FrameRecord) -> None:
         self.records.append(entry)
-        for listener in list(self._listeners):
+        for listener in self._listening:
             try:
                 listener(entry)
             except Exception:
                 log.exception("frame log listener failed; removing it")
-                self._listeners.remove(listener)
+                if listener in self._listeners:
+                    self._listeners.remove(listener)
+                    self._listening = tuple(self._listeners)
 
     # -- serving
 

@@ -94,6 +94,7 @@ class RtuEndpoint:
         self._resumed_at = 0.0
         self._just_resumed = False
         self._generation = 0  #: bumped when the stream's master goes: older requests are not answered
+        self._respond_now = functools.partial(self._respond, 0)  #: the respond of this generation's requests
 
     @property
     def outstanding(self) -> int:
@@ -155,6 +156,7 @@ class RtuEndpoint:
         """The stream's master went away: drop its requests waiting on the line and the bytes not yet framed."""
         self.line.cancel(self)
         self._generation += 1  # a reply still due to the old master is dropped
+        self._respond_now = functools.partial(self._respond, self._generation)
         self._outstanding = 0
         self._held = None
         self._unfed.clear()
@@ -172,7 +174,7 @@ class RtuEndpoint:
             if event is None:
                 break
             self._outstanding += 1
-            self.line.submit(event, functools.partial(self._respond, self._generation), self)
+            self.line.submit(event, self._respond_now, self)
         if self._held is None and (self._outstanding >= self.limit or self._write_blocked):
             self._held = self._next_event()
         self._flow()
@@ -180,7 +182,7 @@ class RtuEndpoint:
             self._tick.cancel()
             self._tick = None
         # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once.
-        deadline = self._deadline() if not (self._unfed or self._paused) else None
+        deadline = self._deadline() if self.framer.pending and not (self._unfed or self._paused) else None
         if deadline is not None:
             self._tick = self._loop.call_later(max(0.0, deadline - time.perf_counter()), self._on_silence)
 

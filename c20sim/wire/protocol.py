@@ -18,6 +18,7 @@ import enum
 import functools
 import struct
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -48,6 +49,7 @@ __all__ = [
     "char_bits",
     "char_time",
     "crc16",
+    "crc16_table",
     "crc_ok",
     "decode_request",
     "decode_response",
@@ -123,13 +125,25 @@ def _make_crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _make_crc_table()
 
 
-def crc16(data: bytes) -> int:
-    """CRC-16/MODBUS of ``data`` (sheet 1.d)."""
+def crc16_table(data: bytes) -> int:
+    """CRC-16/MODBUS of ``data`` (sheet 1.d), table-driven in Python: the reference, and :func:`crc16` where
+    the compiled one is not installed."""
     crc = 0xFFFF
     table = _CRC_TABLE
     for byte in data:
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
     return crc
+
+
+#: CRC-16/MODBUS of ``data`` (sheet 1.d). Two a request (the request's check, the reply's CRC): compiled
+#: where the optional extra is installed (``pip install c20sim[fast]``: fastcrc, wheels for the common
+#: platforms): 0.05 us against 0.35 us for 6 bytes, 0.12 us against 11 us for a 125-register reply; else
+#: the table.
+crc16: Callable[[bytes], int]
+try:
+    from fastcrc.crc16 import modbus as crc16
+except ImportError:  # the extra is not installed
+    crc16 = crc16_table
 
 
 def with_crc(body: bytes) -> bytes:

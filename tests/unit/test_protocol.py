@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from collections.abc import Callable
+
+import fastcrc.crc16
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -22,6 +27,7 @@ from c20sim.wire.protocol import (
     char_bits,
     char_time,
     crc16,
+    crc16_table,
     decode_request,
     decode_response,
     encode,
@@ -45,10 +51,24 @@ def test_crc_of_the_sheets_frames() -> None:
     assert with_crc(H("01 86 03")) == H("01 86 03 02 61")
 
 
-def test_crc_check_value() -> None:
-    # The catalogue check value of CRC-16/MODBUS.
-    assert crc16(b"123456789") == 0x4B37
-    assert crc16(b"") == 0xFFFF
+@pytest.mark.parametrize("crc", [crc16, crc16_table], ids=["crc16", "table"])
+def test_crc_check_value(crc: Callable[[bytes], int]) -> None:
+    # The catalogue check value of CRC-16/MODBUS, and the sheet's first frame.
+    assert crc(b"123456789") == 0x4B37
+    assert crc(b"") == 0xFFFF
+    assert crc(H("01 06 20 00 00 01")).to_bytes(2, "little") == H("43 CA")
+
+
+def test_the_compiled_crc_is_the_one_in_use_where_installed() -> None:
+    # The test extra installs c20sim[fast]'s fastcrc: the suite runs on the compiled CRC, the table is checked
+    # against it below and above (a plain install runs on the table).
+    assert crc16 is fastcrc.crc16.modbus
+
+
+@given(st.binary(max_size=300))
+@settings(max_examples=300, deadline=None)
+def test_the_compiled_crc_and_the_table_agree(data: bytes) -> None:
+    assert fastcrc.crc16.modbus(data) == crc16_table(data) == crc16_table(bytearray(data))
 
 
 @pytest.mark.parametrize(
@@ -566,3 +586,15 @@ _A_READ = st.one_of(
 @settings(max_examples=600, deadline=None)
 def test_any_read_frames_as_the_same_bytes_through_the_buffer(data: bytes) -> None:
     assert _framed([data]) == _framed([data[:1], data[1:]])
+
+
+def test_without_the_compiled_crc_the_table_is_used() -> None:
+    # A plain install (no c20sim[fast]): the import of fastcrc fails and crc16 is the table, with no error.
+    code = (
+        "import sys; sys.modules['fastcrc'] = None\n"
+        "from c20sim.wire.protocol import crc16, crc16_table, with_crc\n"
+        "assert crc16 is crc16_table, crc16\n"
+        "print(with_crc(bytes.fromhex('01 06 20 00 00 01')).hex())\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert (result.returncode, result.stdout, result.stderr) == (0, "01062000000143ca\n", "")
