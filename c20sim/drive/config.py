@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from ..wire.registers import Reg, RunChannel, SpeedSource, fcode_address
+from ..wire.values import quick_init
 from . import physics
 from .params import ParameterStore
 from .physics import STEP
@@ -88,6 +89,7 @@ class Conditions:
     dial: tuple[bool, bool, bool] = (False, False, False)  #: SW1, SW2, SW3
 
 
+@quick_init  # a write that changes a setting builds one: at half the price (wire/values.py)
 @dataclass(frozen=True, slots=True)
 class Config:
     """Everything the step needs that only changes when an input changes."""
