@@ -14,13 +14,14 @@ nothing.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from ..wire.errors import ModbusError
 from ..wire.protocol import ExceptionCode
-from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg
-from .config import CHANNEL_COMM
+from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, SpeedSource
+from .config import CHANNEL_COMM, limit_speed
 from .physics import BUDGET, RPM, STEP
 from .profile import FaultCause, Profile
 from .sensors import noise
@@ -122,6 +123,14 @@ def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None
         d.ram[address] = value
         d._reconfigure()
         d.machine.inputs_changed(before)
+    elif address == Reg.SPEED_SETPOINT:
+        # The set speed is in the settings only as the reference, and only where 2007H takes it from
+        # communication: that one field, not the whole of configure (17 parameter reads) at every new value.
+        d.ram[address] = value
+        cfg = d.motion.cfg
+        if cfg.source == SpeedSource.MODBUS:
+            d.motion.cfg = dataclasses.replace(cfg, reference_rpm=limit_speed(d.profile, float(value), cfg.max_rpm))
+        return
     elif address in d.ram:
         d.ram[address] = value
     elif address == Reg.RESTORE_DEFAULTS:

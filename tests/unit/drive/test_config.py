@@ -18,6 +18,7 @@ from c20sim.drive.config import (
     limit_speed,
 )
 from c20sim.drive.face import RAM_REGISTERS
+from c20sim.drive.model import Drive
 from c20sim.drive.params import ParameterStore
 from c20sim.drive.profile import Profile
 from c20sim.drive.terminals import Input
@@ -90,3 +91,18 @@ def test_stall_prevention_and_the_overload_coefficient_come_from_their_function_
     P.set(F_MOTOR_OVERLOAD_COEFFICIENT, 500)
     cfg = configure(profile, P, ram, bench)
     assert (cfg.stall_v, cfg.motor_rated_a) == (0.0, 5.0)
+
+
+def test_a_set_speed_write_leaves_the_settings_configure_would_derive(profile: Profile) -> None:
+    # A 2001H write changes the reference alone (where 2007H takes it from communication), without deriving
+    # the rest anew: the settings must be exactly those configure derives from everything, at every source.
+    drive = Drive(profile)
+    for source in (3, 0, 1, 2, 4, SOURCE_DIAL, 3):
+        drive.write(Reg.SPEED_SOURCE, source)
+        for setpoint in (1500, 50, 0, 9000, 2999, 1500):
+            drive.write(Reg.SPEED_SETPOINT, setpoint)
+            assert drive.motion.cfg == configure(profile, drive.parameters, drive.ram, drive.bench), (source, setpoint)
+        drive.write(Reg.VIRTUAL_INPUTS, 0b100)  # another input between: the settings follow it too
+        drive.write(Reg.SPEED_SETPOINT, 700)
+        assert drive.motion.cfg == configure(profile, drive.parameters, drive.ram, drive.bench)
+    assert drive.motion.cfg.reference_rpm == 700.0  # the communication source at the end: 2001H is the reference
