@@ -1,5 +1,6 @@
 """c20sim: a virtual ZBLD.C20 brushless DC drive behind a Modbus RTU slave."""
 
+from . import _compiled  # noqa: F401 (first: it says so if a compiled module is older than its source)
 from .core.bus import Bus, FrameRecord
 from .core.clock import RealtimeClock, VirtualClock
 from .core.linkfaults import LinkFaults

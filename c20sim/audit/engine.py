@@ -722,5 +722,6 @@ def _source(rule: str, profile: Profile) -> str:
     if rule == "broadcast-turnaround":
         return f"{base} (broadcast_delay_ms = {profile.protocol.broadcast_delay_ms:g}, assumed)"
     if rule == "comm-watchdog":
-        return f"{base} (its margin {Limits.watchdog_margin:g} assumed)"
+        # an instance's: a compiled (mypyc) dataclass has no class-level default
+        return f"{base} (its margin {Limits().watchdog_margin:g} assumed)"
     return base

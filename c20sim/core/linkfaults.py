@@ -13,11 +13,17 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, TypeAlias
+
+from mypy_extensions import mypyc_attr
 
 from ..wire.protocol import ExceptionCode, crc16
 
 __all__ = ["KNOBS", "Knob", "LinkFaults", "Mangled"]
+
+#: ``object`` for a field's annotation: a compiled (mypyc) dataclass looks an annotation up by name in the
+#: module, where ``object`` is not (KeyError at import); an alias is
+_Object: TypeAlias = object
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,7 +53,7 @@ class Knob:
     key: str
     label: str
     how: str
-    on: object
+    on: _Object
     on_reply: bool = True
 
 
@@ -55,6 +61,8 @@ def _knob(default: object, kind: str, key: str, label: str, how: str, on: object
     return field(default=default, metadata={"knob": Knob(kind, key, label, how, on, on_reply)})
 
 
+# A Python class where the core is compiled (tools/compile-core): it keeps _reply_armed in its __dict__.
+@mypyc_attr(native_class=False)
 @dataclass
 class LinkFaults:
     """Switches for one drive's link, or the whole bus's. To add one: a field here, its effect in :meth:`mangle`."""

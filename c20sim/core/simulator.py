@@ -14,6 +14,8 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mypy_extensions import mypyc_attr
+
 from ..drive import behaviours as behaviour_plugins
 from ..drive.base import DrivePort
 from ..drive.model import Drive
@@ -99,6 +101,9 @@ def set_address(drive: DrivePort, profile: Profile, address: int) -> None:
         drive.write(cell, address)
 
 
+# A Python class where the core is compiled (tools/compile-core): control/liveaudit.py keys a
+# WeakKeyDictionary by the simulator, and a compiled class cannot be weakly referenced.
+@mypyc_attr(native_class=False)
 class Simulator:
     """Drives at ``addresses`` on one bus, advanced by ``clock``."""
 

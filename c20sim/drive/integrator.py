@@ -71,7 +71,7 @@ class Integrator(SteadySegments):
         """At rest, the bus at the level the supply gives a stopped drive, the overload budgets full."""
         self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
         self.integ = self.demand = self.active_now = 0.0
-        self.bus = self.bus_rest(self.bench.supply)
+        self.bus: float = self.bus_rest(self.bench.supply)  # annotated: mypyc's own type pass cannot infer it
         self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
         self.stall_steps = self.brake_steps = 0

@@ -73,7 +73,7 @@ class Machine:
     def power_up(self) -> None:
         """No fault, no request seen, no command in force; off until the bus is above the recover level."""
         self.bus_ok = self.motion.bus >= self.recover_v
-        self.command = 0  # 2000H
+        self.command: int = 0  # 2000H (annotated: mypyc's own type pass cannot infer it)
         self.fault = 0
         self.cause = None
         self.forced_hold = False

@@ -36,7 +36,7 @@ import logging
 import socket
 import struct
 from collections.abc import Callable
-from typing import cast
+from typing import Any, cast
 
 from ..core.bus import Direction, FrameRecord, RecordKind, Reply
 from ..wire.errors import C20SimError
@@ -175,7 +175,9 @@ class _TcpServer:
             ) from None
         address = self.host if "%" in self.host else str(infos[0][4][0])  # keep an IPv6 zone: fe80::1%eth0
         self._server = await _listen(self._connection, address, self.port, self.option)
-        self.host, self.port = self._server.sockets[0].getsockname()[:2]
+        # typeshed says a tuple, uvloop's Server gives a list, and compiled code (mypyc) checks the type
+        sockets: Any = cast(Any, self._server).sockets
+        self.host, self.port = sockets[0].getsockname()[:2]
 
     async def wait_closed(self) -> None:
         if self._server is not None:
@@ -260,10 +262,10 @@ class RtuOverTcpServer(_TcpServer):
 
 
 class _MbapConnection(_Connection):
-    owner: ModbusTcpServer
-
     def __init__(self, owner: ModbusTcpServer) -> None:
         super().__init__(owner)
+        # the gateway, typed: mypyc refuses narrowing ``owner`` in a subclass
+        self._gateway = owner
         self._buffer = bytearray()
         self._timers: set[asyncio.TimerHandle] = set()
         self._outstanding = 0  #: requests not yet answered (on the line, or waiting for the gateway's timeout)
@@ -338,7 +340,7 @@ class _MbapConnection(_Connection):
                     self._answer(transaction, unit, answer)
                     self._done()
 
-                timer = loop.call_later(self.owner.timeout, time_out)
+                timer = loop.call_later(self._gateway.timeout, time_out)
                 self._timers.add(timer)
             else:
                 self._done()
@@ -361,7 +363,7 @@ class _MbapConnection(_Connection):
                 RecordKind.EXCEPTION,
                 header.unit,
                 f"gateway: exception 0x{GATEWAY_NO_RESPONSE:02X} to function 0x{answer[0] & 0x7F:02X}: "
-                f"gateway target device failed to respond (no good reply on the line within {self.owner.timeout:g} s)",
+                f"gateway target device failed to respond (no good reply on the line within {self._gateway.timeout:g} s)",
                 model_t=sim.now(),
                 mbap=header,
                 from_gateway=True,

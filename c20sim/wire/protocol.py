@@ -125,7 +125,7 @@ def _make_crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _make_crc_table()
 
 
-def crc16_table(data: bytes) -> int:
+def crc16_table(data: bytes | bytearray) -> int:
     """CRC-16/MODBUS of ``data`` (sheet 1.d), table-driven in Python: the reference, and :func:`crc16` where
     the compiled one is not installed."""
     crc = 0xFFFF

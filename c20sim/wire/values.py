@@ -25,6 +25,8 @@ def quick_init(cls: type[T]) -> type[T]:
     Only plain fields are supported (the class's own, positional, with a default or none; no ``default_factory``,
     ``init=False``, ``kw_only``, ``InitVar``, ``ClassVar`` or ``__post_init__``): anything else raises TypeError here, at import, rather than building a wrong value.
     """
+    if "__mypyc_attrs__" in cls.__dict__:  # a class compiled by mypyc: its __init__ is compiled already
+        return cls
     params = getattr(cls, "__dataclass_params__", None)
     if params is None or not params.frozen or "__slots__" not in cls.__dict__:
         raise TypeError(f"{cls.__name__}: quick_init is for @dataclass(frozen=True, slots=True) classes")
@@ -53,5 +55,8 @@ def quick_init(cls: type[T]) -> type[T]:
     init = namespace["__init__"]
     init.__qualname__ = f"{cls.__qualname__}.__init__"
     init.__doc__ = cls.__init__.__doc__
-    type.__setattr__(cls, "__init__", init)
+    try:
+        type.__setattr__(cls, "__init__", init)
+    except TypeError:  # an immutable (compiled) class keeps its own __init__
+        return cls
     return cls
