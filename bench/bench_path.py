@@ -25,7 +25,7 @@ import sys
 import time
 from typing import Any
 
-from _common import machine
+from _common import Floor, machine
 
 from c20sim.core.clock import RealtimeClock
 from c20sim.core.simulator import Simulator
@@ -115,15 +115,6 @@ async def c20sim_case(audit: bool, n: int, profile: cProfile.Profile | None) -> 
 
 
 async def floor_case(n: int) -> float:
-    canned = bytes.fromhex("01 03 02 00 00 B8 44")
-
-    class Floor(asyncio.Protocol):
-        def connection_made(self, transport: Any) -> None:
-            self.transport = transport
-
-        def data_received(self, data: bytes) -> None:
-            self.transport.write(canned)
-
     floor = Floor()
     transport = CountingTransport()
     floor.connection_made(transport)

@@ -493,6 +493,34 @@ def _largest(ns: Collection[int]) -> str:
 
 # --- part 2: concurrency on one bus
 
+#: the columns parts 2 and 3 give each run (:func:`load_cells`)
+LOAD_HEADER = (
+    "req/s",
+    "server CPU",
+    "core taken: runq / steal",
+    "CPU us/req",
+    "p50 ms",
+    "p99 ms",
+    "fewest",
+    "most",
+    "most/fewest",
+)
+
+
+def load_cells(m: Measured) -> list[str]:
+    """A run of parts 2 and 3 under :data:`LOAD_HEADER`: throughput, CPU, latency and fairness."""
+    return [
+        f"{m.req_s:.0f}",
+        f"{m.cpu_pct:.0f} %",
+        f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
+        f"{m.us_per_req:.0f}",
+        f"{m.figures['p50_us'] / 1e3:.2f}",
+        f"{m.figures['p99_us'] / 1e3:.2f}",
+        f"{m.figures['fewest']:.0f}",
+        f"{m.figures['most']:.0f}",
+        m.fairness,
+    ]
+
 
 def part2(bench: Bench, line_seconds: float) -> None:
     frame = encode(ReadRequest(1, Reg.STATUS1, 1))
@@ -506,30 +534,14 @@ def part2(bench: Bench, line_seconds: float) -> None:
                 [
                     "on (line-bound)" if timed else "off, turnaround 0 (CPU-bound)",
                     str(conns),
-                    f"{m.req_s:.0f}",
-                    f"{m.cpu_pct:.0f} %",
-                    f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
-                    f"{m.us_per_req:.0f}",
-                    f"{m.figures['p50_us'] / 1e3:.2f}",
-                    f"{m.figures['p99_us'] / 1e3:.2f}",
-                    f"{m.figures['fewest']:.0f}",
-                    f"{m.figures['most']:.0f}",
-                    m.fairness,
+                    *load_cells(m),
                 ]
             )
     table(
         [
             "bus timing",
             "conns",
-            "req/s",
-            "server CPU",
-            "core taken: runq / steal",
-            "CPU us/req",
-            "p50 ms",
-            "p99 ms",
-            "fewest",
-            "most",
-            "most/fewest",
+            *LOAD_HEADER,
         ],
         rows,
     )
@@ -556,15 +568,7 @@ def part3(bench: Bench, line: LineFigures, conns_per_bus: int) -> None:
                 "on" if timed else "off, turnaround 0",
                 str(conns),
                 f"{buses * line.rate:.0f}" if timed else "-",
-                f"{m.req_s:.0f}",
-                f"{m.cpu_pct:.0f} %",
-                f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
-                f"{m.us_per_req:.0f}",
-                f"{m.figures['p50_us'] / 1e3:.2f}",
-                f"{m.figures['p99_us'] / 1e3:.2f}",
-                f"{m.figures['fewest']:.0f}",
-                f"{m.figures['most']:.0f}",
-                m.fairness,
+                *load_cells(m),
             ]
         )
     table(
@@ -572,15 +576,7 @@ def part3(bench: Bench, line: LineFigures, conns_per_bus: int) -> None:
             "bus timing",
             "conns",
             "line's tr/s",
-            "req/s",
-            "server CPU",
-            "core taken: runq / steal",
-            "CPU us/req",
-            "p50 ms",
-            "p99 ms",
-            "fewest",
-            "most",
-            "most/fewest",
+            *LOAD_HEADER,
         ],
         rows,
     )

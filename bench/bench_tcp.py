@@ -25,13 +25,12 @@ request, and the fewest and most requests any connection got through.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from statistics import median
 
 import pymodbus
-from _common import ChildServer, ServerSpec, loadgen, machine
+from _common import ChildServer, ServerSpec, loadgen, machine, pin_process
 
 from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
 from c20sim.wire.registers import Reg
@@ -83,6 +82,21 @@ def table(rows: dict[str, dict[str, float]], columns: list[tuple[str, str, str]]
         print(f"| {name:<58} |" + "".join(f" {figures[key]:>{len(title)}{fmt}} |" for title, key, fmt in columns))
 
 
+def ratios(figures: dict[str, dict[str, float]], *, latency: bool) -> None:
+    """The issue's targets for one mode: requests/s against the floor and pymodbus (and the p99 sequentially)."""
+
+    def rate(a: str, b: str) -> float:
+        return figures[a]["req_s"] / figures[b]["req_s"]
+
+    print(f"c20sim / floor: {rate(C20SIM, FLOOR):.2f}x requests/s (target >= 0.6x)")
+    print(f"c20sim / pymodbus: {rate(C20SIM, PYMODBUS):.2f}x requests/s (target >= 1.5x)")
+    if latency:
+        c20sim_p99, pymodbus_p50 = figures[C20SIM]["p99_us"], figures[PYMODBUS]["p50_us"]
+        print(f"c20sim p99 {c20sim_p99:.1f} us, pymodbus p50 {pymodbus_p50:.1f} us (target: below)")
+    print(f"--no-audit / floor: {rate(NO_AUDIT, FLOOR):.2f}x; / pymodbus: {rate(NO_AUDIT, PYMODBUS):.2f}x")
+    print()
+
+
 def report(mix: str, seq: dict[str, dict[str, float]], sat: dict[str, dict[str, float]], clients: int) -> None:
     print(f"### {mix}: " + ("single-register reads of 2001H" if mix == "reads" else "write 2001H = v, read 2001H"))
     print()
@@ -98,14 +112,7 @@ def report(mix: str, seq: dict[str, dict[str, float]], sat: dict[str, dict[str, 
         ],
     )
     print()
-    print(f"c20sim / floor: {seq[C20SIM]['req_s'] / seq[FLOOR]['req_s']:.2f}x requests/s (target >= 0.6x)")
-    print(f"c20sim / pymodbus: {seq[C20SIM]['req_s'] / seq[PYMODBUS]['req_s']:.2f}x requests/s (target >= 1.5x)")
-    print(f"c20sim p99 {seq[C20SIM]['p99_us']:.1f} us, pymodbus p50 {seq[PYMODBUS]['p50_us']:.1f} us (target: below)")
-    print(
-        f"--no-audit / floor: {seq[NO_AUDIT]['req_s'] / seq[FLOOR]['req_s']:.2f}x; / pymodbus: "
-        f"{seq[NO_AUDIT]['req_s'] / seq[PYMODBUS]['req_s']:.2f}x"
-    )
-    print()
+    ratios(seq, latency=True)
     print(f"Saturated: {clients} connections at once")
     print()
     table(
@@ -118,13 +125,7 @@ def report(mix: str, seq: dict[str, dict[str, float]], sat: dict[str, dict[str, 
         ],
     )
     print()
-    print(f"c20sim / floor: {sat[C20SIM]['req_s'] / sat[FLOOR]['req_s']:.2f}x requests/s (target >= 0.6x)")
-    print(f"c20sim / pymodbus: {sat[C20SIM]['req_s'] / sat[PYMODBUS]['req_s']:.2f}x requests/s (target >= 1.5x)")
-    print(
-        f"--no-audit / floor: {sat[NO_AUDIT]['req_s'] / sat[FLOOR]['req_s']:.2f}x; / pymodbus: "
-        f"{sat[NO_AUDIT]['req_s'] / sat[PYMODBUS]['req_s']:.2f}x"
-    )
-    print()
+    ratios(sat, latency=False)
 
 
 def main() -> int:
@@ -140,7 +141,7 @@ def main() -> int:
     runs = {(mix, mode): {name: [] for name in servers} for mix in mixes for mode in ("seq", "sat")}
     try:
         for server in servers.values():
-            os.sched_setaffinity(server.process.pid, SERVER_CPU)
+            pin_process(server.process.pid, SERVER_CPU)
         for _ in range(args.rounds):
             for mix in mixes:
                 for mode, conns in (("seq", 1), ("sat", args.clients)):

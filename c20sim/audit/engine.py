@@ -305,7 +305,7 @@ class Auditor:
             for address in list(self._drives):  # a broadcast feeds every drive's timer
                 self._silence(self._drives[address], address, seq, t)
         else:
-            self._silence(self._drives.get(slave) or self._drive(slave), slave, seq, t)
+            self._silence(self._drive(slave), slave, seq, t)
             if meaning.judged:
                 self._written(meaning, seq, t)
         if self._enabled:
