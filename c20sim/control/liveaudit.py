@@ -51,6 +51,9 @@ class LiveAudit:
         self._queue: list[FrameRecord] = []
         self._baud = self._bus.line_baud
         self._scheduled = False
+        #: the loop the batches were last scheduled on: asking for the running loop is a getpid() system call
+        #: on Python 3.11, so it is asked again only when that loop no longer runs
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._unsubscribe = self._bus.subscribe(self._feed)
 
     def _fresh(self) -> Auditor:
@@ -80,11 +83,14 @@ class LiveAudit:
             if len(queue) >= MAX_QUEUE:
                 self.drain()  # the loop is not getting round to it: keep the queue bounded
             return
-        try:
-            loop = asyncio.get_running_loop()
-        except RuntimeError:  # no loop (a scenario run, a unit test): audit the batch at once
-            self.drain()
-            return
+        loop = self._loop
+        if loop is None or not loop.is_running():
+            try:
+                loop = self._loop = asyncio.get_running_loop()
+            except RuntimeError:  # no loop (a scenario run, a unit test): audit the batch at once
+                self._loop = None
+                self.drain()
+                return
         self._scheduled = True
         loop.call_soon(self.drain)
 

@@ -372,3 +372,40 @@ async def test_the_live_audit_judges_each_frame_at_the_baud_it_went_at(profile: 
         assert demand.busy == READ_TX + write + fast + fast
     finally:
         audit.close()
+
+
+def test_the_live_audit_runs_its_batches_on_whichever_loop_serves(profile: Profile) -> None:
+    """A batch waits for the serving loop's next turn; a simulator served again on a new loop (the first one
+    closed) schedules there, and with no loop running a batch is audited at once."""
+    import asyncio
+
+    from c20sim.control import liveaudit
+    from c20sim.core.simulator import Simulator
+    from c20sim.wire.protocol import FrameEvent, FrameKind
+
+    sim = Simulator(profile, (1,), seed=1)
+    audit = liveaudit.start(sim)
+    poll = encode(ReadRequest(1, Reg.STATUS1, 1))
+    transactions = liveaudit.BATCH // 2
+    t = 1.0
+
+    def poll_a_batch() -> None:
+        nonlocal t
+        for _ in range(transactions):
+            t += 0.05
+            assert sim.bus.handle(FrameEvent(FrameKind.FRAME, poll, t), sim.now()) is not None
+
+    async def served() -> tuple[int, int]:
+        poll_a_batch()
+        waiting = len(audit._queue)
+        await asyncio.sleep(0)  # the loop's next turn: the batch is audited
+        return waiting, len(audit._queue)
+
+    try:
+        assert asyncio.run(served()) == (liveaudit.BATCH, 0)
+        assert asyncio.run(served()) == (liveaudit.BATCH, 0)  # the first loop is closed: this one audits
+        poll_a_batch()
+        assert len(audit._queue) == 0  # no loop: audited at once
+        assert audit.auditor.frames == 3 * liveaudit.BATCH
+    finally:
+        audit.close()
