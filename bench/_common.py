@@ -421,7 +421,7 @@ def loadgen(
     """Run the C load client to its end; its JSON figures (see bench/loadgen.c).
 
     ``cpus``: the cores the client may run on (so that it does not share the server's); ``dump``: a file to
-    which the client writes every measured latency (us, one a line, ascending)."""
+    which the client writes every measured latency (us, one a line, in the order the replies came)."""
     args = [str(loadgen_binary()), "--conns", str(conns), "--warmup", str(warmup)]
     for port in ports:
         args += ["--port", str(port)]

@@ -227,7 +227,7 @@ class Bench:
             cpu1, _ = server.cpu_rss()
             wall = time.monotonic() - t0
             waited, stolen = run_delay(pid) - waited0, steal(self.server_cores) - steal0
-            latencies = [float(line) for line in dump.read_text().split()]
+            latencies = sorted(float(line) for line in dump.read_text().split())
         finally:
             report = server.stop()
         pauses = [(g, s) for t, g, s in report.gc_pauses if t + s >= measured_from and t < t0 + wall]

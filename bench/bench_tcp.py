@@ -1,8 +1,11 @@
 """Throughput and latency over RTU over TCP: c20sim beside pymodbus's own server and the Python floor, in one run.
 
 Each server runs in a child process of its own, pinned to core 0; the load comes from the C client
-(bench/loadgen.c) on core 1, which costs the measurement about 2 us a request where a Python client
-costs 20-30, and checks every reply (length, CRC, address, function). Two loads: single-register reads of
+(bench/loadgen.c), which costs the measurement about 2 us a request where a Python client costs 20-30,
+and checks every reply (length, CRC, address, function). ``--placement`` puts the client on core 1
+("split", the default: client and server never compete for a core, but every request and reply wakes
+the other core, which on a VM costs tens of microseconds a round trip), on core 0 beside the server
+("same": a round trip is the two processes' CPU alone), or runs both. Two loads: single-register reads of
 2001H (a master polling: the issue's measurement), and write 2001H = v then read 2001H, v changing every
 write (the drive derives its settings anew at each write). The servers take turns in rounds, so that the
 machine's noise falls on all of them alike: the ratios are the figures.
@@ -20,6 +23,7 @@ the server's CPU per request. Saturated: ``--clients`` connections at once: requ
 request, and the fewest and most requests any connection got through.
 
     .venv/bin/python bench/bench_tcp.py --seconds 2 --rounds 5 --clients 4 [--mix reads|write-read|both]
+        [--placement split|same|both]
 """
 
 from __future__ import annotations
@@ -62,12 +66,16 @@ MIXES = {
     ],
 }
 
-SERVER_CPU, CLIENT_CPU = {0}, {1}
+SERVER_CPU = {0}
+#: where the C client runs: beside the servers' core, or on it
+PLACEMENTS = {"split": {1}, "same": {0}}
 
 
-def measure(server: ChildServer, frames: list[bytes], conns: int, seconds: float) -> dict[str, float]:
+def measure(
+    server: ChildServer, frames: list[bytes], conns: int, seconds: float, client_cpus: set[int]
+) -> dict[str, float]:
     cpu0 = server.cpu_rss()[0]
-    figures = loadgen([server.port], frames, conns=conns, seconds=seconds, warmup=0.3, cpus=CLIENT_CPU)
+    figures = loadgen([server.port], frames, conns=conns, seconds=seconds, warmup=0.3, cpus=client_cpus)
     cpu = server.cpu_rss()[0] - cpu0
     # the server's CPU over warm-up and run, per request answered in both (at the measured rate)
     figures["cpu_us"] = cpu / (figures["req_s"] * (seconds + 0.3)) * 1e6
@@ -134,31 +142,51 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--clients", type=int, default=4, help="connections at once, for the saturated run")
     parser.add_argument("--mix", choices=[*MIXES, "both"], default="both", help="the requests (default: both loads)")
+    parser.add_argument(
+        "--placement",
+        choices=[*PLACEMENTS, "both"],
+        default="split",
+        help="the client on core 1 (split, the default), on the servers' core 0 (same), or both",
+    )
     args = parser.parse_args()
     mixes = list(MIXES) if args.mix == "both" else [args.mix]
+    placements = list(PLACEMENTS) if args.placement == "both" else [args.placement]
 
     servers = {name: ChildServer(spec) for name, spec in SERVERS.items()}
-    runs = {(mix, mode): {name: [] for name in servers} for mix in mixes for mode in ("seq", "sat")}
+    Runs = dict[str, list[dict[str, float]]]
+    runs: dict[tuple[str, str, str], Runs] = {
+        (place, mix, mode): {name: [] for name in servers}
+        for place in placements
+        for mix in mixes
+        for mode in ("seq", "sat")
+    }
     try:
         for server in servers.values():
+            assert server.process.pid is not None  # started
             pin_process(server.process.pid, SERVER_CPU)
         for _ in range(args.rounds):
-            for mix in mixes:
-                for mode, conns in (("seq", 1), ("sat", args.clients)):
-                    for name, server in servers.items():
-                        runs[mix, mode][name].append(measure(server, MIXES[mix], conns, args.seconds))
+            for place in placements:
+                for mix in mixes:
+                    for mode, conns in (("seq", 1), ("sat", args.clients)):
+                        for name, server in servers.items():
+                            figures = measure(server, MIXES[mix], conns, args.seconds, PLACEMENTS[place])
+                            runs[place, mix, mode][name].append(figures)
     finally:
         for server in servers.values():
             server.stop()
 
-    def medians(found: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, float]]:
+    def medians(found: Runs) -> dict[str, dict[str, float]]:
         return {name: {key: median(r[key] for r in rs) for key in rs[0]} for name, rs in found.items()}
 
-    print(f"RTU over TCP, {time.strftime('%Y-%m-%d')}, {machine()}; servers on core 0, the C client on core 1")
+    print(f"RTU over TCP, {time.strftime('%Y-%m-%d')}, {machine()}")
     print(f"{args.rounds} alternating rounds of {args.seconds:g} s per server, load and mode (medians of the rounds)")
     print()
-    for mix in mixes:
-        report(mix, medians(runs[mix, "seq"]), medians(runs[mix, "sat"]), args.clients)
+    for place in placements:
+        where = "core 1" if place == "split" else "core 0, beside them"
+        print(f"## placement {place}: the servers on core 0, the C client on {where}")
+        print()
+        for mix in mixes:
+            report(mix, medians(runs[place, mix, "seq"]), medians(runs[place, mix, "sat"]), args.clients)
     return 0
 
 

@@ -9,8 +9,8 @@
    --rate HZ paces each connection: request k is due at start + k / HZ (a master's polling cycle), sent at
    that time or when the previous reply came, whichever is later. --due-us US is the time each reply is
    due after its request (a real line's transaction time): the lateness of each reply (latency - due) is
-   reported too. --dump PATH writes every measured latency (us, one a line, ascending) to PATH, for a
-   histogram of them.
+   reported too. --dump PATH writes every measured latency (us, one a line, in the order the replies came)
+   to PATH, for a histogram of them, or the rhythm of the slow ones.
 
    Prints one JSON object: requests, seconds, req_s, latency percentiles (us), the fewest and most requests
    any connection got through (fairness), and lateness percentiles when --due-us is given.
@@ -241,13 +241,13 @@ int main(int argc, char **argv) {
         if (cs[i].done > most) most = cs[i].done;
         close(cs[i].fd);
     }
-    qsort(lat, nlat, sizeof(double), cmp);
-    if (dump) {
+    if (dump) {  /* in the order the replies came: a rhythm in the slow ones shows */
         FILE *out = fopen(dump, "w");
         if (!out) { perror("loadgen: --dump"); return 1; }
         for (long i = 0; i < nlat; i++) fprintf(out, "%.1f\n", lat[i]);
         fclose(out);
     }
+    qsort(lat, nlat, sizeof(double), cmp);
     printf("{\"requests\": %ld, \"seconds\": %.6f, \"req_s\": %.1f, \"p50_us\": %.1f, \"p90_us\": %.1f, "
            "\"p99_us\": %.1f, \"p999_us\": %.1f, \"max_us\": %.1f, \"fewest\": %ld, \"most\": %ld",
            nlat, elapsed, nlat / elapsed, pct(lat, nlat, 50), pct(lat, nlat, 90), pct(lat, nlat, 99),
