@@ -10,7 +10,8 @@ and for pymodbus 3.16's own server protocol fed the same frame.
     .venv/bin/python bench/bench_path.py --requests 50000 --rounds 5 [--profile]
 
 ``--profile`` prints cProfile's view of the path (its own overhead inflates every figure about 3x; read the
-shares, not the microseconds).
+shares, not the microseconds). ``--split`` times each request to the moment its reply is written and to the
+end of ``data_received``: what a master waits for, and what comes after its reply.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import cProfile
 import dataclasses
 import logging
 import pstats
+import statistics
 import sys
 import time
 from typing import Any
@@ -42,10 +44,12 @@ class CountingTransport:
     def __init__(self) -> None:
         self.writes = 0
         self.last = b""
+        self.written_at = 0.0  #: time.perf_counter() at the last write
 
     def write(self, data: bytes) -> None:
         self.writes += 1
         self.last = data
+        self.written_at = time.perf_counter()
 
     def set_write_buffer_limits(self, high: int | None = None, low: int | None = None) -> None:
         pass
@@ -88,6 +92,40 @@ async def drive_protocol(protocol: Any, frames: list[bytes], n: int, profile: cP
     if profile is not None:
         profile.disable()
     return seconds
+
+
+async def split_case(audit: bool, mix: str, n: int) -> tuple[float, float]:
+    """Medians over ``n`` requests (after a warm-up that fills the live audit's window): seconds from a request's
+    bytes handed over to its reply written, and from there to ``data_received``'s return."""
+    base = load_profile()
+    base = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, turnaround_ms=0.0))
+    sim = Simulator(base, (1,), clock=RealtimeClock(), seed=1)
+    server = Server(sim, ServeOptions(tcp="127.0.0.1:0", audit=audit))
+    await server.start()
+    try:
+        tcp = server.endpoints.tcp
+        assert isinstance(tcp, RtuOverTcpServer)
+        connection = _RtuConnection(tcp)
+        transport = CountingTransport()
+        connection.connection_made(transport)  # type: ignore[arg-type]
+        frames = [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))]
+        if mix == "write-read":
+            frames.append(encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 0)))
+        await drive_protocol(connection, frames, 20000, None)  # warm
+        before: list[float] = []
+        after: list[float] = []
+        sleep = asyncio.sleep
+        for i in range(n):
+            t0 = time.perf_counter()
+            connection.data_received(frames[i % len(frames)])
+            t1 = time.perf_counter()
+            before.append(transport.written_at - t0)
+            after.append(t1 - transport.written_at)
+            await sleep(0)
+        connection.connection_lost(None)
+        return statistics.median(before), statistics.median(after)
+    finally:
+        await server.aclose()
 
 
 async def c20sim_case(audit: bool, n: int, profile: cProfile.Profile | None) -> float:
@@ -162,8 +200,21 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--profile", action="store_true", help="cProfile the path, and print it")
     parser.add_argument("--no-audit", action="store_true", help="with --profile: the live audit off")
+    parser.add_argument("--split", action="store_true", help="time each request to its reply's write, and after")
     args = parser.parse_args()
     n = args.requests
+
+    if args.split:
+        print(f"The request path in one process, {time.strftime('%Y-%m-%d')}, {machine()}: medians of {n} requests")
+        print()
+        print("| case | load | to the reply's write, us | after it, in data_received, us |")
+        print("|---|---|---|---|")
+        for audit in (True, False):
+            for mix in ("reads", "write-read"):
+                to_write, after = run(split_case(audit, mix, n))
+                name = "c20sim, live audit on" if audit else "c20sim, --no-audit"
+                print(f"| {name} | {mix} | {to_write * 1e6:.2f} | {after * 1e6:.2f} |")
+        return 0
 
     if args.profile:
         profile = cProfile.Profile()
