@@ -17,6 +17,7 @@ the model's clock (virtual, or a realtime clock at a speed factor).
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
 import weakref
 from collections.abc import Iterable
@@ -51,9 +52,11 @@ class LiveAudit:
         self._queue: list[FrameRecord] = []
         self._baud = self._bus.line_baud
         self._scheduled = False
-        #: the loop the batches were last scheduled on: asking for the running loop is a getpid() system call
-        #: on Python 3.11, so it is asked again only when that loop no longer runs
+        #: the loop the batches were last scheduled on, and its thread: asking for the running loop is a getpid()
+        #: system call on Python 3.11, so it is asked again only when that loop no longer runs, or for a record
+        #: fed from another thread (which gets the running loop of its own thread, or none)
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread = 0
         self._unsubscribe = self._bus.subscribe(self._feed)
 
     def _fresh(self) -> Auditor:
@@ -84,13 +87,14 @@ class LiveAudit:
                 self.drain()  # the loop is not getting round to it: keep the queue bounded
             return
         loop = self._loop
-        if loop is None or not loop.is_running():
+        if loop is None or not loop.is_running() or threading.get_ident() != self._loop_thread:
             try:
                 loop = self._loop = asyncio.get_running_loop()
             except RuntimeError:  # no loop (a scenario run, a unit test): audit the batch at once
                 self._loop = None
                 self.drain()
                 return
+            self._loop_thread = threading.get_ident()
         self._scheduled = True
         loop.call_soon(self.drain)
 

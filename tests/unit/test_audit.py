@@ -376,7 +376,7 @@ async def test_the_live_audit_judges_each_frame_at_the_baud_it_went_at(profile: 
 
 def test_the_live_audit_runs_its_batches_on_whichever_loop_serves(profile: Profile) -> None:
     """A batch waits for the serving loop's next turn; a simulator served again on a new loop (the first one
-    closed) schedules there, and with no loop running a batch is audited at once."""
+    closed) schedules there, and with no loop running in the feeding thread a batch is audited at once."""
     import asyncio
 
     from c20sim.control import liveaudit
@@ -401,11 +401,21 @@ def test_the_live_audit_runs_its_batches_on_whichever_loop_serves(profile: Profi
         await asyncio.sleep(0)  # the loop's next turn: the batch is audited
         return waiting, len(audit._queue)
 
+    def from_a_thread() -> int:
+        poll_a_batch()
+        return len(audit._queue)
+
+    async def served_and_fed_from_a_thread() -> tuple[int, int]:
+        first = await served()
+        return first[1], await asyncio.to_thread(from_a_thread)
+
     try:
         assert asyncio.run(served()) == (liveaudit.BATCH, 0)
         assert asyncio.run(served()) == (liveaudit.BATCH, 0)  # the first loop is closed: this one audits
         poll_a_batch()
         assert len(audit._queue) == 0  # no loop: audited at once
-        assert audit.auditor.frames == 3 * liveaudit.BATCH
+        # a thread with no loop of its own audits at once, and hands nothing to another thread's loop
+        assert asyncio.run(served_and_fed_from_a_thread()) == (0, 0)
+        assert audit.auditor.frames == 5 * liveaudit.BATCH
     finally:
         audit.close()
