@@ -20,7 +20,11 @@ bus computes for every event: the request and the reply at the line's baud
 and character size, each after its t3.5, and the turnaround between), and a
 master over TCP gets its reply only when that time is over. Masters on every
 transport then meet the real line's throughput and queue behind each other as
-behind a serial device server. A silent request (broadcast, absent drive)
+behind a serial device server. A held reply may be handed over up to
+:data:`EARLY` before its time (the loop's timer counts whole milliseconds),
+but the line stays the transaction's until its end, and the next one starts
+there at the earliest: back to back, masters get no more transactions a
+second than the line carries. A silent request (broadcast, absent drive)
 holds the line for its own frame. A line-timed port has put the request on its
 wire already: its transactions hold the line for the rest.
 
@@ -153,6 +157,9 @@ class Line:
         self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
         self._busy = False
         self._timer: DueTimer | None = None
+        #: when the last held transaction ends (``time.perf_counter``): its reply may be handed over up to
+        #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
+        self._held_until = 0.0
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
@@ -233,7 +240,9 @@ class Line:
                     _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
-                self._timer = DueTimer(self._loop(), time.perf_counter() + hold, self._release, reply, respond, event.t)
+                due = max(time.perf_counter(), self._held_until) + hold
+                self._held_until = due
+                self._timer = DueTimer(self._loop(), due, self._release, reply, respond, event.t)
                 return
             if reply is not None:
                 self.latency.observe(time.perf_counter() - event.t)
