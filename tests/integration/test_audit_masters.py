@@ -275,7 +275,9 @@ async def test_mbpoll_at_a_sane_rate(serve: ServeFactory, tmp_path: Path, capsys
 
 def test_a_sequential_master_against_c20sim_serve_is_no_early_retrier(tmp_path: Path) -> None:
     """c20sim serve runs on uvloop, whose timers count whole milliseconds: a sequential master polling as fast as
-    the replies come gets the line-demand finding and nothing else (no collision, no early retry)."""
+    the replies come gets the line-demand finding and nothing else (no collision, no early retry), and only as a
+    warning: it keeps the line full, never more than full (docs/audit.md), though uvloop hands a reply over up
+    to half a millisecond early."""
     import subprocess
     import sys
     import urllib.request
@@ -309,4 +311,5 @@ def test_a_sequential_master_against_c20sim_serve_is_no_early_retrier(tmp_path: 
     finally:
         proc.terminate()
         proc.wait(10)
-    assert [f["rule"] for f in report["findings"]] == ["line-demand"], report["findings"]
+    assert [(f["rule"], f["severity"]) for f in report["findings"]] == [("line-demand", "warning")], report["findings"]
+    assert 90.0 < report["findings"][0]["value"] < 100.2  # full, within the frames' times' jitter (2 ms a second)

@@ -91,9 +91,31 @@ def test_a_poller_too_fast_for_the_line(master: Master) -> None:
         master.read(Reg.STATUS1, 1 / 256)  # each after its reply: no collision, but 256 a second
     finding = only(master)
     assert (finding.rule, finding.severity, finding.drive) == ("line-demand", Severity.ERROR, None)
-    assert finding.value == pytest.approx(256 * READ_TX * 100)
-    assert finding.figure == "line demand 345 % of 19200 8N1: 256 transactions in 1 s need 3.445 s of line"
-    assert master.auditor.line_demand().peak == pytest.approx(256 * READ_TX * 100)
+    # the window's 256 reads need 3.445 s of line, and take from the first request to the end of the last
+    expected = 256 * READ_TX * 100 / (255 / 256 + READ_TX)
+    assert finding.value == pytest.approx(expected)
+    assert finding.figure == "line demand 341 % of 19200 8N1: 256 transactions in 1.010 s need 3.445 s of line"
+    assert master.auditor.line_demand().peak == pytest.approx(expected)
+
+
+def test_a_line_kept_exactly_full_is_a_warning_and_one_asked_for_more_an_error(profile: Profile) -> None:
+    """A master polling back to back on a real line keeps it exactly full: 100 %, a warning (no room for a retry),
+    though a window of 1 s holds the requests of 75 reads of 13.46 ms. Asking each read 0.3 ms sooner than the
+    line carries it is an error: 102 %."""
+    full = Master(profile)
+    for _ in range(300):
+        full.read(Reg.STATUS1, READ_TX)
+    finding = only(full)
+    assert (finding.rule, finding.severity) == ("line-demand", Severity.WARNING)
+    assert finding.value == pytest.approx(100.0)
+    assert full.auditor.line_demand().mean == pytest.approx(100.0)
+
+    faster = Master(profile)
+    for _ in range(300):
+        faster.read(Reg.STATUS1, READ_TX - 0.0003)
+    demand = [f for f in faster.findings() if f.rule == "line-demand"]
+    assert [f.severity for f in demand] == [Severity.ERROR]
+    assert demand[0].value == pytest.approx(100 * READ_TX / (READ_TX - 0.0003), abs=0.1)
 
 
 def test_a_cyclic_function_code_writer_wears_the_eeprom(master: Master) -> None:
