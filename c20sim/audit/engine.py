@@ -84,6 +84,11 @@ class Limits:
     reset_window: float = 60.0  #: seconds; assumed
     enable_hold: float = 5.0  #: seconds 200EH may stay 1 after the last function-code write; assumed
 
+    def demand_error_at(self) -> float:
+        """The line demand (percent) from which ``line-demand`` is an error: ``demand_error``, by more than the
+        frames' times' jitter over a window (a line kept exactly full reads 100 % give or take that)."""
+        return self.demand_error + 100.0 * _DEMAND_JITTER / self.window
+
 
 @dataclass(frozen=True, slots=True)
 class LineDemand:
@@ -444,8 +449,7 @@ class Auditor:
         self._peak = percent
         if percent < self.limits.demand_warning or "line-demand" in self.ignore:
             return
-        beyond_jitter = 100.0 * _DEMAND_JITTER / span
-        severity = Severity.ERROR if percent >= self.limits.demand_error + beyond_jitter else Severity.WARNING
+        severity = Severity.ERROR if percent >= self.limits.demand_error_at() else Severity.WARNING
         count = len(window)
         self._report(
             "line-demand",

@@ -18,6 +18,7 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.widgets import DataTable, Static
 
+from ..audit import Limits
 from .workbench import Workbench
 
 __all__ = ["AuditPanel", "gauge_text"]
@@ -27,12 +28,15 @@ COLUMNS = ("severity", "rule", "where", "figure")
 REFRESH_HZ = 2.0
 SEVERITY_STYLES = {"error": "bold red", "warning": "yellow", "note": "cyan"}
 GAUGE_WIDTH = 30
+#: the line demand (percent) the gauge turns red at: serve's audit calls it an error from there
+_ERROR_AT = Limits().demand_error_at()
 
 
 def gauge_text(demand: dict[str, Any]) -> Text:
-    """``line  [██████░░░░]  27 % now, peak 31 % of 19200 8N1 (100 % full)``: green, yellow from 80 %, red at 100 %."""
+    """``line  [██████░░░░]  27 % now, peak 31 % of 19200 8N1 (100 % full)``: green, yellow from 80 %, red beyond a
+    full line (where the audit's line-demand is an error)."""
     now, peak = float(demand["now_percent"]), float(demand["peak_percent"])
-    style = "green" if now < 80.0 else "yellow" if now < 100.0 else "bold red"
+    style = "green" if now < 80.0 else "yellow" if now < _ERROR_AT else "bold red"
     filled = min(GAUGE_WIDTH, round(GAUGE_WIDTH * now / 100.0))
     text = Text("line demand ", style="bold")
     text.append("█" * filled, style=style)
