@@ -225,6 +225,10 @@ class Auditor:
         self._last_cost = 0.0
         self._now = 0.0
         self._peak = 0.0
+        # the line-demand finding as last reported: its peak and severity (it is reported again when the peak has
+        # grown by more than half a point since, or its severity rises)
+        self._reported_peak = -1.0
+        self._reported_severity = Severity.NOTE
         self._transactions = 0
         self._busy = 0.0
 
@@ -441,15 +445,15 @@ class Auditor:
             return  # not yet a whole window seen
         percent = self._window_percent()
         self._now = percent
-        peak = self._peak
-        if percent <= peak + 0.5:
-            if percent > peak:
-                self._peak = percent
+        if percent <= self._peak:
             return
         self._peak = percent
         if percent < self.limits.demand_warning or "line-demand" in self.ignore:
             return
         severity = Severity.ERROR if percent >= self.limits.demand_error_at() else Severity.WARNING
+        if percent <= self._reported_peak + 0.5 and severity <= self._reported_severity:
+            return  # a peak a little higher, judged the same: not worth a new finding event
+        self._reported_peak, self._reported_severity = percent, severity
         count = len(window)
         self._report(
             "line-demand",

@@ -118,6 +118,22 @@ def test_a_line_kept_exactly_full_is_a_warning_and_one_asked_for_more_an_error(p
     assert demand[0].value == pytest.approx(100 * READ_TX / (READ_TX - 0.0003), abs=0.1)
 
 
+def test_a_demand_creeping_past_full_becomes_an_error(master: Master) -> None:
+    """A master near a full line that then asks 0.4 % more: the finding turns to an error, though the peak grew
+    by less than half a point at a time (it was judged afresh only on a half point's growth, and stayed a
+    warning at 100.4 %)."""
+    for _ in range(300):
+        master.read(Reg.STATUS1, 1 / 74)  # 99.6 %: a warning
+    assert [(f.rule, f.severity) for f in master.findings()] == [("line-demand", Severity.WARNING)]
+    for _ in range(300):
+        master.read(Reg.STATUS1, READ_TX / 1.004)  # 100.4 %
+    finding = only(master)
+    assert (finding.rule, finding.severity) == ("line-demand", Severity.ERROR)
+    peak = master.auditor.line_demand().peak
+    assert peak == pytest.approx(100.4, abs=0.05)
+    assert 100.2 <= finding.value <= peak <= finding.value + 0.5  # the peak, to within half a point
+
+
 def test_a_cyclic_function_code_writer_wears_the_eeprom(master: Master) -> None:
     assert master.write(Reg.WRITE_ENABLE, 1, 0.1) is not None
     for i in range(20):
