@@ -101,7 +101,7 @@ class FrameRecord:
     read, which keeps a request cheap.
     """
 
-    t: float  #: the line's time: arrival of the frame's last byte, or when the reply is due
+    t: float  #: the line's time: arrival of the frame's last byte (or when the line took a request that waited), or when the reply is due
     direction: Direction
     data: bytes
     kind: RecordKind

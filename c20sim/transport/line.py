@@ -36,6 +36,7 @@ has been handed over at the old speed.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import time
 from bisect import bisect_left
@@ -160,6 +161,7 @@ class Line:
         #: when the last held transaction ends (``time.perf_counter``): its reply may be handed over up to
         #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
         self._held_until = 0.0
+        self._last_source: object = None  #: who asked for the last transaction served
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
@@ -221,7 +223,11 @@ class Line:
 
     def _serve_waiting(self) -> None:
         while self._waiting and not self._busy:
-            event, respond, _source = self._waiting.popleft()
+            event, respond, source = self._waiting.popleft()
+            asked = event.t
+            if asked < self._held_until and self._queued_for_the_line(event, respond, source):
+                event = dataclasses.replace(event, t=self._held_until)
+            self._last_source = source
             try:
                 reply = self.sim.handle(event)
             except Exception:
@@ -236,18 +242,30 @@ class Line:
                 self.busy_seconds += hold
                 if reply is None or isinstance(respond, SelfTimed):
                     if reply is not None:
-                        self.latency.observe(time.perf_counter() - event.t)
+                        self.latency.observe(time.perf_counter() - asked)
                     _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
                 due = max(time.perf_counter(), self._held_until) + hold
                 self._held_until = due
-                self._timer = DueTimer(self._loop(), due, self._release, reply, respond, event.t)
+                self._timer = DueTimer(self._loop(), due, self._release, reply, respond, asked)
                 return
             if reply is not None:
-                self.latency.observe(time.perf_counter() - event.t)
+                self.latency.observe(time.perf_counter() - asked)
             _deliver(respond, reply)
             self._announce_baud()
+
+    def _queued_for_the_line(self, event: FrameEvent, respond: Respond, source: object) -> bool:
+        """True when a request that came while the line was the last transaction's waited for the line, as
+        behind a serial device server or a gateway, which puts it on the line when that transaction ends: that
+        is then its time in the frame log, as a request that found the line free has its arrival's. So the
+        audit judges the line by the times it was used: two masters that each wait for their replies do not
+        collide, nor does a Modbus TCP client's second request in flight. A master's own next RTU request sent
+        before its reply keeps its arrival (on a real line it collides with the reply), and so does every
+        request of a port whose bytes are on the line as they come (line-timed)."""
+        if isinstance(respond, SelfTimed):
+            return False
+        return event.mbap is not None or source is not self._last_source
 
     def _release(self, reply: Reply | None, respond: Respond, asked: float) -> None:
         self._timer = None

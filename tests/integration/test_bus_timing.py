@@ -9,6 +9,7 @@ can break, and the line's own accounting (the counters), which is exact.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import time
 from collections.abc import AsyncIterator
 
@@ -126,6 +127,46 @@ async def test_two_masters_share_the_line(started: list[Server]) -> None:
     line = 2 * N * one_read_time(server)
     assert took >= line
     assert server.sim.bus.counters_of(1).line_busy_s == pytest.approx(line, rel=1e-9)
+
+
+async def test_masters_that_queue_for_the_line_are_audited_at_their_line_times(started: list[Server]) -> None:
+    """Two RTU-over-TCP masters that each wait for their replies, and a Modbus TCP client with two requests in
+    flight, queue for the line as behind a serial device server or a gateway: each request goes on the line
+    when the last transaction ends, and the frame log and the live audit see it there. No collision, no early
+    retry (before, a request was stamped when it arrived, mid-transaction, and the audit called it one). One
+    master sending its next request before its own reply still collides."""
+    from c20sim.control import liveaudit
+
+    server = await serve(started)
+    first, second = await client(server, FramerType.RTU), await client(server, FramerType.RTU)
+    try:
+        await asyncio.gather(reads(first, N), reads(second, N))
+    finally:
+        first.close()
+        second.close()
+    assert server.endpoints.modbus_tcp is not None
+    reader, writer = await asyncio.open_connection("127.0.0.1", server.endpoints.modbus_tcp.port)
+    pdu = bytes.fromhex("01 03 30 06 00 01")
+    writer.write(b"".join(tid.to_bytes(2, "big") + b"\0\0" + len(pdu).to_bytes(2, "big") + pdu for tid in (1, 2)))
+    answers = [await reader.readexactly(11) for _ in range(2)]
+    writer.close()
+    assert [answer[:2] for answer in answers] == [b"\0\x01", b"\0\x02"]
+
+    audit = liveaudit.of(server.sim)
+    assert audit is not None
+    assert audit.findings() == []
+    requests = [record.t for record in server.sim.bus.records if str(record.direction) == "rx"]
+    assert len(requests) == 2 * N + 2
+    gaps = [later - earlier for earlier, later in itertools.pairwise(requests)]
+    assert min(gaps) >= one_read_time(server) - EARLY  # one transaction at a time on the line
+
+    # one RTU master sending its next request before its reply: on a real line the two collide
+    assert server.endpoints.tcp is not None
+    reader, writer = await asyncio.open_connection("127.0.0.1", server.endpoints.tcp.port)
+    writer.write(encode(ReadRequest(1, Reg.STATUS1, 1)) + encode(ReadRequest(1, Reg.STATUS2, 1)))
+    assert len(await reader.readexactly(14)) == 14
+    writer.close()
+    assert [(f.rule, f.drive) for f in audit.findings()] == [("collision", 1)]
 
 
 async def test_the_line_is_held_for_the_transaction_or_only_the_turnaround(started: list[Server]) -> None:
