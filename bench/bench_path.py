@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import cProfile
 import dataclasses
 import logging
@@ -25,6 +26,7 @@ import pstats
 import statistics
 import sys
 import time
+from collections.abc import AsyncIterator
 from typing import Any
 
 from _common import Floor, machine
@@ -94,9 +96,10 @@ async def drive_protocol(protocol: Any, frames: list[bytes], n: int, profile: cP
     return seconds
 
 
-async def split_case(audit: bool, mix: str, n: int) -> tuple[float, float]:
-    """Medians over ``n`` requests (after a warm-up that fills the live audit's window): seconds from a request's
-    bytes handed over to its reply written, and from there to ``data_received``'s return."""
+@contextlib.asynccontextmanager
+async def served_connection(audit: bool) -> AsyncIterator[tuple[_RtuConnection, CountingTransport]]:
+    """A ``c20sim serve`` server (turnaround 0, bus timing off) and one RTU-over-TCP connection of it, on a
+    transport that only counts."""
     base = load_profile()
     base = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, turnaround_ms=0.0))
     sim = Simulator(base, (1,), clock=RealtimeClock(), seed=1)
@@ -108,9 +111,19 @@ async def split_case(audit: bool, mix: str, n: int) -> tuple[float, float]:
         connection = _RtuConnection(tcp)
         transport = CountingTransport()
         connection.connection_made(transport)  # type: ignore[arg-type]
-        frames = [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))]
-        if mix == "write-read":
-            frames.append(encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 0)))
+        yield connection, transport
+        connection.connection_lost(None)
+    finally:
+        await server.aclose()
+
+
+async def split_case(audit: bool, mix: str, n: int) -> tuple[float, float]:
+    """Medians over ``n`` requests (after a warm-up that fills the live audit's window): seconds from a request's
+    bytes handed over to its reply written, and from there to ``data_received``'s return."""
+    frames = [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))]
+    if mix == "write-read":
+        frames.append(encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 0)))
+    async with served_connection(audit) as (connection, transport):
         await drive_protocol(connection, frames, 20000, None)  # warm
         before: list[float] = []
         after: list[float] = []
@@ -122,34 +135,18 @@ async def split_case(audit: bool, mix: str, n: int) -> tuple[float, float]:
             before.append(transport.written_at - t0)
             after.append(t1 - transport.written_at)
             await sleep(0)
-        connection.connection_lost(None)
-        return statistics.median(before), statistics.median(after)
-    finally:
-        await server.aclose()
+    return statistics.median(before), statistics.median(after)
 
 
 async def c20sim_case(audit: bool, n: int, profile: cProfile.Profile | None) -> float:
-    base = load_profile()
-    base = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, turnaround_ms=0.0))
-    sim = Simulator(base, (1,), clock=RealtimeClock(), seed=1)
-    server = Server(sim, ServeOptions(tcp="127.0.0.1:0", audit=audit))
-    await server.start()
-    try:
-        tcp = server.endpoints.tcp
-        assert isinstance(tcp, RtuOverTcpServer)
-        connection = _RtuConnection(tcp)
-        transport = CountingTransport()
-        connection.connection_made(transport)  # type: ignore[arg-type]
-        frames = [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1)), encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 0))]
+    frames = [encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1)), encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 0))]
+    async with served_connection(audit) as (connection, transport):
         await drive_protocol(connection, frames, 2000, None)  # warm
         before = transport.writes
         seconds = await drive_protocol(connection, frames, n, profile)
         if transport.writes - before != n:
             raise AssertionError(f"{n} requests, {transport.writes - before} replies")
-        connection.connection_lost(None)
-        return seconds
-    finally:
-        await server.aclose()
+    return seconds
 
 
 async def floor_case(n: int) -> float:
