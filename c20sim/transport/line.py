@@ -162,6 +162,7 @@ class Line:
         #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
         self._held_until = 0.0
         self._last_source: object = None  #: who asked for the last transaction served
+        self._last_on_line = 0.0  #: its request's time in the frame log
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
@@ -224,10 +225,15 @@ class Line:
     def _serve_waiting(self) -> None:
         while self._waiting and not self._busy:
             event, respond, source = self._waiting.popleft()
-            asked = event.t
+            asked = on_line = event.t
             if asked < self._held_until and self._queued_for_the_line(event, respond, source):
-                event = dataclasses.replace(event, t=self._held_until)
-            self._last_source = source
+                on_line = self._held_until
+            # the line takes requests in order: none is logged before the last (a master's second request, read
+            # with its first, behind another master's that waited for the line)
+            on_line = max(on_line, self._last_on_line)
+            if on_line != asked:
+                event = dataclasses.replace(event, t=on_line)
+            self._last_source, self._last_on_line = source, on_line
             try:
                 reply = self.sim.handle(event)
             except Exception:

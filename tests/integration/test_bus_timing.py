@@ -169,6 +169,41 @@ async def test_masters_that_queue_for_the_line_are_audited_at_their_line_times(s
     assert [(f.rule, f.drive) for f in audit.findings()] == [("collision", 1)]
 
 
+async def test_a_masters_second_request_behind_another_waiting_master_is_logged_in_order(
+    started: list[Server],
+) -> None:
+    """Master A reads; B writes two reads at once while A's is on the line. B's first waits for the line and is
+    logged when the line takes it; its second, read with it, collides with B's own reply, and is logged no
+    earlier than the first (it was logged 11 ms before it, and the audit read a gap of -11 ms)."""
+    from c20sim.control import liveaudit
+
+    server = await serve(started)
+    assert server.endpoints.tcp is not None
+    port = server.endpoints.tcp.port
+    a_reader, a_writer = await asyncio.open_connection("127.0.0.1", port)
+    b_reader, b_writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        a_writer.write(encode(ReadRequest(1, Reg.STATUS1, 1)))
+        deadline = time.monotonic() + 5.0
+        while not server.line.busy:  # A's read on the line
+            assert time.monotonic() < deadline, "A's request never reached the line"
+            await asyncio.sleep(0.0005)
+        b_writer.write(encode(ReadRequest(1, Reg.STATUS1, 1)) + encode(ReadRequest(1, Reg.STATUS2, 1)))
+        await a_reader.readexactly(7)
+        await b_reader.readexactly(14)
+    finally:
+        a_writer.close()
+        b_writer.close()
+    requests = [record.t for record in server.sim.bus.records if str(record.direction) == "rx"]
+    assert len(requests) == 3
+    assert requests == sorted(requests)
+    audit = liveaudit.of(server.sim)
+    assert audit is not None
+    (collision,) = audit.findings()
+    assert collision.rule == "collision"
+    assert collision.figure.startswith("a request 0.0 ms after the last")
+
+
 async def test_the_line_is_held_for_the_transaction_or_only_the_turnaround(started: list[Server]) -> None:
     timed = await serve(started)
     plain = await serve(started, bus_timing=False)
