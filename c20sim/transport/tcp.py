@@ -35,6 +35,7 @@ import errno
 import logging
 import socket
 import struct
+import time
 from collections.abc import Callable
 from typing import Any, cast
 
@@ -320,7 +321,8 @@ class _MbapConnection(_Connection):
         line = self.owner.line
         loop = self.loop
         framer = RtuFramer(line.sim.bus.line_baud, check_gaps=False)
-        framer.feed(with_crc(bytes((unit,)) + pdu), loop.time())
+        # arrival on the clock every port stamps with (uvloop's loop time counts whole milliseconds, cached)
+        framer.feed(with_crc(bytes((unit,)) + pdu), time.perf_counter())
         framer.flush()
 
         header = MbapHeader(transaction, unit)

@@ -263,6 +263,35 @@ def test_back_to_back_transactions_never_outrun_the_line_on_uvloop() -> None:
     assert took >= n * line - EARLY, f"{n} reads in {took * 1000:.2f} ms; the line needs {n * line * 1000:.2f} ms"
 
 
+def test_a_modbus_tcp_request_is_stamped_on_the_ports_clock_on_uvloop() -> None:
+    """A Modbus TCP request's time is its arrival on the clock every port stamps with (time.perf_counter), never
+    before it was sent: uvloop's loop time, which stamped it before, counts whole milliseconds from the start
+    of the loop's turn, up to a millisecond early, beside RTU frames stamped to the microsecond."""
+    import uvloop  # serve's loop
+
+    pdu = bytes.fromhex("01 03 30 06 00 01")
+
+    async def stamps() -> list[tuple[float, float]]:
+        server = await serve([], bus_timing=False)
+        try:
+            assert server.endpoints.modbus_tcp is not None
+            reader, writer = await asyncio.open_connection("127.0.0.1", server.endpoints.modbus_tcp.port)
+            sent: list[float] = []
+            for tid in range(8):
+                await asyncio.sleep(0.0003 * tid)  # at other points of the loop's millisecond
+                sent.append(time.perf_counter())
+                writer.write(tid.to_bytes(2, "big") + b"\0\0" + len(pdu).to_bytes(2, "big") + pdu)
+                await reader.readexactly(11)
+            writer.close()
+            logged = [record.t for record in server.sim.bus.records if str(record.direction) == "rx"]
+            return list(zip(sent, logged, strict=True))
+        finally:
+            await server.aclose()
+
+    for sent, logged in uvloop.run(stamps()):
+        assert logged >= sent, f"logged {(sent - logged) * 1e6:.0f} us before it was sent"
+
+
 async def _fire_times(hold: float, count: int, *, busy: bool = False) -> list[float]:
     """How long after each due time a ``DueTimer`` called back (negative: early), on the running loop; ``busy``:
     while another task turns the loop without a pause (a serving loop under load)."""
