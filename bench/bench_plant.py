@@ -383,14 +383,7 @@ def part1(bench: Bench, line: LineFigures, steps: Sequence[int], keep_up: float,
                 pct(m.req_s / (n * line.rate)),
                 f"{m.cpu_pct:.0f} %",
                 f"{m.idle_pct:.1f} %" if m.idle_pct is not None else "-",
-                f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
-                m.gc,
-                f"{m.us_per_req:.0f}",
-                f"{m.us_per_req / base:.2f}",
-                us(m.late(50)),
-                us(m.late(99)),
-                us(m.late(99.9)),
-                us(m.lateness[-1] if m.lateness else float("nan")),
+                *_lateness_cells(m, base),
                 us(m.lateness[0] if m.lateness else float("nan")),
                 pct(m.within_1ms),
             ]
@@ -418,9 +411,7 @@ def part1(bench: Bench, line: LineFigures, steps: Sequence[int], keep_up: float,
     )
     print("Lateness histogram (share of replies; negative = early):\n")
     table(["buses", *BIN_NAMES], [[str(n), *(pct(s) for s in m.histogram())] for n, m in runs])
-    kept = [n for n, m in runs if m.req_s >= keep_up * n * line.rate]
-    every = [n for n, m in runs if m.all_within_1ms and m.req_s >= keep_up * n * line.rate]
-    p999 = [n for n, m in runs if m.p999_within_1ms and m.req_s >= keep_up * n * line.rate]
+    kept, every, p999 = _passing(runs, line, keep_up)
     print(
         f"- the core keeps up (>= {keep_up:.0%} of the line's rate) up to {max(kept) if kept else 'no'} buses "
         f"of those tried\n"
@@ -465,25 +456,42 @@ def part1(bench: Bench, line: LineFigures, steps: Sequence[int], keep_up: float,
                 f"{n * line.rate:.0f}",
                 f"{m.req_s:.0f}",
                 f"{m.cpu_pct:.0f} %",
-                f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
-                m.gc,
-                f"{m.us_per_req:.0f}",
-                f"{m.us_per_req / base:.2f}",
-                us(m.late(50)),
-                us(m.late(99)),
-                us(m.late(99.9)),
-                us(m.lateness[-1] if m.lateness else float("nan")),
+                *_lateness_cells(m, base),
                 pct(m.within_1ms),
             ]
             for n, m in paced
         ],
     )
-    kept = [n for n, m in paced if m.req_s >= keep_up * n * line.rate]
-    every = [n for n, m in paced if m.all_within_1ms and m.req_s >= keep_up * n * line.rate]
-    p999 = [n for n, m in paced if m.p999_within_1ms and m.req_s >= keep_up * n * line.rate]
+    kept, every, p999 = _passing(paced, line, keep_up)
     print(
         f"- the core keeps up up to {max(kept) if kept else 'no'} buses of those tried; every reply within 1 ms: "
         f"{_largest(every)}; p99.9 within 1 ms: {_largest(p999)}\n"
+    )
+
+
+def _lateness_cells(m: Measured, base: float) -> list[str]:
+    """The cells both tables of part 1 give a run: core taken, GC, CPU a request (and against the first run's),
+    lateness p50, p99, p99.9 and max."""
+    return [
+        f"{m.waited_pct:.1f} / {m.steal_pct:.1f} %",
+        m.gc,
+        f"{m.us_per_req:.0f}",
+        f"{m.us_per_req / base:.2f}",
+        us(m.late(50)),
+        us(m.late(99)),
+        us(m.late(99.9)),
+        us(m.lateness[-1] if m.lateness else float("nan")),
+    ]
+
+
+def _passing(runs: Sequence[tuple[int, Measured]], line: LineFigures, keep_up: float) -> tuple[list[int], ...]:
+    """The bus counts whose core kept up, and of those, the ones with every reply, and with p0.1-p99.9 of
+    them, within 1 ms of due."""
+    kept = [(n, m) for n, m in runs if m.req_s >= keep_up * n * line.rate]
+    return (
+        [n for n, _ in kept],
+        [n for n, m in kept if m.all_within_1ms],
+        [n for n, m in kept if m.p999_within_1ms],
     )
 
 
