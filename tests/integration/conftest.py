@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import struct
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 
@@ -15,6 +16,12 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.serve import ServeOptions, Server
+
+
+def mbap_read(transaction: int, register: int) -> bytes:
+    """A Modbus TCP request (MBAP header, unit 1) reading one register."""
+    pdu = struct.pack(">BHH", 3, register, 1)
+    return struct.pack(">HHHB", transaction & 0xFFFF, 0, len(pdu) + 1, 1) + pdu
 
 
 @dataclass

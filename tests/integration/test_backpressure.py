@@ -16,7 +16,6 @@ import asyncio
 import contextlib
 import os
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -34,18 +33,13 @@ from c20sim.core.bus import FrameRecord
 from c20sim.wire.protocol import ReadRequest, ReadResponse, encode
 from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
-from tests.integration.conftest import ServeFactory
+from tests.integration.conftest import ServeFactory, mbap_read
 
 BURST = 5000
 
 RTU_READ = encode(ReadRequest(1, Reg.STATUS1, 1))
 #: The burst reads a register the poller does not, so the frame log tells the two apart.
 RTU_BURST_READ = encode(ReadRequest(1, Reg.SPEED_SETPOINT, 1))
-
-
-def mbap_read(transaction: int, register: int) -> bytes:
-    pdu = struct.pack(">BHH", 3, register, 1)
-    return struct.pack(">HHHB", transaction & 0xFFFF, 0, len(pdu) + 1, 1) + pdu
 
 
 #: Requests a connection may have on the line at once: one for an RTU master (on a pty or RTU over TCP), four

@@ -33,6 +33,7 @@ from c20sim.wire.protocol import (
     with_crc,
 )
 from c20sim.wire.registers import Reg
+from tests.integration.conftest import mbap_read
 
 N = 12
 
@@ -146,8 +147,7 @@ async def test_masters_that_queue_for_the_line_are_audited_at_their_line_times(s
         second.close()
     assert server.endpoints.modbus_tcp is not None
     reader, writer = await asyncio.open_connection("127.0.0.1", server.endpoints.modbus_tcp.port)
-    pdu = bytes.fromhex("01 03 30 06 00 01")
-    writer.write(b"".join(tid.to_bytes(2, "big") + b"\0\0" + len(pdu).to_bytes(2, "big") + pdu for tid in (1, 2)))
+    writer.write(mbap_read(1, Reg.MOTOR_SPEED) + mbap_read(2, Reg.MOTOR_SPEED))
     answers = [await reader.readexactly(11) for _ in range(2)]
     writer.close()
     assert [answer[:2] for answer in answers] == [b"\0\x01", b"\0\x02"]
@@ -269,8 +269,6 @@ def test_a_modbus_tcp_request_is_stamped_on_the_ports_clock_on_uvloop() -> None:
     of the loop's turn, up to a millisecond early, beside RTU frames stamped to the microsecond."""
     import uvloop  # serve's loop
 
-    pdu = bytes.fromhex("01 03 30 06 00 01")
-
     async def stamps() -> list[tuple[float, float]]:
         server = await serve([], bus_timing=False)
         try:
@@ -280,7 +278,7 @@ def test_a_modbus_tcp_request_is_stamped_on_the_ports_clock_on_uvloop() -> None:
             for tid in range(8):
                 await asyncio.sleep(0.0003 * tid)  # at other points of the loop's millisecond
                 sent.append(time.perf_counter())
-                writer.write(tid.to_bytes(2, "big") + b"\0\0" + len(pdu).to_bytes(2, "big") + pdu)
+                writer.write(mbap_read(tid, Reg.MOTOR_SPEED))
                 await reader.readexactly(11)
             writer.close()
             logged = [record.t for record in server.sim.bus.records if str(record.direction) == "rx"]
