@@ -30,6 +30,7 @@ and the line scheduler holds the line for it under bus timing.
 from __future__ import annotations
 
 import enum
+import functools
 import logging
 import random
 from collections import deque
@@ -228,8 +229,7 @@ class Bus:
         self._at: dict[int, Slave] = {}  #: address -> drive, a cache checked on every use
         self.rng = random.Random(seed)
         self.records: deque[FrameRecord] = deque(maxlen=log_size)
-        self._listeners: list[Callable[[FrameRecord], None]] = []
-        #: the listeners as a tuple, made anew when one comes or goes: a record calls each without a copy
+        #: the listeners, a tuple made anew when one comes or goes: a record calls each without a copy
         self._listening: tuple[Callable[[FrameRecord], None], ...] = ()
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
         self.counters: dict[int, Counters] = {}
@@ -253,15 +253,15 @@ class Bus:
 
     def subscribe(self, listener: Callable[[FrameRecord], None]) -> Callable[[], None]:
         """Call ``listener`` with every new record; returns a function that unsubscribes."""
-        self._listeners.append(listener)
-        self._listening = tuple(self._listeners)
+        self._listening = (*self._listening, listener)
+        return functools.partial(self._drop, listener)
 
-        def unsubscribe() -> None:
-            if listener in self._listeners:  # a failing listener may have been removed already
-                self._listeners.remove(listener)
-                self._listening = tuple(self._listeners)
-
-        return unsubscribe
+    def _drop(self, listener: Callable[[FrameRecord], None]) -> None:
+        """Stop calling ``listener`` (once, if it subscribed twice); a failing listener may be gone already."""
+        listening = list(self._listening)
+        if listener in listening:
+            listening.remove(listener)
+            self._listening = tuple(listening)
 
     def record(self, entry: FrameRecord) -> None:
         self.records.append(entry)
@@ -270,9 +270,7 @@ class Bus:
                 listener(entry)
             except Exception:
                 log.exception("frame log listener failed; removing it")
-                if listener in self._listeners:
-                    self._listeners.remove(listener)
-                    self._listening = tuple(self._listeners)
+                self._drop(listener)
 
     # -- serving
 
