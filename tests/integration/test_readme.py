@@ -9,6 +9,7 @@ mbpoll is the independent master.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -27,12 +28,11 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import wait_for_ready_file
-from tests.tui.test_tmux import wait_for
+from tests.terminal import TMUX, terminal_running, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 README = (ROOT / "README.md").read_text()
 MBPOLL = shutil.which("mbpoll")
-TMUX = shutil.which("tmux")
 
 
 def shell_blocks(text: str) -> list[list[str]]:
@@ -206,48 +206,28 @@ class Pane:
     """A program in a tmux pane of 240x40 that is kept when the program ends, its exit status written to a file."""
 
     def __init__(self, command: str, folder: Path) -> None:
-        self.session = f"c20sim-readme-{uuid.uuid4().hex[:8]}"
-        self.status = folder / f"{self.session}.status"
-        subprocess.run(
-            ["tmux", "-L", self.session, "new-session", "-d", "-s", self.session, "-x", "240", "-y", "40"], check=True
-        )
-        subprocess.run(
-            ["tmux", "-L", self.session, "set-option", "-w", "-t", self.session, "remain-on-exit", "on"], check=True
-        )
-        # The pane's environment is the tmux server's, which may be the test run's, COLUMNS and LINES included:
-        # left out, the program asks the terminal for its size
-        wrapped = f"env -u COLUMNS -u LINES {command}; echo $? > {self.status}"
-        subprocess.run(
-            ["tmux", "-L", self.session, "respawn-pane", "-k", "-t", self.session, "-c", str(ROOT), wrapped], check=True
-        )
+        self.status = folder / f"pane-{uuid.uuid4().hex[:8]}.status"
+        self._stack = contextlib.ExitStack()
+        self.terminal = self._stack.enter_context(terminal_running(self.status, command, size=(240, 40), cwd=ROOT))
 
     def screen(self) -> str:
-        done = subprocess.run(
-            ["tmux", "-L", self.session, "capture-pane", "-p", "-t", self.session], capture_output=True, text=True
-        )
-        return done.stdout
+        return self.terminal.screen()
 
     def wait_for(self, what: str, check: Callable[[str], bool]) -> None:
         wait_for(what, lambda: check(self.screen()), show=self.screen)
 
     def dashboard(self, title: str) -> None:
         """Wait for the dashboard, its title bar showing ``title``."""
-        self.wait_for("the dashboard", lambda screen: "connect: " in screen)
-        # a pane made without a client may give the program its size late: a resize makes the screen take it
-        for width in ("239", "240"):
-            subprocess.run(
-                ["tmux", "-L", self.session, "resize-window", "-t", self.session, "-x", width, "-y", "40"], check=True
-            )
         self.wait_for(f"the title bar: {title}", lambda screen: title in screen)
 
     def quit(self) -> str:
         """Press q; the program's exit status."""
-        subprocess.run(["tmux", "-L", self.session, "send-keys", "-t", self.session, "q"], check=True)
+        self.terminal.keys("q")
         wait_for("the program's exit", lambda: self.status.exists() and self.status.read_text().endswith("\n"))
         return self.status.read_text().strip()
 
     def close(self) -> None:
-        subprocess.run(["tmux", "-L", self.session, "kill-session", "-t", self.session], check=False)
+        self._stack.close()
 
 
 def python_c20sim(line: str) -> str:

@@ -7,7 +7,6 @@ import asyncio
 import signal
 import subprocess
 import sys
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,12 +17,10 @@ from pymodbus.client import ModbusTcpClient
 from c20sim.control.client import ControlClient, RemoteOps, attach_target
 from c20sim.tui import Dashboard
 from tests.conftest import wait_for_ready_file
+from tests.terminal import NEEDS_TMUX, TMUX, Terminal, terminal_running
 from tests.tui.conftest import until
-from tests.tui.test_tmux import TMUX, Terminal
 
-pytestmark = pytest.mark.skipif(
-    TMUX is None, reason="tmux is not installed (apt-get install tmux); .ci/run installs it"
-)
+pytestmark = pytest.mark.skipif(TMUX is None, reason=NEEDS_TMUX)
 
 
 @pytest.fixture
@@ -47,18 +44,9 @@ def serve(tmp_path: Path) -> Iterator[tuple[Path, dict[str, str]]]:
 @pytest.fixture
 def terminal(serve: tuple[Path, dict[str, str]]) -> Iterator[Terminal]:
     ready, _ = serve
-    session = f"c20sim-{uuid.uuid4().hex[:8]}"
-    tmux = [TMUX or "tmux", "-L", session]  # a tmux server of its own, as Terminal's calls expect
-    cwd = Path(__file__).parents[2]
     command = f"{sys.executable} -m c20sim dashboard --attach {ready}"
-    subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
-    try:
-        subprocess.run([*tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        terminal = Terminal(session)
-        terminal.run(command, cwd, ready.with_name("status"))
+    with terminal_running(ready.with_name("status"), command) as terminal:
         yield terminal
-    finally:
-        subprocess.run([*tmux, "kill-session", "-t", session], check=False)
 
 
 def read(info: dict[str, str], register: int) -> int:

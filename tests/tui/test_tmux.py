@@ -2,114 +2,28 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import shutil
 import signal
 import socket
-import subprocess
 import sys
-import time
-import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-TMUX = shutil.which("tmux")
-pytestmark = pytest.mark.skipif(
-    TMUX is None, reason="tmux is not installed (apt-get install tmux); .ci/run installs it"
-)
+from tests.terminal import NEEDS_TMUX, TMUX, Terminal, terminal_running, wait_for
 
-
-def wait_for(what: str, check: Callable[[], bool], timeout: float = 20.0, show: Callable[[], str] = str) -> None:
-    """Poll ``check`` until it holds; on time out, fail saying what was awaited and what ``show`` gives."""
-    deadline = time.monotonic() + timeout
-    while not check():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}\n{show()}"
-        time.sleep(0.05)
-
-
-class Terminal:
-    def __init__(self, session: str) -> None:
-        self.session = session
-        self.address = ("", 0)  #: the served RTU-over-TCP endpoint
-        self.ready = Path()
-        self.status_file = Path()
-
-    def screen(self) -> str:
-        result = subprocess.run(
-            [TMUX or "tmux", "-L", self.session, "capture-pane", "-p", "-t", self.session],
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        return result.stdout
-
-    def keys(self, *keys: str) -> None:
-        subprocess.run([TMUX or "tmux", "-L", self.session, "send-keys", "-t", self.session, *keys], check=True)
-
-    def wait_for_text(self, text: str) -> str:
-        wait_for(repr(text), lambda: text in self.screen(), show=self.screen)
-        return self.screen()
-
-    def pane(self, fmt: str) -> str:
-        """A tmux format of the session's pane, such as ``#{pane_dead}``."""
-        result = subprocess.run(
-            [TMUX or "tmux", "-L", self.session, "display-message", "-p", "-t", self.session, fmt],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        return result.stdout.strip()
-
-    def run(self, command: str, cwd: Path, status_file: Path) -> None:
-        """Run ``command`` in the pane; its exit status goes to ``status_file`` (tmux's own pane_dead_status is
-        sometimes never filled in once the pane is dead, so the shell writes it)."""
-        self.status_file = status_file
-        wrapped = f"{command}; echo $? > {status_file}"
-        subprocess.run(
-            [TMUX or "tmux", "-L", self.session, "respawn-pane", "-k", "-t", self.session, "-c", str(cwd), wrapped],
-            check=True,
-        )
-
-    def exit_status(self) -> str:
-        """Wait for the program in the pane to end; how it ended: ``status N`` or ``signal N``."""
-        path = self.status_file
-        wait_for(
-            "the program's exit status", lambda: path.exists() and path.read_text().endswith("\n"), show=self.screen
-        )
-        code = int(path.read_text())
-        return f"signal {code - 128}" if code > 128 else f"status {code}"
-
-
-@contextlib.contextmanager
-def terminal_running(tmp_path: Path, command: str) -> Iterator[Terminal]:
-    """``command`` in a tmux pane (100x30) that is kept when it ends, its exit status written to a file."""
-    session = f"c20sim-{uuid.uuid4().hex[:8]}"
-    # a tmux server of its own (-L): a session killed by one test takes a shared server down while the next
-    # test's new-session may be connecting to it (seen once in CI: new-session exited 1)
-    tmux = [TMUX or "tmux", "-L", session]
-    cwd = Path(__file__).parents[2]
-    # A shell first, so the pane is kept when the program ends (remain-on-exit) before the program starts.
-    subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "100", "-y", "30"], check=True, cwd=cwd)
-    try:
-        subprocess.run([*tmux, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
-        terminal = Terminal(session)
-        terminal.run(command, cwd, tmp_path / "status")
-        yield terminal
-    finally:
-        subprocess.run([*tmux, "kill-session", "-t", session], check=False)
+pytestmark = pytest.mark.skipif(TMUX is None, reason=NEEDS_TMUX)
 
 
 @pytest.fixture
 def dashboard(tmp_path: Path) -> Iterator[tuple[Terminal, ModbusTcpClient]]:
     ready = tmp_path / "ready.json"
     command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
-    with terminal_running(tmp_path, command) as terminal:
+    with terminal_running(tmp_path / "status", command) as terminal:
         wait_for("the ready file", ready.exists)
         host, port = json.loads(ready.read_text())["tcp"].rsplit(":", 1)
         client = ModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=1, retries=0)
@@ -166,7 +80,7 @@ def test_a_dashboard_ended_from_outside_stops_its_server(dashboard: tuple[Termin
         os.kill(int(terminal.pane("#{pane_pid}")), signal.SIGTERM)  # the shell: it passes nothing on
         os.kill(_dashboard_pid(terminal.ready), signal.SIGTERM)
     else:
-        subprocess.run([TMUX or "tmux", "-L", terminal.session, "kill-session", "-t", terminal.session], check=True)
+        terminal.kill()
 
     def port_closed() -> bool:
         with socket.socket() as probe:
@@ -195,7 +109,7 @@ def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: signal.Signals) -
     off, the link and the ready file are removed, exit status 0."""
     ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
     command = f"{sys.executable} -m c20sim --pty --link {link} --tcp 127.0.0.1:0 --clock virtual --ready-file {ready}"
-    with terminal_running(tmp_path, command) as terminal:
+    with terminal_running(tmp_path / "status", command) as terminal:
         wait_for("the ready file", ready.exists)
         terminal.wait_for_text("STOPPED")
         assert link.is_symlink()
