@@ -4,7 +4,8 @@ Every front end is derived from :data:`TABLE`: the aiohttp app
 (:mod:`c20sim.control.http` serves a row with one generic handler unless it
 names its own), the OpenAPI document (:mod:`c20sim.control.openapi`), the
 remote client and the dashboard's operations (:mod:`c20sim.control.client`,
-:class:`LocalOps`), and ``c20sim ctl`` (:mod:`c20sim.control.ctl`). Nothing
+:class:`LocalOps`), ``c20sim ctl`` (:mod:`c20sim.control.ctl`) and the MCP tools of
+``c20sim mcp`` (:mod:`c20sim.mcpserver`). Nothing
 else writes a path or a field list. A new operation is its function plus one
 row: ``call(sim, **path parameters, **fields)`` returns the JSON answer.
 
@@ -72,6 +73,9 @@ class Route:
     #: fields``; the API runs it in a worker thread, off the serving loop. It may read the simulator, never
     #: change it.
     offload: Callable[[Simulator, dict[str, Any]], dict[str, Any]] | None = None
+    #: a tool of ``c20sim mcp`` (:mod:`c20sim.mcpserver`); False for a route no request and reply carry (the
+    #: WebSocket: what it streams, the assistant reads as MCP resources)
+    tool: bool = True
 
     @property
     def key(self) -> str:
@@ -363,6 +367,7 @@ TABLE = Table(
             "stream",
             "WebSocket (query: hz=0.1-50, frame_hz=0.1-100, buffer=1-10000, frames=0|1): telemetry, frames",
             cli=None,
+            tool=False,
         ),
         Route("GET", "/time", "time", "-", _time, help="the model's time"),
         Route(
