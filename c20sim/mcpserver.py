@@ -81,11 +81,10 @@ INSTRUCTIONS = (
 
 def tool(row: routes.Route) -> types.Tool:
     """The MCP tool of a route-table row."""
-    said = row.help or row.doc
-    route = f"{row.method} {row.path}" + ("" if row.doc in ("-", said) else f": {row.doc}")
+    route = f"{row.method} {row.path}" + ("" if row.doc in ("-", f"- ({row.said})") else f": {row.doc}")
     return types.Tool(
         name=row.name,
-        description=f"{said}\n\n{route}",
+        description=f"{row.said}\n\n{route}" if row.said != "-" else route,
         inputSchema=input_schema(row),
         annotations=types.ToolAnnotations(readOnlyHint=row.method == "GET"),
     )

@@ -91,6 +91,13 @@ class Route:
             return None
         return self.cli or self.name.replace("_", "-")
 
+    @property
+    def said(self) -> str:
+        """What it does in one line: its help, or its doc without the "- (...)" of a route that takes no body."""
+        if self.help:
+            return self.help
+        return self.doc.removeprefix("- (").removesuffix(")") if self.doc.startswith("- (") else self.doc
+
     def schema(self) -> Schema | None:
         """The request body's JSON Schema, or None for a route that takes none."""
         if self.body_schema is not None:
@@ -390,7 +397,15 @@ TABLE = Table(
             cli="state",
             help="a drive's telemetry (every drive without --drive)",
         ),
-        Route("GET", _D, "drive", "-", _state, cli="state"),
+        Route(
+            "GET",
+            _D,
+            "drive",
+            "-",
+            _state,
+            cli="state",
+            help="one drive's telemetry: state, speeds, current, bus voltage, temperature, fault",
+        ),
         Route(
             "GET",
             f"{_D}/registers",
@@ -461,6 +476,7 @@ TABLE = Table(
             whole="values",
             body_schema=_conditions_body,
             changes=True,
+            help="set conditions, as set_conditions does (the API's PATCH)",
             cli=None,
             listed=False,
         ),
@@ -563,6 +579,7 @@ TABLE = Table(
             whole="values",
             body_schema=_link_body,
             changes=True,
+            help="set a drive's link faults: offline, drop_next, delay, corrupt_crc, ...",
             cli="link",
         ),
         Route(
@@ -584,6 +601,7 @@ TABLE = Table(
             whole="values",
             body_schema=_link_body,
             changes=True,
+            help="set the whole bus's link faults: offline, drop_next, delay, corrupt_crc, ...",
             cli="link",
             listed=False,
         ),
@@ -704,6 +722,7 @@ TABLE = Table(
             _clear_generators,
             (Field("condition", {"enum": [n for n, c in ops.CONDITIONS.items() if c.continuous]}),),
             changes=True,
+            help="stop the generators on a drive's conditions: one condition's, or all",
             cli="generators",
         ),
     ]
