@@ -4,7 +4,7 @@ An MCP server over stdio, built on the official ``mcp`` SDK's low-level server, 
 API as the dashboard is: it attaches to a running serve (``--attach ready.json`` or ``--attach
 http://HOST:PORT``; the token from ``--control-token-file``, ``$C20SIM_CONTROL_TOKEN`` or the ready file) or
 starts one of its own with serve's options, stopped when the session ends (the client closes stdin, or
-SIGTERM or SIGINT).
+SIGTERM; SIGINT too, exit code 130).
 
 **Tools.** Every row of the route table (:mod:`c20sim.control.routes`) is a tool, made from the row when
 the tools are listed, so a row added there is a tool with no edit here: its name is the operation's name,
@@ -322,11 +322,11 @@ async def _stdin() -> AsyncIterator[_Lines | None]:
 
 
 async def serve_stdio(server: Server[Any, Any], stdout: TextIOWrapper) -> None:
-    """Run ``server`` on stdin and ``stdout`` until the client closes stdin, or SIGTERM or SIGINT."""
+    """Run ``server`` on stdin and ``stdout`` until the client closes stdin, or SIGTERM."""
     async with anyio.create_task_group() as group:
 
         async def end_on_signal() -> None:
-            with anyio.open_signal_receiver(signal.SIGTERM, signal.SIGINT) as signals:
+            with anyio.open_signal_receiver(signal.SIGTERM) as signals:  # SIGINT: KeyboardInterrupt, exit 130
                 async for _ in signals:
                     group.cancel_scope.cancel()
                     return
@@ -353,6 +353,7 @@ def run_mcp(args: argparse.Namespace, parser_defaults: dict[str, object]) -> int
     from .tui.session import check_attach_options, served
 
     previous = signal.signal(signal.SIGTERM, _end)  # while starting: unwinds, stopping the serve
+    interrupt = signal.getsignal(signal.SIGINT)
     try:
         with contextlib.ExitStack() as stack:
             if args.attach:
@@ -369,9 +370,11 @@ def run_mcp(args: argparse.Namespace, parser_defaults: dict[str, object]) -> int
             stdout = TextIOWrapper(sys.stdout.buffer, encoding="utf-8")
             with contextlib.redirect_stdout(sys.stderr):  # a stray print must not break the protocol on stdout
                 anyio.run(serve_stdio, build_server(Bench(client)), stdout)  # SIGTERM: the session's own handler
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)  # ending already: the serve is being stopped
+            for number in (signal.SIGTERM, signal.SIGINT):  # ending already: let the serve be stopped
+                signal.signal(number, signal.SIG_IGN)
     except _Ended:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, interrupt)
     return 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -138,6 +139,14 @@ def test_a_fault_by_cause_or_code_is_one_object_saying_both() -> None:
     }
 
 
+def test_docs_list_every_tool() -> None:
+    text = (Path(__file__).resolve().parents[2] / "docs" / "mcp.md").read_text(encoding="utf-8")
+    section = text.split("## The tools", 1)[1].split("\n## ", 1)[0]
+    rows = [line.split("|")[2] for line in section.splitlines() if line.startswith("| ") and "`" in line]
+    listed = [name for cell in rows for name in re.findall(r"`(\w+)`", cell)]
+    assert sorted(listed) == sorted(TOOLS)
+
+
 # --- c20sim mcp on stdio, as an assistant starts it.
 
 
@@ -230,7 +239,8 @@ async def test_the_tools_are_the_route_table_and_the_run_key_runs_the_drive(tmp_
 
 
 @pytest.mark.parametrize("when", ["starting", "in session"])
-def test_sigterm_stops_the_serve_it_started(tmp_path: Path, when: str) -> None:
+@pytest.mark.parametrize(("number", "code"), [(signal.SIGTERM, 0), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_stops_the_serve_it_started(tmp_path: Path, when: str, number: int, code: int) -> None:
     ready = tmp_path / "ready.json"
     proc = subprocess.Popen(
         [sys.executable, "-m", "c20sim", "mcp", "--modbus-tcp", "127.0.0.1:0", "--ready-file", str(ready)],
@@ -257,9 +267,10 @@ def test_sigterm_stops_the_serve_it_started(tmp_path: Path, when: str) -> None:
             proc.stdin.flush()
             reply = json.loads(proc.stdout.readline())
             assert reply["id"] == 1 and reply["result"]["serverInfo"]["name"] == "c20sim"
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(number)
         out, err = proc.communicate(timeout=15)
-        assert proc.returncode == 0, err
+        assert proc.returncode == code, err
+        assert b"Traceback" not in err, err.decode()
         assert out == b""  # nothing on stdout but the MCP messages
         assert refused(modbus)
         assert not ready.exists()
