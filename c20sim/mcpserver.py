@@ -153,7 +153,7 @@ def _path_value(name: str, value: object) -> int | str:
         return cast(int, value)
     if isinstance(value, str) and _WORD.match(value):
         return value
-    raise ArgumentError(f"{name}: {_shown(value)} is not one; give {parameter(name)['description']}")
+    raise ArgumentError(f"{name}: {_shown(value)} is not a {name}; give {parameter(name)['description']}")
 
 
 class Bench:

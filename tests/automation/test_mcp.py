@@ -205,7 +205,7 @@ async def test_the_tools_are_the_route_table_and_the_run_key_runs_the_drive(tmp_
         )
         assert (
             error(await session.call_tool("read_register", {"register": "../../reset"}))
-            == 'register: "../../reset" is not one; give 2100H, 0x2100, F00.10 or a name such as status1'
+            == 'register: "../../reset" is not a register; give 2100H, 0x2100, F00.10 or a name such as status1'
         )
         assert error(await session.call_tool("time", {"seconds": 1})) == "time takes no arguments; got 'seconds'"
         assert error(await session.call_tool("stream", {})) == (
