@@ -74,7 +74,9 @@ async def main(calls: int, rounds: int) -> None:
                 tools = (await session.list_tools()).tools
                 listed = time.perf_counter() - t
                 print(machine())
-                print(f"c20sim mcp --attach: initialize answered {initialised:.2f} s after the start (process, imports)")
+                print(
+                    f"c20sim mcp --attach: initialize answered {initialised:.2f} s after the start (process, imports)"
+                )
                 print(f"tools/list: {len(tools)} tools in {listed * 1e3:.1f} ms")
                 print(f"{rounds} rounds x {calls} calls of each; microseconds a call")
                 print(f"{'':<28}{'calls':>7}{'p50 us':>10}{'p99 us':>10}")
