@@ -238,6 +238,14 @@ async def test_the_tools_are_the_route_table_and_the_run_key_runs_the_drive(tmp_
         await asyncio.sleep(0.05)
 
 
+async def test_serve_options_reach_the_serve_it_starts(tmp_path: Path) -> None:
+    async with mcp_process(tmp_path, "--no-audit", "--clock", "virtual", "--tcp", "127.0.0.1:0") as session:
+        assert answer(await session.call_tool("time", {}))["clock"] == "virtual"
+        assert error(await session.call_tool("audit", {})) == "the audit is off (serve --no-audit)"
+        with pytest.raises(McpError, match=r"^the audit is off \(serve --no-audit\)$"):
+            await session.read_resource(AnyUrl("c20sim://audit"))
+
+
 @pytest.mark.parametrize("when", ["starting", "in session"])
 @pytest.mark.parametrize(("number", "code"), [(signal.SIGTERM, 0), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
 def test_a_signal_stops_the_serve_it_started(tmp_path: Path, when: str, number: int, code: int) -> None:
