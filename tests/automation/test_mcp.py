@@ -36,7 +36,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from c20sim import cli
 from c20sim.control import ops, routes
 from c20sim.control.client import TOKEN_ENV, ControlClient
-from c20sim.mcpserver import FRAMES_SHOWN, Bench, build_server, input_schema
+from c20sim.mcpserver import FRAMES_SHOWN, MAX_MESSAGE, Bench, build_server, input_schema
 from tests.conftest import wait_for_ready_file
 from tests.tui.conftest import serving
 
@@ -282,6 +282,28 @@ def test_a_signal_stops_the_serve_it_started(tmp_path: Path, when: str, number: 
         assert out == b""  # nothing on stdout but the MCP messages
         assert refused(modbus)
         assert not ready.exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_a_message_over_the_bound_ends_the_session(tmp_path: Path) -> None:
+    ready = tmp_path / "ready.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", "mcp", "--tcp", "127.0.0.1:0", "--ready-file", str(ready)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        port = port_of(wait_for_ready_file(ready, proc, timeout=30)["tcp"])
+        # a line of MAX_MESSAGE + 1 bytes: read up to the bound, then the session ends; the rest is never read
+        out, err = proc.communicate(b"x" * (MAX_MESSAGE + 1) + b"\n", timeout=30)  # a closed pipe: ignored
+        assert proc.wait(30) == 0
+        assert out == b""
+        assert err.decode().splitlines()[-1] == "c20sim: mcp: a message over 16 MiB from the client; ending"
+        assert refused(port)
     finally:
         if proc.poll() is None:
             proc.kill()
