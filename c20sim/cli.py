@@ -232,6 +232,23 @@ def cmd_web(args: argparse.Namespace) -> int:
     return run_web(args, args.serve_defaults)
 
 
+#: What ``c20sim mcp`` says when the MCP SDK is not installed.
+MCP_INSTALL = (
+    "c20sim mcp needs the MCP SDK, an optional extra: pip install 'c20sim[mcp]' (in a clone: pip install -e '.[mcp]')"
+)
+
+
+def cmd_mcp(args: argparse.Namespace) -> int:
+    args.control_token = control_token(args)
+    try:
+        from .mcpserver import run_mcp  # the mcp SDK loads only for this command
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.split(".")[0] != "mcp":
+            raise
+        raise C20SimError(MCP_INSTALL) from None
+    return run_mcp(args, args.serve_defaults)
+
+
 def render_profile(profile: Profile) -> str:
     """A profile as a SCADA developer wants to read it: quirks, physics, faults, function codes."""
     lines = [f"{profile.name}: {profile.description}", f"  file: {profile.path}", ""]
@@ -379,6 +396,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     web.add_argument("--web-token", metavar="TOKEN", help="the page's token (beyond loopback one is generated)")
     web.set_defaults(func=cmd_web, serve_defaults={a.dest: a.default for a in web._actions})
+
+    mcp = sub.add_parser(
+        "mcp",
+        help="the control API as Model Context Protocol tools on stdio, for an AI assistant (docs/mcp.md)",
+        description="An MCP server on stdin/stdout: every operation of the control API is a tool; telemetry, "
+        "frames and the audit are resources. It starts a serve with the options given, or attaches to one.",
+    )
+    add_endpoint_options(mcp)
+    mcp.add_argument("--attach", metavar="READY_FILE|URL", help="attach to a running serve instead of starting one")
+    mcp.set_defaults(func=cmd_mcp, serve_defaults={a.dest: a.default for a in mcp._actions})
 
     add_ctl_command(sub)
     add_run_scenario_command(sub)

@@ -100,7 +100,8 @@ class ControlClient:
             self._conn.close()
             self._conn = None
 
-    def _request(self, method: str, path: str, body: object = None) -> tuple[int, bytes]:
+    def _exchange(self, method: str, path: str, body: object = None) -> tuple[int, bytes, str]:
+        """One request: the status, the body and its media type (``application/json``, ``text/plain``, ...)."""
         data = None if body is None else json.dumps(body).encode()
         headers = self.headers()
         if data is not None:
@@ -111,7 +112,7 @@ class ControlClient:
             try:
                 self._conn.request(method, path, body=data, headers=headers)
                 response = self._conn.getresponse()
-                return response.status, response.read()
+                return response.status, response.read(), response.headers.get_content_type()
             except (OSError, http.client.HTTPException) as exc:
                 self.close()
                 if attempt == 2 or isinstance(exc, socket.timeout):
@@ -120,7 +121,19 @@ class ControlClient:
 
     def call(self, method: str, path: str, body: object = None) -> Any:
         """One call; the decoded JSON reply, or ControlError with the server's message."""
-        status, raw = self._request(method, path, body)
+        status, raw, _ = self._exchange(method, path, body)
+        return self._decoded(method, path, status, raw)
+
+    def answer(self, method: str, path: str, body: object = None) -> Any:
+        """As :meth:`call`, for any route: the decoded JSON reply, or the reply's text where it is not JSON
+        (``GET /profile``'s TOML, ``GET /metrics``)."""
+        status, raw, media = self._exchange(method, path, body)
+        if status < 400 and media != "application/json":
+            return raw.decode("utf-8", errors="replace")
+        return self._decoded(method, path, status, raw)
+
+    @staticmethod
+    def _decoded(method: str, path: str, status: int, raw: bytes) -> Any:
         try:
             data = json.loads(raw) if raw else None
         except json.JSONDecodeError:
@@ -131,7 +144,7 @@ class ControlClient:
         return data
 
     def text(self, path: str) -> str:
-        status, raw = self._request("GET", path)
+        status, raw, _ = self._exchange("GET", path)
         if status >= 400:
             raise ControlError(f"GET {path}: HTTP {status}", status=status)
         return raw.decode("utf-8")

@@ -282,10 +282,8 @@ def _help(rows: list[routes.Route]) -> str:
 
 
 def _said(row: routes.Route) -> str:
-    """A row's help line: its own, or its doc without the "- (...)" of a route that takes no body."""
-    if row.help:
-        return row.help
-    return row.doc.removeprefix("- (").removesuffix(")") if row.doc.startswith("- (") else row.doc
+    """A row's help line (:attr:`~c20sim.control.routes.Route.said`)."""
+    return row.said
 
 
 def _add_derived(parser: argparse.ArgumentParser, rows: list[routes.Route]) -> None:

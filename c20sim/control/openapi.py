@@ -17,7 +17,7 @@ from typing import Any
 
 from .routes import Route
 
-__all__ = ["document"]
+__all__ = ["document", "parameter"]
 
 JSON = "application/json"
 
@@ -29,7 +29,7 @@ ERRORS: Mapping[str, str] = {
 }
 
 
-def _parameter(name: str) -> dict[str, Any]:
+def parameter(name: str) -> dict[str, Any]:
     schema: dict[str, Any] = (
         {"type": "integer", "minimum": 1, "maximum": 247} if name == "address" else {"type": "string"}
     )
@@ -69,7 +69,7 @@ def document(routes: Mapping[str, Route]) -> dict[str, Any]:
                 "content": {JSON: {"schema": {"type": "object"}}},
             }
         if row.parameters:
-            operation["parameters"] = [_parameter(p) for p in row.parameters]
+            operation["parameters"] = [parameter(p) for p in row.parameters]
         if path == "/frames" and method == "GET":
             operation["parameters"] = [
                 {"name": n, "in": "query", "required": False, "schema": {"type": "integer", "minimum": low}}

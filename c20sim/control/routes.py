@@ -4,7 +4,8 @@ Every front end is derived from :data:`TABLE`: the aiohttp app
 (:mod:`c20sim.control.http` serves a row with one generic handler unless it
 names its own), the OpenAPI document (:mod:`c20sim.control.openapi`), the
 remote client and the dashboard's operations (:mod:`c20sim.control.client`,
-:class:`LocalOps`), and ``c20sim ctl`` (:mod:`c20sim.control.ctl`). Nothing
+:class:`LocalOps`), ``c20sim ctl`` (:mod:`c20sim.control.ctl`) and the MCP tools of
+``c20sim mcp`` (:mod:`c20sim.mcpserver`). Nothing
 else writes a path or a field list. A new operation is its function plus one
 row: ``call(sim, **path parameters, **fields)`` returns the JSON answer.
 
@@ -72,6 +73,9 @@ class Route:
     #: fields``; the API runs it in a worker thread, off the serving loop. It may read the simulator, never
     #: change it.
     offload: Callable[[Simulator, dict[str, Any]], dict[str, Any]] | None = None
+    #: a tool of ``c20sim mcp`` (:mod:`c20sim.mcpserver`); False for a route no request and reply carry (the
+    #: WebSocket: what it streams, the assistant reads as MCP resources)
+    tool: bool = True
 
     @property
     def key(self) -> str:
@@ -86,6 +90,13 @@ class Route:
         if self.cli is None:
             return None
         return self.cli or self.name.replace("_", "-")
+
+    @property
+    def said(self) -> str:
+        """What it does in one line: its help, or its doc without the "- (...)" of a route that takes no body."""
+        if self.help:
+            return self.help
+        return self.doc.removeprefix("- (").removesuffix(")") if self.doc.startswith("- (") else self.doc
 
     def schema(self) -> Schema | None:
         """The request body's JSON Schema, or None for a route that takes none."""
@@ -363,6 +374,7 @@ TABLE = Table(
             "stream",
             "WebSocket (query: hz=0.1-50, frame_hz=0.1-100, buffer=1-10000, frames=0|1): telemetry, frames",
             cli=None,
+            tool=False,
         ),
         Route("GET", "/time", "time", "-", _time, help="the model's time"),
         Route(
@@ -385,7 +397,15 @@ TABLE = Table(
             cli="state",
             help="a drive's telemetry (every drive without --drive)",
         ),
-        Route("GET", _D, "drive", "-", _state, cli="state"),
+        Route(
+            "GET",
+            _D,
+            "drive",
+            "-",
+            _state,
+            cli="state",
+            help="one drive's telemetry: state, speeds, current, bus voltage, temperature, fault",
+        ),
         Route(
             "GET",
             f"{_D}/registers",
@@ -456,6 +476,7 @@ TABLE = Table(
             whole="values",
             body_schema=_conditions_body,
             changes=True,
+            help="set conditions, as set_conditions does (the API's PATCH)",
             cli=None,
             listed=False,
         ),
@@ -558,6 +579,7 @@ TABLE = Table(
             whole="values",
             body_schema=_link_body,
             changes=True,
+            help="set a drive's link faults: offline, drop_next, delay, corrupt_crc, ...",
             cli="link",
         ),
         Route(
@@ -579,6 +601,7 @@ TABLE = Table(
             whole="values",
             body_schema=_link_body,
             changes=True,
+            help="set the whole bus's link faults: offline, drop_next, delay, corrupt_crc, ...",
             cli="link",
             listed=False,
         ),
@@ -699,6 +722,7 @@ TABLE = Table(
             _clear_generators,
             (Field("condition", {"enum": [n for n, c in ops.CONDITIONS.items() if c.continuous]}),),
             changes=True,
+            help="stop the generators on a drive's conditions: one condition's, or all",
             cli="generators",
         ),
     ]

@@ -56,6 +56,9 @@ SERVE_OPTIONS = {
     "state": "--state",
     "seed": "--seed",
     "log_frames": "--log-frames",
+    "log_frames_max_mb": "--log-frames-max-mb",
+    "metrics": "--metrics",
+    "audit": "--no-audit",
     "ready_file": "--ready-file",
 }
 #: Options that say which server to attach to (the rest are the server's own business).
@@ -71,9 +74,9 @@ def serve_argv(args: argparse.Namespace, ready_file: str) -> list[str]:
             value = "127.0.0.1:0"
         if dest == "ready_file":
             value = ready_file
-        if dest == "bus_timing":
-            if value is False:
-                argv.append("--no-bus-timing")  # on is serve's default: only off needs saying
+        if dest in ("bus_timing", "audit"):
+            if value is False:  # on is serve's default: only off needs saying
+                argv.append("--no-bus-timing" if dest == "bus_timing" else option)
             continue
         if value is None or value is False:
             continue

@@ -56,6 +56,7 @@ CASES = {
     "replay": (("replay", "{f}"), "c20sim: {f}: "),
     "decode": (("decode", "--file", "{f}"), "c20sim: {f}: "),
     "ctl": (("ctl", "--ready-file", "{f}", "time"), "c20sim: --ready-file {f}: "),
+    "mcp": (("mcp", "--attach", "{f}"), "c20sim: --attach {f}: "),
 }
 
 

@@ -118,3 +118,15 @@ def test_served_options_error_is_the_servers_own_line() -> None:
     args = cli.build_parser().parse_args(["dashboard", "--profile", "no-such-profile"])
     with pytest.raises(C20SimError, match="no-such-profile"), session.served(args):
         pass
+
+
+def test_dashboard_passes_the_audit_metrics_and_log_rotation_to_serve(
+    started: list[tuple[list[str], str | None]],
+) -> None:
+    assert cli.main(["dashboard", "--no-audit", "--metrics", "127.0.0.1:0", "--log-frames-max-mb", "5"]) == 0
+    assert cli.main(["dashboard"]) == 0
+    (given, _), (plain, _) = started
+    text = " ".join(given)
+    for part in ("--no-audit", "--metrics 127.0.0.1:0", "--log-frames-max-mb 5.0"):
+        assert part in text, text
+    assert not {"--no-audit", "--metrics", "--log-frames-max-mb"} & set(plain)

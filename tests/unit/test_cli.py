@@ -115,8 +115,8 @@ def test_python_dash_m_runs_the_cli() -> None:
         (
             ["serv", "--pty"],
             "c20sim: argument COMMAND: invalid choice: 'serv' (choose from 'decode', 'audit', 'profiles', 'serve', "
-            "'dashboard', 'web', 'ctl', 'run-scenario', 'schema', 'plant', 'plant-check', 'record', 'replay', "
-            "'exercise', 'fit'); "
+            "'dashboard', 'web', 'mcp', 'ctl', 'run-scenario', 'schema', 'plant', 'plant-check', 'record', "
+            "'replay', 'exercise', 'fit'); "
             "did you mean serve? (see: c20sim --help)",
         ),
         (
