@@ -22,7 +22,9 @@ from tests.conftest import wait_for_ready_file
 
 def serve(tmp_path: Path, *options: str) -> Iterator[tuple[dict[str, str], str]]:
     ready = tmp_path / "ready.json"
-    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", "--ready-file", str(ready), *options]
+    # a wire endpoint on port 0: with none, serve takes the default ports, which a running c20sim may hold
+    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", "--tcp", "127.0.0.1:0"]
+    argv += ["--ready-file", str(ready), *options]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         info = wait_for_ready_file(ready, proc)

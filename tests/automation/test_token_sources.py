@@ -39,10 +39,15 @@ def status(url: str, token: str | None) -> int:
         return int(exc.code)
 
 
+#: the control API and a wire endpoint on port 0: with no endpoint, serve takes the default ports, which a running
+#: c20sim may hold
+ENDPOINTS = ("--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0")
+
+
 def serve(tmp_path: Path, options: list[str], env: dict[str, str]) -> Iterator[tuple[str, list[str]]]:
     """A serve with a control API and the token from ``options`` or ``env``: its URL and its command line."""
     ready = tmp_path / "ready.json"
-    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", "--control", "127.0.0.1:0"]
+    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", *ENDPOINTS]
     argv += ["--ready-file", str(ready), *options]
     environ = {k: v for k, v in os.environ.items() if k != "C20SIM_CONTROL_TOKEN"} | env
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=environ)
@@ -75,7 +80,7 @@ def test_a_token_from_a_file_or_the_environment_is_asked_for_and_not_shown(tmp_p
 
 def test_the_token_on_the_command_line_works_and_is_warned_about(tmp_path: Path) -> None:
     ready = tmp_path / "ready.json"
-    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", "--control", "127.0.0.1:0"]
+    argv = [sys.executable, "-m", "c20sim", "serve", "--clock", "virtual", *ENDPOINTS]
     argv += ["--ready-file", str(ready), "--control-token", TOKEN]
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
