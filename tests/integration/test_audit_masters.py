@@ -27,6 +27,8 @@ from c20sim.wire.protocol import ReadRequest, WriteSingleRequest, encode
 from c20sim.wire.registers import Reg, fcode_address
 from tests.integration.conftest import Served, ServeFactory, need
 
+pytestmark = pytest.mark.serial  # the audit judges a master's real rhythm: .ci/run runs it alone
+
 Client = AsyncModbusSerialClient | AsyncModbusTcpClient
 F00_10, F00_11, F08_02 = fcode_address(0, 10), fcode_address(0, 11), fcode_address(8, 2)
 

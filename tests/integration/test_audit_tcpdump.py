@@ -20,6 +20,8 @@ from c20sim.wire.errors import C20SimError
 from c20sim.wire.registers import Reg
 from tests.integration.conftest import ServeFactory, need
 
+pytestmark = pytest.mark.serial  # the audit judges a master's real rhythm, from a capture: .ci/run runs it alone
+
 
 def audit(path: Path, capsys: pytest.CaptureFixture[str], *more: str) -> dict[str, Any]:
     capsys.readouterr()

@@ -35,6 +35,8 @@ from c20sim.wire.protocol import (
 from c20sim.wire.registers import Reg
 from tests.integration.conftest import mbap_read
 
+pytestmark = pytest.mark.serial  # a transaction's time on the line is real time: .ci/run runs it alone
+
 N = 12
 
 

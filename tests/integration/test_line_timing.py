@@ -47,6 +47,8 @@ from c20sim.wire.protocol import (
 )
 from tests.conftest import wait_for_ready_file
 
+pytestmark = pytest.mark.serial  # the pty's silences and gaps are real time: .ci/run runs it alone
+
 READ = encode(ReadRequest(1, 0x2103, 1))  # read the drive ID
 READ2 = encode(ReadRequest(2, 0x2103, 1))
 ID_REPLY = encode(ReadResponse(1, (0x0020,)))

@@ -20,7 +20,7 @@ from pymodbus.exceptions import ModbusIOException
 
 from c20sim.cli import DEFAULT_MODBUS_TCP, DEFAULT_TCP
 from c20sim.testing import C20Sim
-from tests.conftest import wait_for_ready_file
+from tests.conftest import DEFAULT_PORT_TAKEN, wait_for_ready_file
 
 
 def c20sim(*args: str) -> list[str]:
@@ -61,6 +61,7 @@ def get(url: str) -> dict[str, object]:
     return data
 
 
+@pytest.mark.serial  # the default ports: no other test may hold them meanwhile
 def test_the_default_endpoints_include_modbus_tcp_on_1502(tmp_path: Path, procs: list[subprocess.Popen[str]]) -> None:
     """Bare ``c20sim serve``: a pty, RTU over TCP on 5020, and Modbus TCP on 1502, all in the ready line."""
     ready = tmp_path / "ready.json"
@@ -69,7 +70,7 @@ def test_the_default_endpoints_include_modbus_tcp_on_1502(tmp_path: Path, procs:
         info = wait_for_ready_file(ready, proc)
     except AssertionError as exc:
         if "the port is in use" in str(exc):  # a fixed port: another simulator on this machine holds it
-            pytest.skip(f"a default port is taken on this machine: {exc}")
+            pytest.skip(f"{DEFAULT_PORT_TAKEN}: {exc}")
         raise
     assert (
         (info["tcp"], info["modbus_tcp"]) == (DEFAULT_TCP, DEFAULT_MODBUS_TCP) == ("127.0.0.1:5020", "127.0.0.1:1502")

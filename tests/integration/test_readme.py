@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import wait_for_ready_file
+from tests.conftest import DEFAULT_PORT_TAKEN, wait_for_ready_file
 from tests.terminal import TMUX, terminal_running, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -278,6 +278,7 @@ TOUR_DASHBOARDS = [
 ]
 
 
+@pytest.mark.serial  # bare ``c20sim`` takes the default ports: no other test may hold them meanwhile
 @pytest.mark.skipif(TMUX is None, reason="needs tmux (.ci/run installs it)")
 @pytest.mark.parametrize("line", TOUR_DASHBOARDS)
 def test_the_tours_dashboard_lines(line: str, place: Place) -> None:
@@ -286,7 +287,7 @@ def test_the_tours_dashboard_lines(line: str, place: Place) -> None:
     words = shlex.split(line, comments=True)
     if words == ["c20sim"]:
         if not (port_free(5020) and port_free(1502)):
-            pytest.skip("127.0.0.1:5020 or 127.0.0.1:1502 is taken on this machine (another simulator?)")
+            pytest.skip(f"{DEFAULT_PORT_TAKEN}: 127.0.0.1:5020 or 127.0.0.1:1502 (another simulator?)")
         title = "· RTU/TCP 127.0.0.1:5020 · Modbus TCP 127.0.0.1:1502 │"
     else:
         place.ports = {"5020": str(free_port())}

@@ -156,7 +156,9 @@ async def attached(served: Served, size: tuple[int, int] = (100, 30)) -> AsyncIt
 async def running(drives: tuple[int, ...] = (1,), size: tuple[int, int] = (100, 30)) -> AsyncIterator[Bench]:
     with serving(drives) as served:
         async with attached(served, size) as (app, pilot):
-            client = AsyncModbusTcpClient("127.0.0.1", port=served.port, framer=FramerType.RTU, timeout=0.5, retries=0)
+            # a generous timeout: the dashboard shares this loop, and a loaded machine slows its redraws, never
+            # the answer a test waits for (a timeout here only bounds a failure)
+            client = AsyncModbusTcpClient("127.0.0.1", port=served.port, framer=FramerType.RTU, timeout=5, retries=0)
             assert await client.connect()
             try:
                 yield Bench(app, pilot, client, served)
