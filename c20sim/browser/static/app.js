@@ -150,7 +150,9 @@ function refresh() {
   const d = s.drive;
   const state = $("state");
   state.textContent = d.state;
-  state.className = `value state${d.fault_code ? " fault" : /run|accel|decel|jog/i.test(d.state) ? " running" : ""}`;
+  // status word 1 (2100H): 1 forward running, 2 reverse running, 3 stopped, 4 fault, 5 off
+  state.className = `value state${d.status === 4 ? " fault" : d.status === 1 || d.status === 2 ? " running" : ""}`;
+  $("channel").value = ["keypad", "terminals", "communication"][d.run_channel] ?? "";
   $("speed").textContent = fmt(d.speed_rpm, 0);
   $("setspeed").textContent = fmt(d.set_speed_rpm, 0);
   $("current").textContent = fmt(d.current_a, 2);
@@ -315,7 +317,7 @@ function wire() {
     e.preventDefault();
     act(() => {
       const answer = call("write_register", { register: "2001H" }, { value: Number($("speed-input").value) });
-      note(`2001H = ${answer.value ?? $("speed-input").value}`);
+      note(`2001H = ${answer.raw}`);
     });
   });
   $("fault-form").addEventListener("submit", (e) => {
@@ -325,6 +327,10 @@ function wire() {
   $("clear-fault").addEventListener("click", () => act(() => {
     const answer = call("clear_fault", {}, {});
     note(answer.note || (answer.reset ? "fault reset" : "no fault to reset"));
+  }));
+  $("channel").addEventListener("change", () => act(() => {
+    call("set_run_channel", {}, { channel: $("channel").value });
+    note(`run channel: ${$("channel").value}`);
   }));
   $("pick").addEventListener("change", () => { if ($("pick").value) $("frame").value = $("pick").value; });
   $("terminal-form").addEventListener("submit", (e) => { e.preventDefault(); sendFrame(); });
