@@ -83,7 +83,7 @@ class Browser:
         self.timeout = timeout
         self.requests: list[str] = []  #: every URL the page asked for, in order
         self.console: list[str] = []  #: the page's console messages and uncaught exceptions
-        self._dir = tempfile.TemporaryDirectory(prefix="c20sim-chromium-")
+        self._dir = tempfile.TemporaryDirectory(prefix="c20sim-chromium-", ignore_cleanup_errors=True)
         self._proc: subprocess.Popen[bytes] | None = None
         self._session: aiohttp.ClientSession | None = None
         self._ws: aiohttp.ClientWebSocketResponse | None = None
@@ -134,7 +134,18 @@ class Browser:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
-        self._dir.cleanup()
+        # chromium's helper processes may still be writing the profile as the main one exits: try again a while
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                shutil.rmtree(self._dir.name)
+                break
+            except FileNotFoundError:
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                await asyncio.sleep(0.1)
 
     async def _read(self) -> None:
         assert self._ws is not None

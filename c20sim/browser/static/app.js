@@ -160,6 +160,10 @@ function refresh() {
   $("fault").textContent = d.fault_code ? `0x${d.fault_code.toString(16).padStart(2, "0").toUpperCase()} ${d.fault_name}` : "none";
   $("time").textContent = fmt(s.clock.t, 2);
   $("serial-baud").textContent = s.baud;
+  for (const input of document.querySelectorAll("#conditions-form input")) {
+    const value = d.conditions[input.name];
+    if (document.activeElement !== input && typeof value === "number") input.value = +value.toFixed(4);
+  }
   if (serial) {
     const st = serial.stats;
     $("serial-state").textContent = `serving at ${st.baud} baud ${st.format}: ${st.bytesIn} bytes in (${st.chunks} reads), ${st.replies} replies out`;
