@@ -18,7 +18,13 @@ let timer = null;
 let serial = null;
 
 /** What the page's scripts, and its tests, can reach. */
-const c20 = (window.c20 = { ready: null, loadMs: null, page: () => page, serveOn: (port, opts) => serveOn(port, page, opts) });
+const c20 = (window.c20 = {
+  ready: null,
+  loadMs: null,
+  page: () => page,
+  python: () => py,
+  serveOn: (port, opts) => serveOn(port, page, opts),
+});
 
 function status(text, kind = "") {
   const el = $("status");
