@@ -331,3 +331,44 @@ def test_the_web_serial_transport_serves_a_stand_in_port(base: str) -> None:
     assert got["stats"]["chunks"] == 3 * len(rows) + 5  # each frame of the table in three reads
     assert got["frames"] >= 2 * len(rows)  # the page's frame log shows the serial port's frames
     assert all(0 <= latency < 1000 for latency in got["latencies"]), got["latencies"]
+
+
+DROP = """(async () => {
+  const data = new DataTransfer();
+  data.items.add(new File([%s], %s, { type: 'application/toml' }));
+  document.dispatchEvent(new DragEvent('drop', { dataTransfer: data, bubbles: true, cancelable: true }));
+  await new Promise((r) => setTimeout(r, 0));
+  for (let i = 0; i < 200; i++) { await new Promise((r) => setTimeout(r, 10)); if (document.getElementById('profile-note').textContent.includes(%s)) break; }
+  return { note: document.getElementById('profile-note').textContent, cls: document.getElementById('profile-note').className,
+           bus: document.getElementById('bus').textContent };
+})()"""
+
+
+def test_a_dropped_profile_and_the_real_time_clock(base: str) -> None:
+    text = (Path(__file__).resolve().parents[2] / "profiles" / "c20-2200hv.toml").read_text()
+
+    async def scenario() -> tuple[dict[str, str], dict[str, str], list[float]]:
+        async with Browser() as browser:
+            await loaded(browser, base)
+            good = await browser.eval(DROP % (json.dumps(text), json.dumps("mine.toml"), json.dumps("mine.toml")))
+            bad = await browser.eval(
+                DROP % (json.dumps("[drive]\nnonsense = 1\n"), json.dumps("bad.toml"), json.dumps("bad.toml"))
+            )
+            await choose(browser, "clock", "realtime")
+            times = []
+            for _ in range(300):  # the panel's clock, refreshed ten times a second, until it has run half a second
+                times.append(float(await browser.eval("document.getElementById('time').textContent")))
+                if times[-1] >= 0.5:
+                    break
+                await asyncio.sleep(0.02)
+            return good, bad, times
+
+    good, bad, times = run(scenario())
+    model = json.loads(start(text=text, filename="mine.toml").state())["drive"]
+    assert good == {"note": "mine.toml (c20-2200hv)", "cls": "", "bus": f"{model['bus_v']:.1f}"}
+    assert bad["note"] == (
+        "bad.toml: drive: unknown key; allowed: name, description, software_version, protocol, motor, supply, "
+        "protection, thermal, control, fault, parameter, behaviours"
+    )
+    assert bad["cls"] == "error" and bad["bus"] == good["bus"]  # the dropped drive stays
+    assert times[-1] >= 0.5 and times == sorted(times)

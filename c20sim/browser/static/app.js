@@ -71,7 +71,7 @@ function start({ name = "", text = "", filename = "" }) {
   try {
     fresh = mod.start.callKwargs({ name, text, filename, clock });
   } catch (err) {
-    $("profile-note").textContent = `${filename || name}: ${oneLine(err)}`;
+    $("profile-note").textContent = oneLine(err); // names the file and the key
     $("profile-note").className = "error";
     return false;
   }
