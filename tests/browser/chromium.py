@@ -91,6 +91,7 @@ class Browser:
         self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
         self._events: dict[str, list[asyncio.Future[dict[str, Any]]]] = {}
         self._reader: asyncio.Task[None] | None = None
+        self._queues: dict[str, asyncio.Queue[dict[str, Any]]] = {}
 
     async def __aenter__(self) -> Browser:
         assert CHROMIUM is not None
@@ -165,6 +166,9 @@ class Browser:
             elif method == "Runtime.exceptionThrown":
                 details = params["exceptionDetails"]
                 self.console.append(f"exception: {details.get('exception', {}).get('description', details['text'])}")
+            queue = self._queues.get(method)
+            if queue is not None:
+                queue.put_nowait(params)
             for waiter in self._events.pop(method, []):
                 if not waiter.done():
                     waiter.set_result(params)
@@ -180,6 +184,10 @@ class Browser:
             raise AssertionError(f"{method}: {answer['error']}")
         result: dict[str, Any] = answer.get("result", {})
         return result
+
+    def listen(self, method: str) -> asyncio.Queue[dict[str, Any]]:
+        """Every event ``method`` from now on, in order (a binding's calls: ``Runtime.bindingCalled``)."""
+        return self._queues.setdefault(method, asyncio.Queue())
 
     async def goto(self, url: str) -> None:
         """Open ``url`` and wait for its load event."""

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import shutil
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -372,3 +375,103 @@ def test_a_dropped_profile_and_the_real_time_clock(base: str) -> None:
     )
     assert bad["cls"] == "error" and bad["bus"] == good["bus"]  # the dropped drive stays
     assert times[-1] >= 0.5 and times == sorted(times)
+
+
+RELAY_PORT = """(async () => {
+  // a stand-in port whose bytes cross to the test (and from it to a pty): writes call the binding c20relay
+  class RelayPort {
+    async open(options) {
+      this.options = options;
+      this.readable = new ReadableStream({ start: (c) => { this.ctrl = c; } });
+      this.writable = new WritableStream({ write: (chunk) => {
+        window.c20relay(Array.from(chunk, (b) => b.toString(16).padStart(2, '0')).join(''));
+      } });
+    }
+    async close() {}
+    push(hex) { this.ctrl.enqueue(Uint8Array.from(hex.match(/../g).map((h) => parseInt(h, 16)))); }
+  }
+  window.relayPort = new RelayPort();
+  await c20.useSerial(window.relayPort);
+  return window.relayPort.options.baudRate;
+})()"""
+
+
+async def mbpoll(*argv: str) -> str:
+    tool = shutil.which("mbpoll")
+    assert tool is not None
+    proc = await asyncio.create_subprocess_exec(
+        tool, *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT
+    )
+    out, _ = await asyncio.wait_for(proc.communicate(), 60)
+    assert proc.returncode == 0, out.decode()
+    return out.decode()
+
+
+@pytest.mark.skipif(
+    shutil.which("mbpoll") is None or shutil.which("socat") is None,
+    reason="mbpoll or socat is not installed (apt-get install mbpoll socat); .ci/run installs them",
+)
+def test_mbpoll_on_a_serial_line_answered_by_the_page(base: str, tmp_path: Path) -> None:
+    """An independent master (Debian's mbpoll) on one end of a socat pty pair, as on a second USB-RS485 adapter;
+    the other end's bytes relayed to and from the page's Web Serial transport (a stand-in port, as no real
+    adapter is here): the master's frames reach the page in whatever pieces the pty and the relay make."""
+    drive_end, master_end = tmp_path / "drive", tmp_path / "master"
+    socat = subprocess.Popen(
+        ["socat", f"pty,raw,echo=0,link={drive_end}", f"pty,raw,echo=0,link={master_end}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+    async def scenario() -> tuple[int, list[str], dict[str, Any]]:
+        async with Browser() as browser:
+            await loaded(browser, base)
+            calls = browser.listen("Runtime.bindingCalled")
+            await browser.send("Runtime.addBinding", {"name": "c20relay"})
+            baud = await browser.eval(RELAY_PORT)
+            for _ in range(500):
+                if drive_end.exists() and master_end.exists():
+                    break
+                await asyncio.sleep(0.01)
+            fd = os.open(drive_end, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            loop = asyncio.get_running_loop()
+            inbound: asyncio.Queue[bytes] = asyncio.Queue()
+            loop.add_reader(fd, lambda: inbound.put_nowait(os.read(fd, 4096)))
+
+            async def to_page() -> None:
+                while True:
+                    data = await inbound.get()
+                    await browser.eval(f"window.relayPort.push('{data.hex()}')")
+
+            async def to_master() -> None:
+                while True:
+                    call = await calls.get()
+                    os.write(fd, bytes.fromhex(call["payload"]))
+
+            relays = [asyncio.create_task(to_page()), asyncio.create_task(to_master())]
+            try:
+                line = ["-m", "rtu", "-b", str(baud), "-P", "none", "-a", "1", "-0", "-o", "2"]
+                outputs = [
+                    await mbpoll(*line, "-r", str(0x2001), str(master_end), "1500"),
+                    await mbpoll(*line, "-r", str(0x2000), str(master_end), "1"),
+                    await mbpoll(*line, "-t", "4:hex", "-r", str(0x2103), "-c", "1", "-1", str(master_end)),
+                ]
+                await click(browser, "[data-advance='1']")
+                outputs.append(await mbpoll(*line, "-t", "4", "-r", str(0x3006), "-c", "1", "-1", str(master_end)))
+                shown = await panel(browser)
+            finally:
+                for task in relays:
+                    task.cancel()
+                loop.remove_reader(fd)
+                os.close(fd)
+            return baud, outputs, shown
+
+    try:
+        baud, outputs, shown = run(scenario())
+    finally:
+        socat.terminate()
+        socat.wait(10)
+    assert baud == 19200
+    assert "Written 1 references." in outputs[0] and "Written 1 references." in outputs[1], outputs
+    assert f"[{0x2103}]: \t0x0020" in outputs[2], outputs[2]
+    assert f"[{0x3006}]: \t{shown['speed']}" in outputs[3], (outputs[3], shown)
+    assert shown["state"] == "forward" and shown["speed"] == "1500"
