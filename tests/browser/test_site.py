@@ -14,6 +14,8 @@ import json
 import os
 import shutil
 import subprocess
+import sys
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -475,3 +477,41 @@ def test_mbpoll_on_a_serial_line_answered_by_the_page(base: str, tmp_path: Path)
     assert f"[{0x2103}]: \t0x0020" in outputs[2], outputs[2]
     assert f"[{0x3006}]: \t{shown['speed']}" in outputs[3], (outputs[3], shown)
     assert shown["state"] == "forward" and shown["speed"] == "1500"
+
+
+def test_site_build_writes_the_site_and_says_how_to_serve_it(tmp_path: Path) -> None:
+    out = tmp_path / "site"
+    result = subprocess.run(
+        [sys.executable, "-m", "c20sim", "site", "build", str(out), "--pyodide", str(PYODIDE)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    manifest = json.loads((out / "build.json").read_text())
+    assert result.stdout == (
+        f"c20sim site: {out}: {manifest['bytes'] / 1e6:.1f} MB (pyodide {manifest['pyodide']}); serve it as static "
+        f"files, such as: python3 -m http.server -d {out} 8000\n"
+    )
+    assert manifest["pyodide"] == json.loads((PYODIDE / "package.json").read_text())["version"]
+    assert set(manifest["files"]) == {
+        "index.html",
+        "app.js",
+        "serial.js",
+        "style.css",
+        "c20sim.zip",
+        *(f"pyodide/{name}" for name in site.PYODIDE_FILES),
+    }
+    assert manifest["bytes"] == sum(p.stat().st_size for p in out.rglob("*") if p.is_file() and p.name != "build.json")
+    inside, _ = site.modules()
+    with zipfile.ZipFile(out / "c20sim.zip") as zf:
+        modules = {n for n in zf.namelist() if n.endswith(".py") and n.startswith("c20sim/")}
+    assert len(modules) == len(inside)
+    # built again over itself: the same files
+    again = subprocess.run(
+        [sys.executable, "-m", "c20sim", "site", "build", str(out), "--pyodide", str(PYODIDE)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert again.returncode == 0 and json.loads((out / "build.json").read_text())["files"] == manifest["files"]
