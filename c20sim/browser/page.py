@@ -268,16 +268,18 @@ class Page:
     def _exchange(self, event: FrameEvent, reply: bytes | None) -> dict[str, Any]:
         regs = self.profile.registers
         request_text = decode_frame(event.data, regs).text
-        if event.note:
+        if event.note and event.note not in request_text:  # the framer's word (a gap), unless decode said it
             request_text = f"{request_text} ({event.note})"
         out: dict[str, Any] = {"request": _hex(event.data), "request_text": request_text, "reply": _hex(reply)}
         if reply is None:
             out["reply_text"] = "no reply (silence)"
             return out
         try:
-            request = decode_request(event.data)
-            response = decode_response(reply)
-            out["reply_text"] = describe(response, regs, request)
+            request = decode_request(event.data, check_crc=False)  # what it asked, to name a read's registers
+        except ValueError:
+            request = None
+        try:
+            out["reply_text"] = describe(decode_response(reply), regs, request)
         except ValueError:
             out["reply_text"] = decode_frame(reply, regs).text
         out["exception"] = bool(len(reply) > 1 and reply[1] & 0x80)

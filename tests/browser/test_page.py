@@ -84,7 +84,11 @@ async def test_the_terminal_says_what_each_frame_means(page: Page) -> None:
     assert (crc["request"], crc["reply"]) == ("01 03 21 03 00 01 7E 36", "01 03 02 00 20 B9 9C")
     assert crc["reply_text"].startswith("2103H")
     bad = answer(await page.terminal("01 06 20 0E 00 01 E3 C9"))["exchanges"][0]
-    assert "bad CRC: got E3 C9, expected 22 09" in bad["request_text"]
+    assert (
+        bad["request_text"]
+        == "slave 1: write 200EH = 0001: function codes writable; bad CRC: got E3 C9, expected 22 09"
+    )
+    assert (bad["reply"], bad["reply_text"]) == ("01 86 06 C2 62", "exception 0x06 to write: data frame error")
     two = answer(await page.terminal("01 03 21 03 00 01 7E 36 01 03 21 01 00 01 DF F6"))["exchanges"]
     assert [x["reply"] for x in two] == ["01 03 02 00 20 B9 9C", "01 03 02 00 41 78 74"]
 
