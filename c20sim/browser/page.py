@@ -225,8 +225,14 @@ class Page:
         return _json(ops.frames(self.sim, since=since, last=max(1, min(int(last), MAX_FRAMES))))
 
     def audit_report(self) -> str:
-        """The live audit's report (the ``audit`` row)."""
-        return self.call("audit")
+        """The live audit's report (the ``audit`` row), each finding with its line as ``c20sim audit`` words it."""
+        try:
+            report = invoke(self.sim, TABLE.named("audit"), {}, {})
+        except C20SimError as exc:
+            return _error(exc)
+        for finding, line in zip(report["findings"], (f.line() for f in self.audit.findings()), strict=True):
+            finding["line"] = line
+        return _json(_finite(report))
 
     # --- The terminal: a master on the page.
 

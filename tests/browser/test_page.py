@@ -282,3 +282,15 @@ def test_site_build_without_pyodide_is_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr.startswith(f"c20sim: --pyodide {tmp_path}: not the pyodide npm package (missing pyodide.mjs")
     assert len(result.stderr.splitlines()) == 1
+
+
+async def test_the_audits_findings_come_with_their_line(page: Page) -> None:
+    assert answer(page.audit_report())["findings"] == []
+    await page.terminal("01 06 20 01 27 10 C9 F6")  # 2001H = 10000 rpm, above F00.03
+    [finding] = answer(page.audit_report())["findings"]
+    assert finding["rule"] == "speed-above-max"
+    assert finding["line"] == (
+        "warning speed-above-max drive 1 2001H: speed reference 2001H = 10000 rpm above the maximum speed F00.03 = "
+        "3000 rpm. Keep 2001H within F00.03 (3000 rpm): the drive limits it or refuses it (0x03). "
+        "[sheet 2001H; profile F00.03]"
+    )

@@ -144,8 +144,14 @@ def test_every_frame_of_the_sheets_table_typed_into_the_terminal(base: str) -> N
             await click(browser, "[data-advance='1']")
             shown.append(("01 03 21 02 00 01 2F F6", await type_frame(browser, "01 03 21 02 00 01 2F F6")))
             shown.append(("01 03 21 00 00 01 8E 36", await type_frame(browser, "01 03 21 00 00 01 8E 36")))
+            # a speed reference above F00.03: the audit's finding on the page
+            await type_frame(browser, "01 06 20 01 27 10 C9 F6")
+            findings.extend(
+                await browser.eval("[...document.querySelectorAll('#findings li')].map((li) => li.textContent)")
+            )
             return shown
 
+    findings: list[str] = []
     shown = run(scenario())
     expected = [request if response == ECHO else response for _, request, response in STATELESS_ROWS] + [
         "01 06 20 0E 00 01 22 09",
@@ -161,6 +167,11 @@ def test_every_frame_of_the_sheets_table_typed_into_the_terminal(base: str) -> N
     words = {request: s["words"] for request, s in shown}
     assert words["01 03 00 32 00 01 25 C5"] == "exception 0x02 to read: illegal data address"
     assert words["01 06 00 00 00 05 49 C9"] == "exception 0x03 to write: illegal data value"
+    assert findings == [
+        "warning speed-above-max drive 1 2001H: speed reference 2001H = 10000 rpm above the maximum speed F00.03 = "
+        "3000 rpm. Keep 2001H within F00.03 (3000 rpm): the drive limits it or refuses it (0x03). "
+        "[sheet 2001H; profile F00.03]"
+    ]
 
 
 async def _model_panel() -> list[dict[str, Any]]:

@@ -250,7 +250,7 @@ function refreshAudit() {
   for (const f of report.findings) {
     const li = document.createElement("li");
     li.className = f.severity;
-    li.textContent = `${f.severity} ${f.rule}${f.subject ? ` ${f.subject}` : ""} (${f.count}×): ${f.figure}. ${f.advice}.`;
+    li.textContent = f.line;
     list.append(li);
   }
 }
