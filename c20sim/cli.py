@@ -17,6 +17,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NoReturn, cast
 
+from .browser.site import add_site_command
 from .control.client import TOKEN_ENV
 from .control.ctl import add_ctl_command
 from .core.simulator import Simulator, make_clock
@@ -415,6 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_replay_command(sub)
     add_exercise_command(sub)
     add_fit_command(sub)
+    add_site_command(sub)
     return parser
 
 

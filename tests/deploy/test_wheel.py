@@ -44,6 +44,8 @@ def test_the_wheel_carries_the_profiles_scenarios_and_schemas(wheel: Path) -> No
     shipped = {f"c20sim/profiles/{p.name}" for p in (ROOT / "profiles").glob("*.toml")}
     shipped |= {f"c20sim/scenarios/{p.name}" for p in (ROOT / "scenarios").glob("*.toml")}
     shipped |= {"c20sim/schemas/profile.schema.json", "c20sim/schemas/scenario.schema.json"}
+    # the page c20sim site build writes from an installed c20sim (docs/browser.md)
+    shipped |= {f"c20sim/browser/static/{p.name}" for p in (ROOT / "c20sim" / "browser" / "static").iterdir()}
     assert shipped <= names, sorted(shipped - names)
     assert not [n for n in names if n.startswith(("tests/", "bench/", ".venv/"))]
 
