@@ -25,7 +25,7 @@ from typing import Any, ClassVar, TypeVar
 from platformdirs import user_downloads_path
 from rich.text import Text
 from textual import on
-from textual.app import App, ComposeResult, SystemCommand
+from textual.app import App, ComposeResult, ScreenStackError, SystemCommand
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.css.query import NoMatches
@@ -383,7 +383,8 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     def _show(self) -> None:
-        with contextlib.suppress(NoMatches):  # shutting down: the widgets are gone
+        # shutting down: the widgets are gone (NoMatches), or the screens too, with telemetry still queued
+        with contextlib.suppress(NoMatches, ScreenStackError):
             self._show_views()
 
     def _show_views(self) -> None:

@@ -320,10 +320,10 @@ def test_the_tours_attach_lines(place: Place, started: list[subprocess.Popen[str
         pane.close()
     assert proc.poll() is None  # an attached dashboard leaves the serve running
     [web_line] = lines_starting("c20sim web --attach ready.json")
-    if not port_free(8000):
-        pytest.skip("127.0.0.1:8000, c20sim web's default page port, is taken on this machine")
+    # the page on a port of its own, as the other fixed addresses are moved: its default, 8000, may be taken
+    page = f"127.0.0.1:{free_port()}"
     web = subprocess.Popen(
-        [sys.executable, "-m", *shlex.split(place.local(web_line), comments=True)],
+        [sys.executable, "-m", *shlex.split(place.local(web_line), comments=True), "--web", page],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -331,7 +331,7 @@ def test_the_tours_attach_lines(place: Place, started: list[subprocess.Popen[str
     started.append(web)
     assert web.stdout is not None
     said = web.stdout.readline()
-    assert said.startswith("c20sim web ready: http://127.0.0.1:8000"), said + (web.stderr.read() if web.poll() else "")
+    assert said.startswith(f"c20sim web ready: http://{page}"), said + (web.stderr.read() if web.poll() else "")
     with urllib.request.urlopen(said.split()[3], timeout=10) as page:
         assert page.status == 200 and b"<html" in page.read().lower()
     web.send_signal(signal.SIGTERM)

@@ -13,6 +13,7 @@ from textual.widgets import Checkbox, DataTable, Input, RichLog, Static
 from c20sim import control
 from c20sim.serve import ServeOptions, Server
 from c20sim.tui.app import Dashboard, HelpScreen, SaveLogScreen
+from c20sim.tui.messages import TelemetryUpdated
 from c20sim.tui.widgets import DeviceFaultsPanel, FrameLog, LinkFaultsPanel, NumberInput
 from tests.tui.conftest import Bench, attached, running, serving, until
 
@@ -349,3 +350,14 @@ async def test_speed_source_and_keypad_speed_from_the_panel(bench: Bench) -> Non
     await bench.press("minus", "minus")  # keypad reference 50.00 Hz -> 48.00 Hz
     assert await bench.read(0x000A) == 4800
     assert "keypad · speed from keypad" in bench.screen_text()
+
+
+async def test_telemetry_left_when_the_screens_are_gone_is_dropped() -> None:
+    """q while the stream delivers: a telemetry message handled after the last screen went is dropped, not a
+    traceback on the way out (seen in a loaded run: ScreenStackError from the message queue)."""
+    with serving() as served:
+        async with attached(served) as (app, pilot):
+            await pilot.pause()
+        assert not app.screen_stack
+        app.on_telemetry_updated(TelemetryUpdated(app.bench.sample()))
+        assert app.views  # taken; nothing shown, nothing raised
