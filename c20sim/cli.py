@@ -292,6 +292,9 @@ class OneLineParser(argparse.ArgumentParser):
     ) -> argparse.Namespace:
         """As argparse's, but an unknown option is reported by the (sub)command it was given to, not the top."""
         parsed, extras = self.parse_known_args(args, namespace)
+        trailing = getattr(parsed, "trailing_words", None)  # a command whose words may follow its options
+        if extras and trailing is not None:
+            extras = trailing(parsed, extras)
         if extras:
             chosen = self._chosen(parsed)
             chosen.error(f"unrecognized arguments: {' '.join(extras)}{chosen._did_you_mean(extras)}")

@@ -34,7 +34,16 @@ from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.params import ParameterStore, StateFileError
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
-from ..wire.registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
+from ..wire.registers import (
+    Access,
+    Command,
+    Reg,
+    RunChannel,
+    UnknownRegister,
+    address_label,
+    is_fcode,
+    resolve_register,
+)
 
 __all__ = [
     "CONDITIONS",
@@ -174,43 +183,25 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
 
 
 def register_address(text: object) -> int:
-    """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` (or ``fault code``) or an int -> an address 0-FFFFH.
+    """A register's address from its spelling alone, in the one vocabulary of every tool
+    (:func:`~c20sim.wire.registers.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
+    ``0x3006``, ``12294``, ``F00.10`` or an int.
 
     The spelling only: whether a profile has the register is :func:`parse_register`'s question.
     """
-    if isinstance(text, bool) or not isinstance(text, str | int):
-        raise ControlError(f"register: expected a name or an address, got {json.dumps(text)}")
-    if isinstance(text, int):
-        address = text
-    else:
-        body = text.strip()
-        name = body.upper().replace("-", "_").replace(" ", "_")
-        if name in Reg.__members__:
-            return int(Reg[name])
-        if body.upper().startswith("F") and "." in body:
-            try:
-                return parse_fcode(body)
-            except ValueError as exc:
-                raise ControlError(f"register {text!r}: {exc}") from None
-        digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
-        try:
-            address = int(digits, 16)
-        except ValueError:
-            raise ControlError(
-                f"register {text!r}: give an address such as 2100H or 0x2100, a function code such as F00.10, "
-                f"or a name such as status1"
-            ) from None
-    if not 0 <= address <= 0xFFFF:
-        raise ControlError(f"register {text!r}: an address is 0000H-FFFFH")
-    return address
+    try:
+        return resolve_register(text)  # type: ignore[arg-type]  # anything else is refused in words
+    except UnknownRegister as exc:
+        raise ControlError(str(exc)) from None
 
 
 def parse_register(sim: Simulator, text: str | int) -> int:
-    """A register as :func:`register_address` reads it, which the simulator's profile must have."""
-    address = register_address(text)
-    if address not in sim.profile.registers:
-        raise ControlError(f"register {text!r}: the profile {sim.profile.name} has no register {address:04X}H")
-    return address
+    """A register as :func:`register_address` reads it, which the simulator's profile must have (a did-you-mean
+    where the spelling is close to one)."""
+    try:
+        return resolve_register(text, sim.profile.registers, f"the profile {sim.profile.name}")
+    except UnknownRegister as exc:
+        raise ControlError(str(exc)) from None
 
 
 def read_register(sim: Simulator, address: int, register: str | int) -> dict[str, Any]:
