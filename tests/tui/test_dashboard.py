@@ -349,3 +349,32 @@ async def test_speed_source_and_keypad_speed_from_the_panel(bench: Bench) -> Non
     await bench.press("minus", "minus")  # keypad reference 50.00 Hz -> 48.00 Hz
     assert await bench.read(0x000A) == 4800
     assert "keypad · speed from keypad" in bench.screen_text()
+
+
+async def test_register_view_finds_a_register_by_any_name_of_the_vocabulary(bench: Bench) -> None:
+    """F6, then /: a register by the name ctl, exercise and scenarios take; a misspelt one gets a did-you-mean."""
+    await bench.press("f6")
+    screen = bench.app.get_screen_main()
+    table = screen.query_one("#reg-table", DataTable)
+    finder = screen.query_one("#reg-find", Input)
+    for name, register in (("speed", "3006H"), ("motor speed", "3006H"), ("8193", "2001H"), ("F00.10", "F00.10")):
+        await bench.press("slash")
+        await until(lambda: finder.has_focus, "the finder, focused")
+        await bench.press(*["space" if c == " " else c for c in name], "enter")
+        await until(lambda: table.has_focus, "the table, focused again")
+        row = table.get_row_at(table.cursor_row)
+        assert str(row[0]) == register, name
+    await bench.press("slash")
+    await until(lambda: finder.has_focus, "the finder, focused")
+    await bench.press(*"sped", "enter")
+    errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
+    assert errors[-1] == (
+        "unknown register 'sped'; did you mean 'speed'? (give a name such as speed or status, an address such as "
+        "3006H, 0x3006 or 12294, or a function code such as F00.10)"
+    )
+    assert str(table.get_row_at(table.cursor_row)[0]) == "F00.10"  # where it was
+    await bench.press("escape")
+    await until(lambda: table.has_focus, "the table, focused again")
+    assert await bench.read(0x3006) == 0
+    # the fault code's value in its name, as ctl and the frame log say it
+    assert str(table.get_cell("2102H", "value")) == "no fault"
