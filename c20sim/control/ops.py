@@ -111,11 +111,13 @@ class ControlError(C20SimError):
 def number(key: str, value: object, low: float | None = None, high: float | None = None) -> float:
     """A finite number, within ``low``-``high`` where given."""
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ControlError(f"{key}: expected a number, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected a number, got {_shown(value)}")
+    bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}" if low is not None else ""
+    if isinstance(value, int) and len(str(abs(value))) > 30:  # beyond a float: said by its length, not printed
+        raise ControlError(f"{key}: a number of {len(str(abs(value)))} digits is outside {bounds or 'a float'}")
     if not math.isfinite(value):
         raise ControlError(f"{key}: expected a finite number, got {value}")
     if (low is not None and value < low) or (high is not None and value > high):
-        bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}"
         raise ControlError(f"{key}: {value:g} is outside {bounds}")
     return float(value)
 
@@ -123,15 +125,23 @@ def number(key: str, value: object, low: float | None = None, high: float | None
 def integer(key: str, value: object, low: int, high: int) -> int:
     """A whole number within ``low``-``high``."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ControlError(f"{key}: expected an integer, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected an integer, got {_shown(value)}")
     if not low <= value <= high:
-        raise ControlError(f"{key}: {value} is outside {low}-{high}")
+        raise ControlError(f"{key}: {_shown(value)} is outside {low}-{high}")
     return value
+
+
+def _shown(value: object) -> str:
+    """A JSON value for an error message: a number of thousands of digits said by its length, a long value cut."""
+    if isinstance(value, int) and not isinstance(value, bool) and len(str(abs(value))) > 30:
+        return f"a number of {len(str(abs(value)))} digits"
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def flag(key: str, value: object) -> bool:
     if not isinstance(value, bool):
-        raise ControlError(f"{key}: expected true or false, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected true or false, got {_shown(value)}")
     return value
 
 
@@ -337,7 +347,7 @@ def _hall(key: str, value: object) -> str | None:
     choices = [f.value for f in HallFault]
     if value is not None and value not in choices:
         names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ControlError(f"{key}: expected null, {names}, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
     return None if value is None else str(value)
 
 
@@ -466,8 +476,10 @@ def clear_generators(sim: Simulator, address: int, name: object = None) -> dict[
     """Stop the generator on condition ``name`` (all of the drive's for None); the conditions stay where
     they are. Returns the generators still running."""
     drive(sim, address)
+    if name is not None and not isinstance(name, str):
+        raise ControlError(f"condition: expected a condition's name, such as supply_v, got {_shown(name)}")
     if name is not None and name not in CONDITIONS:
-        raise unknown("condition", str(name), CONDITIONS)
+        raise unknown("condition", name, CONDITIONS)
     sim.clear_generator(address, None if name is None else str(name))
     return sim.generators(address)
 
@@ -621,7 +633,7 @@ def link_state(link: LinkFaults) -> dict[str, Any]:
 
 def _hex_bytes(key: str, value: object) -> bytes:
     if not isinstance(value, str):
-        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {json.dumps(value)}')
+        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {_shown(value)}')
     try:
         return bytes.fromhex(value)
     except ValueError:
@@ -638,7 +650,7 @@ def _exception_code(key: str, value: object) -> ExceptionCode | None:
         return ExceptionCode(code)
     except ValueError:
         codes = ", ".join(f"{c.name} ({int(c)})" for c in ExceptionCode)
-        raise ControlError(f"{key}: {json.dumps(value)} is not an exception code; use one of {codes}") from None
+        raise ControlError(f"{key}: {_shown(value)} is not an exception code; use one of {codes}") from None
 
 
 #: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.core.linkfaults.Knob`).
@@ -785,7 +797,7 @@ def read_setup(sim: Simulator, setup: object) -> Setup:
     if isinstance(setup, Setup):
         return setup
     if not isinstance(setup, str) or not setup:
-        raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {json.dumps(setup)}')
+        raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {_shown(setup)}')
     if setup == DEFAULTS:
         return Setup(setup, None)
     try:

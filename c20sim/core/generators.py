@@ -124,7 +124,11 @@ EXAMPLES = "{ ramp = 30, over = 5 }, { sine = 2, period = 0.5 } or { noise = 0.5
 
 
 def _number(key: str, value: object, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise GeneratorError(f"{key}: expected a finite number, got {value!r}")
+    if isinstance(value, int) and len(str(abs(value))) > 30:  # beyond a float: said by its length, not printed
+        raise GeneratorError(f"{key}: a number of {len(str(abs(value)))} digits is outside {low:g}-{high:g}")
+    if not math.isfinite(value):
         raise GeneratorError(f"{key}: expected a finite number, got {value!r}")
     if not low <= value <= high:
         raise GeneratorError(f"{key}: {value:g} is outside {low:g}-{high:g}")
