@@ -378,3 +378,32 @@ async def test_register_view_finds_a_register_by_any_name_of_the_vocabulary(benc
     assert await bench.read(0x3006) == 0
     # the fault code's value in its name, as ctl and the frame log say it
     assert str(table.get_cell("2102H", "value")) == "no fault"
+
+
+async def test_a_digit_holds_a_fault_on_and_a_masters_reset_clears_it_once_released(bench: Bench) -> None:
+    """F4: the screen says what a digit does, and a master's 2000H = 7 (over the wire) does what the screen says."""
+    await bench.press("f4")
+    hint = str(bench.app.get_screen_main().query_one("#dev-hint", Static).render())
+    assert hint == (  # two lines, each whole at 80 columns
+        "Each key switches a cause on or off; a digit holds a fault on (no physics).\n"
+        "RESET (x, or a master's 2000H = 7) clears a fault once its cause is off."
+    )
+    await bench.press("1")  # OUt1, held on
+    assert await bench.read(FAULT) == 0x01
+    await bench.write(0x2000, 7)  # a master's reset while the digit holds it on: the fault stays, as the hint says
+    assert await bench.read(FAULT) == 0x01
+    await bench.press("x")
+    said = [str(n.message) for n in bench.app._notifications if n.severity == "warning"]
+    assert said[-1] == "RESET refused: OUt1 (0x01) is held on by F4 key 1; press 1 to release it, then reset"
+    await bench.press("1")  # released: the fault stays until a reset
+    assert await bench.read(FAULT) == 0x01
+    await bench.write(0x2000, 7)  # the master's reset now clears it
+    assert await bench.read(FAULT) == 0
+    await bench.press("e", "t")  # a letter: the external fault terminal, the drive trips by its model
+    assert await bench.read(FAULT) == 0x11
+    await bench.press("x")
+    said = [str(n.message) for n in bench.app._notifications if n.severity == "warning"]
+    assert said[-1] == "RESET refused: its cause, external, is still present; press e (F4) to end it"
+    await bench.press("e", "t")
+    await bench.write(0x2000, 7)
+    assert await bench.read(FAULT) == 0
