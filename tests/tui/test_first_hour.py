@@ -85,7 +85,7 @@ async def test_an_rtu_master_on_the_modbus_tcp_port_is_told_where_to_go_on_the_d
                 master = AsyncModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=0.3, retries=0)
                 assert await master.connect()
                 try:
-                    with pytest.raises(Exception, match="Connection unexpectedly closed|No response received"):
+                    with pytest.raises(Exception, match=r"Connection unexpectedly closed|No response received"):
                         await master.read_holding_registers(0x2100, count=1, device_id=1)
                 finally:
                     master.close()
