@@ -18,6 +18,7 @@ from c20sim.wire.protocol import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
+    WriteMultipleRequest,
     WriteSingleRequest,
     encode,
     transaction_time,
@@ -150,6 +151,35 @@ def test_a_cyclic_function_code_writer_wears_the_eeprom(master: Master) -> None:
     assert finding.figure == "F00.10 stored 28,800 times an hour (20 writes): rated 100,000 writes reached in 3.5 h"
     assert "800AH" in finding.advice
     assert "assumed" in finding.source
+
+
+def test_a_cyclic_0x10_writer_wears_the_eeprom_of_every_register_it_carries(master: Master) -> None:
+    """0x10 stores each of its registers as 0x06 would: 2001H (RAM) then 2002H and 2003H (EEPROM cells)."""
+    for i in range(20):
+        master.line.send(encode(WriteMultipleRequest(1, Reg.SPEED_SETPOINT, (1000 + i, 4, 30 + i % 2))), 0.125)
+    found = master.findings()
+    assert [(f.rule, f.severity, f.subject, f.figure) for f in found] == [
+        (
+            "eeprom-wear",
+            Severity.ERROR,
+            "2002H",
+            "2002H stored 28,800 times an hour (the same value each time; 20 writes): rated 100,000 writes reached "
+            "in 3.5 h",
+        ),
+        (
+            "eeprom-wear",
+            Severity.ERROR,
+            "2003H",
+            "2003H stored 28,800 times an hour (20 writes): rated 100,000 writes reached in 3.5 h",
+        ),
+    ]
+
+
+def test_a_speed_above_the_maximum_inside_a_0x10_block_is_seen(master: Master) -> None:
+    """2000H then 2001H in one 0x10: the speed reference is the block's second register."""
+    master.line.send(encode(WriteMultipleRequest(1, Reg.COMMAND, (1, 3000 + 500))), 0.1)
+    finding = only(master)
+    assert (finding.rule, finding.subject) == ("speed-above-max", "2001H")
 
 
 def test_writing_the_ram_only_address_is_no_wear(master: Master) -> None:
