@@ -6,6 +6,8 @@ read back as a frame log (t, dir, hex) give the same findings: live and offline 
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from c20sim.audit import RULES, Auditor, Finding, Limits, Severity
@@ -350,9 +352,23 @@ def test_events_give_new_and_grown_findings_once(profile: Profile) -> None:
         auditor.feed(k / 100, "rx", request)  # 100 a second: 135 %
         auditor.feed(k / 100 + 0.002, "tx", reply)
     events = auditor.events()
-    assert events and all(e.rule == "line-demand" for e in events)
+    assert [(e.rule, e.severity, e.count) for e in events] == [("line-demand", Severity.ERROR, 1)]  # new: once
+    assert events[0] == auditor.findings()[0]
+    assert auditor.events() == []  # asked again: nothing said twice
+    for k in range(200, 400):  # the same demand two seconds more: not grown, so no event
+        auditor.feed(k / 100, "rx", request)
+        auditor.feed(k / 100 + 0.002, "tx", reply)
     assert auditor.events() == []
-    assert events[-1] == auditor.findings()[0]
+    for k in range(400):  # the master speeds up to 200 a second: the finding grows
+        auditor.feed(4 + k / 200, "rx", request)
+        auditor.feed(4 + k / 200 + 0.002, "tx", reply)
+    grown = auditor.events()
+    assert len(grown) >= 10
+    assert [e.count for e in grown] == list(range(2, 2 + len(grown)))  # each growth said once, in order
+    peaks = [events[0].value] + [e.value for e in grown]
+    assert all(later > earlier + 0.5 for earlier, later in itertools.pairwise(peaks))  # each one grown
+    assert grown[-1] == auditor.findings()[0] and len(auditor.findings()) == 1
+    assert auditor.events() == []
 
 
 def test_the_line_demand_now_falls_to_0_when_the_master_is_quiet(profile: Profile) -> None:
