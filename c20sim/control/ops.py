@@ -21,6 +21,7 @@ import difflib
 import itertools
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -113,8 +114,8 @@ def number(key: str, value: object, low: float | None = None, high: float | None
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ControlError(f"{key}: expected a number, got {_shown(value)}")
     bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}" if low is not None else ""
-    if isinstance(value, int) and len(str(abs(value))) > 30:  # beyond a float: said by its length, not printed
-        raise ControlError(f"{key}: a number of {len(str(abs(value)))} digits is outside {bounds or 'a float'}")
+    if isinstance(value, int) and abs(value) >= _HUGE:  # beyond a float: said by its length, not printed
+        raise ControlError(f"{key}: a number of {_digits(value)} is outside {bounds or 'a float'}")
     if not math.isfinite(value):
         raise ControlError(f"{key}: expected a finite number, got {value}")
     if (low is not None and value < low) or (high is not None and value > high):
@@ -131,10 +132,23 @@ def integer(key: str, value: object, low: int, high: int) -> int:
     return value
 
 
+#: Numbers from 10^30 on are said by their length in an error, never printed (nor made floats): no value an
+#: operation takes comes near, and a number of thousands of digits would fill the message.
+_HUGE = 10**30
+
+
+def _digits(value: int) -> str:
+    """``4000 digits``: a whole number's length (past the interpreter's limit on printing one: said so)."""
+    try:
+        return f"{len(str(abs(value)))} digits"
+    except ValueError:  # more digits than int -> str may make (sys.set_int_max_str_digits)
+        return f"more than {sys.get_int_max_str_digits()} digits"
+
+
 def _shown(value: object) -> str:
     """A JSON value for an error message: a number of thousands of digits said by its length, a long value cut."""
-    if isinstance(value, int) and not isinstance(value, bool) and len(str(abs(value))) > 30:
-        return f"a number of {len(str(abs(value)))} digits"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= _HUGE:
+        return f"a number of {_digits(value)}"
     text = json.dumps(value, default=str)
     return text if len(text) <= 80 else text[:77] + "..."
 

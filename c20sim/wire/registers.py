@@ -422,7 +422,7 @@ class RegisterMap:
         value_names: Mapping[int, Mapping[int, str]] | None = None,
     ) -> None:
         """``value_names`` names the values of fixed registers the profile defines (the fault codes of 2102H
-        and 300BH), so every tool that describes a value says ``OC1 (...)`` rather than ``0x0004``."""
+        and 300BH), so every tool that describes a value says ``OC1: ...`` rather than ``0x0004``."""
         specs: dict[int, RegisterSpec] = dict(FIXED_REGISTERS)
         for register, names in (value_names or {}).items():
             fixed = specs[register]

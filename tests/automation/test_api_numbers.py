@@ -95,3 +95,18 @@ async def test_path_and_query_numbers_of_thousands_of_digits_are_not_500(http: T
             response = await http.get(path)  # a 4xx saying what is wrong, or all the frames for last=N
             assert response.status in (200, 400, 404), (digits, path[:40], response.status, await response.text())
             assert "error" in await response.json() or path.startswith("/frames")
+
+
+def test_the_handle_says_a_number_of_thousands_of_digits_in_one_line() -> None:
+    """The same checks in process (the pytest handle), past the interpreter's limit on printing a number too."""
+    from c20sim.testing import C20Sim
+    from c20sim.wire.errors import C20SimError
+
+    with C20Sim.start() as sim:
+        for value, said in ((10**3999, "4000 digits"), (-(10**5000), "more than 4300 digits")):
+            with pytest.raises(C20SimError) as caught:
+                sim.set(supply_v=value)
+            assert str(caught.value) == f"supply_v: a number of {said} is outside 0-2000"
+            with pytest.raises(C20SimError) as caught:
+                sim.set(supply_v={"sine": value, "period": 1})
+            assert str(caught.value) == f"supply_v.sine: a number of {said} is outside 0-2000"

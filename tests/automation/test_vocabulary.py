@@ -50,8 +50,13 @@ def test_every_spelling_of_a_register_is_one_address() -> None:
 
 def test_every_name_is_one_register_and_every_fixed_register_has_its_names() -> None:
     names = register_names()
-    keys = [name.lower().replace("-", "_").replace(" ", "_") for name in names]
-    assert len(keys) == len(set(keys))  # no spelling names two registers
+    every = [*SHORT_NAMES.items(), *((r.name.lower(), int(r)) for r in Reg)]
+    every += [(spec.name, spec.address) for spec in FIXED_REGISTERS.values()]
+    meant: dict[str, set[int]] = {}
+    for name, address in every:  # case, spaces, - and _ do not count
+        meant.setdefault("_".join(name.lower().replace("-", " ").replace("_", " ").split()), set()).add(address)
+    assert {key: found for key, found in meant.items() if len(found) > 1} == {}  # no spelling names two registers
+    assert len(names) == len(meant)
     for name, address in names.items():
         assert resolve_register(name) == address
     for spec in FIXED_REGISTERS.values():
