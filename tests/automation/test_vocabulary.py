@@ -201,3 +201,25 @@ def test_the_pytest_handle_takes_the_same_names() -> None:
         with pytest.raises(C20SimError) as caught:
             sim.read("speeed")
         assert str(caught.value) == f"unknown register 'speeed'; did you mean 'speed'? ({HELP})"
+
+
+def test_the_readmes_example_prints_what_it_shows(served: tuple[dict[str, str], Path]) -> None:
+    """README, "One name for each register": its two commands, run against a drive at 1500 rpm, then faulted."""
+    import re
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    block = re.search(r"^```\n(\$ c20sim ctl --ready-file ready\.json read speed\n.*?)^```", readme, re.M | re.S)
+    assert block is not None
+    lines = block.group(1).splitlines()
+    assert len(lines) == 4
+    info, ready = served
+    tcp = f"tcp://{info['tcp']}"
+    assert c20sim("exercise", tcp, "write", "setpoint", "1500").returncode == 0
+    assert c20sim("exercise", tcp, "write", "command", "forward").returncode == 0
+    assert c20sim("ctl", "--ready-file", str(ready), "advance", "5").returncode == 0
+    command = lines[0].removeprefix("$ c20sim ").replace("ready.json", str(ready)).split()
+    assert c20sim(*command).stdout == lines[1] + "\n"
+    assert c20sim("ctl", "--ready-file", str(ready), "fault", "--cause", "undervoltage").returncode == 0
+    assert c20sim("ctl", "--ready-file", str(ready), "advance", "1").returncode == 0
+    command = lines[2].removeprefix("$ c20sim ").replace("tcp://127.0.0.1:5020", tcp).split()
+    assert c20sim(*command).stdout == lines[3] + "\n"
