@@ -16,6 +16,7 @@ import pytest
 
 from c20sim import cli
 from c20sim.cli import main
+from c20sim.drive.profile import load_profile
 from c20sim.wire.protocol import SHEET_CHAR_BITS, transaction_time
 from tests.conftest import wait_for_ready_file
 from tests.plugin.test_bus_timing_setting import mbap, receive
@@ -172,9 +173,11 @@ def _four_at_once_at_1200_baud(tmp_path: Path, *options: str) -> list[float]:
 
 
 def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to(tmp_path: Path) -> None:
-    """Judged on the wire: each of four requests in flight waits for the last one's line time, unless
-    --no-bus-timing, when all four are served as they came."""
-    line_time = transaction_time(8, 7, 1200, SHEET_CHAR_BITS)  # about 130 ms; the turnaround left out
+    """Judged on the wire, on the serve's own loop (uvloop where installed): each of four requests in flight
+    starts on the line no earlier than the last transaction's end (its request, the drive's turnaround, its
+    reply, each frame with its t3.5), unless --no-bus-timing, when all four are served as they came."""
+    turnaround = load_profile().protocol.turnaround_ms / 1000
+    line_time = transaction_time(8, 7, 1200, SHEET_CHAR_BITS, turnaround)  # about 185 ms
     held = _four_at_once_at_1200_baud(tmp_path / "on")
     assert all(later - earlier >= line_time for earlier, later in itertools.pairwise(held)), held
     free = _four_at_once_at_1200_baud(tmp_path / "off", "--no-bus-timing")
