@@ -12,6 +12,7 @@ import difflib
 import logging
 import os
 import re
+import stat
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -206,8 +207,25 @@ def control_token(args: argparse.Namespace) -> str | None:
             raise C20SimError(f"--control-token-file {path}: empty; put the token in it")
         if any(c.isspace() for c in token) or not token.isprintable():
             raise C20SimError(f"--control-token-file {path}: the token is one line of printable text, no spaces")
+        _warn_if_readable(path)
         return token
     return os.environ.get(TOKEN_ENV) or None
+
+
+def _warn_if_readable(path: str) -> None:
+    """One line on stderr when the token file is readable by other users: taken, as ssh would not."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # read a moment ago: gone since, nothing to warn about
+    who = [name for bit, name in ((stat.S_IRGRP, "its group"), (stat.S_IROTH, "every user")) if mode & bit]
+    if who:
+        print(
+            f"c20sim: warning: --control-token-file {path}: readable by {' and '.join(who)} "
+            f"(mode {stat.S_IMODE(mode):04o}); chmod 600 {path}",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -215,6 +233,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     options = serve_options(args)
     if args.then is not None and not options.scenario:
         raise UsageError("--then: it says what follows a --scenario; give --scenario FILE too, or leave --then out")
+    if args.clock == "virtual" and options.control is None and (not options.scenario or options.then == "serve"):
+        print(
+            "c20sim: warning: --clock virtual without --control: nothing can advance the time, so the drives never "
+            "move (ramps, trips, timeouts); add --control 127.0.0.1:0 and advance it with ctl advance, or use "
+            "--clock realtime",
+            file=sys.stderr,
+            flush=True,
+        )
     sim = build_simulator(args)
     return run(run_server(sim, options))  # 1 if a --scenario failed: CI sees it in the exit code
 
@@ -310,6 +336,9 @@ class OneLineParser(argparse.ArgumentParser):
     ) -> argparse.Namespace:
         """As argparse's, but an unknown option is reported by the (sub)command it was given to, not the top."""
         parsed, extras = self.parse_known_args(args, namespace)
+        trailing = getattr(parsed, "trailing_words", None)  # a command whose words may follow its options
+        if extras and trailing is not None:
+            extras = trailing(parsed, extras)
         if extras:
             chosen = self._chosen(parsed)
             chosen.error(f"unrecognized arguments: {' '.join(extras)}{chosen._did_you_mean(extras)}")

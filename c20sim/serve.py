@@ -205,6 +205,7 @@ class Server:
                 await self.endpoints.modbus_tcp.start()
             if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
                 self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)
+                self.endpoints.modbus_tcp.rtu_tcp = functools.partial(str, self.endpoints.tcp.name)
             if opts.control:
                 from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
 

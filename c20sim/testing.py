@@ -118,13 +118,19 @@ def format_frames(records: Sequence[FrameRecord], limit: int = SHOWN_FRAMES) -> 
 class C20Sim:
     """A running simulator: its ports, its clock, its drives, and assertions on its frame log.
 
-    ``host``/``port`` are the RTU-over-TCP endpoint, ``pty`` the virtual serial
-    port's path, ``modbus_tcp_port`` the Modbus TCP port; each is None unless
-    that transport was asked for. Methods that take ``drive`` act on the first
-    drive when it is None.
+    ``host``/``port`` are the endpoint of the TCP transport asked for: RTU over TCP for ``transport="tcp"``,
+    Modbus TCP for ``transport="modbus-tcp"`` (with both, the first one listed). ``tcp_port`` is the RTU-over-TCP
+    port, ``modbus_tcp_port`` the Modbus TCP port and ``pty`` the virtual serial port's path; each is None unless
+    that transport was asked for. Methods that take ``drive`` act on the first drive when it is None.
     """
 
-    def __init__(self, server: Server, thread: _LoopThread, stop: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        server: Server,
+        thread: _LoopThread,
+        stop: Callable[[], None] | None = None,
+        transports: Sequence[str] = ("tcp",),
+    ) -> None:
         self._server = server
         self._thread = thread
         self._stop = stop
@@ -133,10 +139,13 @@ class C20Sim:
         self.profile: Profile = server.sim.profile
         self.addresses: tuple[int, ...] = tuple(server.sim.drives)
         ends = server.endpoints
-        self.host: str | None = ends.tcp.host if ends.tcp is not None else None
-        self.port: int | None = ends.tcp.port if ends.tcp is not None else None
         self.pty: str | None = ends.pty.path if ends.pty is not None else None
+        self.tcp_port: int | None = ends.tcp.port if ends.tcp is not None else None
         self.modbus_tcp_port: int | None = ends.modbus_tcp.port if ends.modbus_tcp is not None else None
+        by_name = {"tcp": ends.tcp, "modbus-tcp": ends.modbus_tcp}
+        first = next((by_name[t] for t in transports if by_name.get(t) is not None), None)
+        self.host: str | None = first.host if first is not None else None
+        self.port: int | None = first.port if first is not None else None
 
     @classmethod
     def start(
@@ -601,4 +610,4 @@ def start(settings: Settings) -> C20Sim:
         finally:
             thread.stop()
 
-    return C20Sim(server, thread, stop)
+    return C20Sim(server, thread, stop, settings.transport)

@@ -132,6 +132,8 @@ class _Request:
     value: int  #: the value written (0x06, first of a 0x10), else -1
     judged: bool  #: a write to one drive that :meth:`Auditor._written` judges (2001H, 2000H = 7)
     stores: bool  #: a write that :meth:`Auditor._stored` follows once the drive takes it
+    #: every (register, value) a write carries: one for 0x06, each register of a 0x10 in turn
+    writes: tuple[tuple[int, int], ...] = ()
 
 
 #: A frame from a drive that answers no request: too short, or a bad CRC (slave -1 matches no request).
@@ -346,26 +348,27 @@ class Auditor:
         else:
             slave, function = data[0], data[1]
             register, value, reply = -1, -1, 5
+            writes: tuple[tuple[int, int], ...] = ()
             if function in (_READ, _WRITE1) and n == 8:
                 register, value = struct.unpack_from(">HH", data, 2)
                 if function == _READ:
                     reply, value = 5 + 2 * value, -1
                 else:
                     reply = 8
-            elif function == _WRITEN and n >= 11 and n == 9 + data[6]:
+                    writes = ((register, value),)
+            elif function == _WRITEN and n >= 11 and n == 9 + data[6] and data[6] % 2 == 0:
                 register, value = struct.unpack_from(">H", data, 2)[0], struct.unpack_from(">H", data, 7)[0]
+                values = struct.unpack_from(f">{data[6] // 2}H", data, 7)
+                writes = tuple(((register + i) & 0xFFFF, v) for i, v in enumerate(values))  # every register, in turn
                 reply = 8
             if slave == BROADCAST:
                 reply = 0
             cost = transaction_time(n, reply, self.baud, self.bits, self.turnaround)
-            write = function in (_WRITE1, _WRITEN) and register >= 0
-            judged = (
-                write
-                and slave != BROADCAST
-                and (register == Reg.SPEED_SETPOINT or (register == Reg.COMMAND and value == Command.RESET))
+            judged = slave != BROADCAST and any(
+                r == Reg.SPEED_SETPOINT or (r == Reg.COMMAND and v == Command.RESET) for r, v in writes
             )
-            stores = function != _READ and register in self._followed
-            meaning = _Request(True, cost, slave, function, register, value, judged, stores)
+            stores = any(r in self._followed for r, _ in writes)
+            meaning = _Request(True, cost, slave, function, register, value, judged, stores, writes)
         if len(self._requests) >= MAX_SUBJECTS:
             self._requests.clear()
         self._requests[data] = meaning
@@ -495,8 +498,11 @@ class Auditor:
         )
 
     def _written(self, request: _Request, seq: int, t: float) -> None:
-        """The request side of writes: speed-above-max, reset-loop."""
-        slave, register, value = request.slave, request.register, request.value
+        """The request side of writes: speed-above-max, reset-loop (each register a 0x10 writes, in turn)."""
+        for register, value in request.writes:
+            self._written_one(request.slave, register, value, seq, t)
+
+    def _written_one(self, slave: int, register: int, value: int, seq: int, t: float) -> None:
         drive = self._drive(slave)
         if register == Reg.SPEED_SETPOINT and value > drive.max_speed:
             self._report(
@@ -606,8 +612,13 @@ class Auditor:
         )
 
     def _stored(self, request: _Request) -> None:
-        """A write the drive took: follow the settings the rules use; eeprom-wear, write-enable-left-on."""
-        register, value, slave = request.register, request.value, request.slave
+        """A write the drive took: follow the settings the rules use; eeprom-wear, write-enable-left-on. A 0x10
+        stores each of its registers, as that many 0x06 would."""
+        for register, value in request.writes:
+            if register in self._followed:
+                self._stored_one(request.slave, register, value)
+
+    def _stored_one(self, slave: int, register: int, value: int) -> None:
         drive = self._drive(slave)
         if register == Reg.WRITE_ENABLE:
             drive.write_enable = value != 0

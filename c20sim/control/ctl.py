@@ -4,7 +4,9 @@ Every action is an operation of the route table (:mod:`c20sim.control.routes`),
 its arguments made from the row's fields; an error answer is
 one line on stderr and exit 2, as for every other command. An action that
 changes something (set, fault, clear, key, advance, ...) prints one line in
-words of what it did; a reading prints its JSON answer. An action the
+words of what it did; ``read`` prints the register's one line in its units
+(``3006H motor speed: 1500 rpm``, as ``exercise read`` does); another reading
+prints its JSON answer. An action the
 drive refuses (a key press, a reset while the cause persists) prints the
 answer, one line on stderr saying so, and exits 1. ``--format json`` prints
 any answer as JSON, ``--format text`` as ``key: value`` lines (the frame log:
@@ -477,7 +479,9 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     if action == "frames" and args.format != "json" and not args.json:
         _write(_frame_lines(result["frames"]))
         return 0
-    if args.format is None and _changes(action):
+    if args.format is None and action == "read" and isinstance(result, dict) and "text" in result:
+        _write(f"{result['register']} {result['name']}: {result['text']}\n")  # as exercise read prints it
+    elif args.format is None and _changes(action):
         _write(f"{_asked(action, args)}: {summary(action, result, getattr(args, 'key', None))}\n")
     else:
         _write(render(result, args.format or "json"))
@@ -506,7 +510,7 @@ def add_ctl_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--format",
         choices=["text", "json"],
         help="print the answer as JSON or as key: value lines (default: one line in words for an action that "
-        "changes something, JSON for a reading, one line per frame for frames)",
+        "changes something and for read, JSON for another reading, one line per frame for frames)",
     )
     # --drive is taken before or after the action; after, it must not reset the value given before
     common = argparse.ArgumentParser(add_help=False)

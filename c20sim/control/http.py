@@ -274,6 +274,11 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
     def not_json(name: str) -> object:
         raise ControlError(f"the body is not JSON: {name} is not a JSON number; give a finite number")
 
+    def whole(text: str) -> int | _TooLong:
+        """A JSON integer; one of thousands of digits is kept as its length, refused below by its key."""
+        digits = len(text.lstrip("-"))
+        return _TooLong(digits) if digits > MAX_DIGITS else int(text)
+
     async def body(request: web.Request) -> dict[str, Any]:
         if not request.body_exists:  # not can_read_body: the guard has read (and checked) the body already
             return {}
@@ -281,11 +286,12 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         if not text.strip():
             return {}
         try:
-            data = json.loads(text, parse_constant=not_json)
+            data = json.loads(text, parse_constant=not_json, parse_int=whole)
         except json.JSONDecodeError as exc:
             raise ControlError(f"the body is not JSON: {exc}") from None
         if not isinstance(data, dict):
             raise ControlError(f"the body must be a JSON object, not {type(data).__name__}")
+        _refuse_long_numbers(data)
         return data
 
     def address(request: web.Request) -> int:
@@ -512,6 +518,27 @@ async def _send_frames(ws: web.WebSocketResponse, client: StreamClient) -> None:
             await asyncio.sleep(0)  # let a request in between chunks
         records += [{"seq": seq, **record.as_dict(WALL_OFFSET)} for seq, record in batch[start : start + CHUNK]]
     await ws.send_str(json.dumps({"type": "frames", "missed": max(0, missed), "frames": records}))
+
+
+#: The most digits a JSON integer of a request may have: every value the API takes fits in far fewer.
+MAX_DIGITS = 30
+
+
+class _TooLong:
+    """A JSON integer of more than :data:`MAX_DIGITS` digits, as parsed: its length only."""
+
+    def __init__(self, digits: int) -> None:
+        self.digits = digits
+
+
+def _refuse_long_numbers(value: object, key: str = "") -> None:
+    """400 naming the key of a number of thousands of digits (never a 500 from a float conversion)."""
+    if isinstance(value, _TooLong):
+        where = f"{key}: " if key else ""
+        raise ControlError(f"{where}a number of {value.digits} digits; no value here has more than {MAX_DIGITS}")
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for name, item in items:
+        _refuse_long_numbers(item, f"{key}.{name}" if key else str(name))
 
 
 #: The control surface's rows by ``METHOD path`` (:mod:`c20sim.control.routes`), as this module serves them.

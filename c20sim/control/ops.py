@@ -21,6 +21,7 @@ import difflib
 import itertools
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -34,7 +35,16 @@ from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.params import ParameterStore, StateFileError
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
-from ..wire.registers import Access, Command, Reg, RunChannel, address_label, is_fcode, parse_fcode
+from ..wire.registers import (
+    Access,
+    Command,
+    Reg,
+    RunChannel,
+    UnknownRegister,
+    address_label,
+    is_fcode,
+    resolve_register,
+)
 
 __all__ = [
     "CONDITIONS",
@@ -102,11 +112,13 @@ class ControlError(C20SimError):
 def number(key: str, value: object, low: float | None = None, high: float | None = None) -> float:
     """A finite number, within ``low``-``high`` where given."""
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ControlError(f"{key}: expected a number, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected a number, got {_shown(value)}")
+    bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}" if low is not None else ""
+    if isinstance(value, int) and abs(value) >= _HUGE:  # beyond a float: said by its length, not printed
+        raise ControlError(f"{key}: a number of {_digits(value)} is outside {bounds or 'a float'}")
     if not math.isfinite(value):
         raise ControlError(f"{key}: expected a finite number, got {value}")
     if (low is not None and value < low) or (high is not None and value > high):
-        bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}"
         raise ControlError(f"{key}: {value:g} is outside {bounds}")
     return float(value)
 
@@ -114,15 +126,36 @@ def number(key: str, value: object, low: float | None = None, high: float | None
 def integer(key: str, value: object, low: int, high: int) -> int:
     """A whole number within ``low``-``high``."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ControlError(f"{key}: expected an integer, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected an integer, got {_shown(value)}")
     if not low <= value <= high:
-        raise ControlError(f"{key}: {value} is outside {low}-{high}")
+        raise ControlError(f"{key}: {_shown(value)} is outside {low}-{high}")
     return value
+
+
+#: Numbers from 10^30 on are said by their length in an error, never printed (nor made floats): no value an
+#: operation takes comes near, and a number of thousands of digits would fill the message.
+_HUGE = 10**30
+
+
+def _digits(value: int) -> str:
+    """``4000 digits``: a whole number's length (past the interpreter's limit on printing one: said so)."""
+    try:
+        return f"{len(str(abs(value)))} digits"
+    except ValueError:  # more digits than int -> str may make (sys.set_int_max_str_digits)
+        return f"more than {sys.get_int_max_str_digits()} digits"
+
+
+def _shown(value: object) -> str:
+    """A JSON value for an error message: a number of thousands of digits said by its length, a long value cut."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= _HUGE:
+        return f"a number of {_digits(value)}"
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def flag(key: str, value: object) -> bool:
     if not isinstance(value, bool):
-        raise ControlError(f"{key}: expected true or false, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected true or false, got {_shown(value)}")
     return value
 
 
@@ -174,43 +207,25 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
 
 
 def register_address(text: object) -> int:
-    """``2100H``, ``0x2100``, ``2100``, ``F00.10``, ``status1`` (or ``fault code``) or an int -> an address 0-FFFFH.
+    """A register's address from its spelling alone, in the one vocabulary of every tool
+    (:func:`~c20sim.wire.registers.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
+    ``0x3006``, ``12294``, ``F00.10`` or an int.
 
     The spelling only: whether a profile has the register is :func:`parse_register`'s question.
     """
-    if isinstance(text, bool) or not isinstance(text, str | int):
-        raise ControlError(f"register: expected a name or an address, got {json.dumps(text)}")
-    if isinstance(text, int):
-        address = text
-    else:
-        body = text.strip()
-        name = body.upper().replace("-", "_").replace(" ", "_")
-        if name in Reg.__members__:
-            return int(Reg[name])
-        if body.upper().startswith("F") and "." in body:
-            try:
-                return parse_fcode(body)
-            except ValueError as exc:
-                raise ControlError(f"register {text!r}: {exc}") from None
-        digits = body[2:] if body.lower().startswith("0x") else body.removesuffix("H").removesuffix("h")
-        try:
-            address = int(digits, 16)
-        except ValueError:
-            raise ControlError(
-                f"register {text!r}: give an address such as 2100H or 0x2100, a function code such as F00.10, "
-                f"or a name such as status1"
-            ) from None
-    if not 0 <= address <= 0xFFFF:
-        raise ControlError(f"register {text!r}: an address is 0000H-FFFFH")
-    return address
+    try:
+        return resolve_register(text)  # type: ignore[arg-type]  # anything else is refused in words
+    except UnknownRegister as exc:
+        raise ControlError(str(exc)) from None
 
 
 def parse_register(sim: Simulator, text: str | int) -> int:
-    """A register as :func:`register_address` reads it, which the simulator's profile must have."""
-    address = register_address(text)
-    if address not in sim.profile.registers:
-        raise ControlError(f"register {text!r}: the profile {sim.profile.name} has no register {address:04X}H")
-    return address
+    """A register as :func:`register_address` reads it, which the simulator's profile must have (a did-you-mean
+    where the spelling is close to one)."""
+    try:
+        return resolve_register(text, sim.profile.registers, f"the profile {sim.profile.name}")
+    except UnknownRegister as exc:
+        raise ControlError(str(exc)) from None
 
 
 def read_register(sim: Simulator, address: int, register: str | int) -> dict[str, Any]:
@@ -346,7 +361,7 @@ def _hall(key: str, value: object) -> str | None:
     choices = [f.value for f in HallFault]
     if value is not None and value not in choices:
         names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ControlError(f"{key}: expected null, {names}, got {json.dumps(value)}")
+        raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
     return None if value is None else str(value)
 
 
@@ -475,8 +490,10 @@ def clear_generators(sim: Simulator, address: int, name: object = None) -> dict[
     """Stop the generator on condition ``name`` (all of the drive's for None); the conditions stay where
     they are. Returns the generators still running."""
     drive(sim, address)
+    if name is not None and not isinstance(name, str):
+        raise ControlError(f"condition: expected a condition's name, such as supply_v, got {_shown(name)}")
     if name is not None and name not in CONDITIONS:
-        raise unknown("condition", str(name), CONDITIONS)
+        raise unknown("condition", name, CONDITIONS)
     sim.clear_generator(address, None if name is None else str(name))
     return sim.generators(address)
 
@@ -630,7 +647,7 @@ def link_state(link: LinkFaults) -> dict[str, Any]:
 
 def _hex_bytes(key: str, value: object) -> bytes:
     if not isinstance(value, str):
-        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {json.dumps(value)}')
+        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {_shown(value)}')
     try:
         return bytes.fromhex(value)
     except ValueError:
@@ -647,7 +664,7 @@ def _exception_code(key: str, value: object) -> ExceptionCode | None:
         return ExceptionCode(code)
     except ValueError:
         codes = ", ".join(f"{c.name} ({int(c)})" for c in ExceptionCode)
-        raise ControlError(f"{key}: {json.dumps(value)} is not an exception code; use one of {codes}") from None
+        raise ControlError(f"{key}: {_shown(value)} is not an exception code; use one of {codes}") from None
 
 
 #: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.core.linkfaults.Knob`).
@@ -794,7 +811,7 @@ def read_setup(sim: Simulator, setup: object) -> Setup:
     if isinstance(setup, Setup):
         return setup
     if not isinstance(setup, str) or not setup:
-        raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {json.dumps(setup)}')
+        raise ControlError(f'setup: give "{DEFAULTS}" or the path of a state file, got {_shown(setup)}')
     if setup == DEFAULTS:
         return Setup(setup, None)
     try:

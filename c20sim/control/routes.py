@@ -19,6 +19,7 @@ faults, a fault request) and leaves its checking to the operation.
 from __future__ import annotations
 
 import re
+import urllib.parse
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -115,13 +116,14 @@ class Route:
         return out
 
     def url(self, **parameters: object) -> str:
-        """The path with its parameters filled in (a register as ``2100H`` when given as a number)."""
+        """The path with its parameters filled in, quoted (``motor speed`` is ``motor%20speed``; a register given
+        as a number as ``2100H``)."""
 
         def fill(match: re.Match[str]) -> str:
             value = parameters[match.group(1)]
             if match.group(1) == "register" and isinstance(value, int):
                 return f"{value:04X}H"
-            return str(value)
+            return urllib.parse.quote(str(value), safe="")
 
         return re.sub(r"{(\w+)}", fill, self.path)
 
@@ -418,10 +420,10 @@ TABLE = Table(
             "GET",
             f"{_D}/registers/{{register}}",
             "read_register",
-            "- (register: 2100H, 0x2100, F00.10 or status1)",
+            "- (register: speed, motor_speed, 3006H, 0x3006, 12294 or F00.10)",
             ops.read_register,
             cli="read",
-            help="read a register: 2100H, 0x2100, F00.10 or status1",
+            help="read a register: a name (speed, status, fault), 3006H, 0x3006, 12294 or F00.10",
         ),
         Route(
             "PUT",

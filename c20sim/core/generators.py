@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import random
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -124,7 +125,15 @@ EXAMPLES = "{ ramp = 30, over = 5 }, { sine = 2, period = 0.5 } or { noise = 0.5
 
 
 def _number(key: str, value: object, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise GeneratorError(f"{key}: expected a finite number, got {value!r}")
+    if isinstance(value, int) and abs(value) >= 10**30:  # beyond a float: said by its length, not printed
+        try:
+            length = f"{len(str(abs(value)))} digits"
+        except ValueError:  # past the interpreter's limit on printing a whole number
+            length = f"more than {sys.get_int_max_str_digits()} digits"
+        raise GeneratorError(f"{key}: a number of {length} is outside {low:g}-{high:g}")
+    if not math.isfinite(value):
         raise GeneratorError(f"{key}: expected a finite number, got {value!r}")
     if not low <= value <= high:
         raise GeneratorError(f"{key}: {value:g} is outside {low:g}-{high:g}")

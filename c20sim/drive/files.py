@@ -22,6 +22,7 @@ name; each format's loader wraps it in its own error (``ProfileError``,
 
 from __future__ import annotations
 
+import io
 import os
 import stat
 from collections.abc import Mapping
@@ -34,6 +35,7 @@ __all__ = [
     "MAX_DEPTH",
     "FileReadError",
     "json_depth",
+    "open_stream",
     "read_bytes",
     "read_text",
     "toml_depth",
@@ -142,6 +144,31 @@ def read_bytes(path: str | os.PathLike[str], what: str, limit: int | None = None
         return b"".join(chunks)
     finally:
         os.close(fd)
+
+
+def open_stream(path: str | os.PathLike[str], what: str) -> io.BufferedReader:
+    """The regular file ``path`` open for reading a little at a time (a frame log of any length), by the same
+    rules as :func:`read_bytes`: never a FIFO (whose open would wait for a writer) or a device, looked at again
+    once open. Raises :class:`FileReadError`."""
+    name = os.fspath(path)
+    try:
+        before = os.stat(name)
+    except OSError as exc:
+        missing = isinstance(exc, FileNotFoundError)
+        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
+    if (kind := _kind(before.st_mode)) is not None:
+        raise _not_regular(name, kind, what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(name, flags)
+    except OSError as exc:
+        missing = isinstance(exc, FileNotFoundError)
+        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
+    if (kind := _kind(os.fstat(fd).st_mode)) is not None:  # a link swapped between the look and the open
+        os.close(fd)
+        raise _not_regular(name, kind, what)
+    os.set_blocking(fd, True)
+    return io.BufferedReader(io.FileIO(fd, "rb", closefd=True))
 
 
 def read_text(path: str | os.PathLike[str], what: str, limit: int | None = None, *, named: str = "") -> str:

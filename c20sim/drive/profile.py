@@ -555,7 +555,11 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
                 "parameter",
                 f'no function code mirrors {register:04X}H ({register.name.lower()}); add one with mirror = "{register:04X}H"',
             )
-    registers = RegisterMap(parameters, mirrors)
+    fault_words = {
+        0: "no fault",
+        **{code: f"{f.name}: {f.meaning}" if f.meaning else f.name for code, f in faults.items()},  # as fault_name
+    }
+    registers = RegisterMap(parameters, mirrors, {Reg.FAULT_CODE: fault_words, Reg.CURRENT_FAULT: fault_words})
     behaviours = data.get("behaviours", [])
     if not isinstance(behaviours, list) or not all(isinstance(b, str) and b for b in behaviours):
         raise check.fail("behaviours", 'must be a list of behaviour names, such as ["slow-eeprom"]')

@@ -205,7 +205,7 @@ def scenario_schema() -> dict[str, Any]:
             "write": {
                 "type": "object",
                 "additionalProperties": raw,
-                "description": "registers a master writes (2001H, F00.10, status1 ...) = raw value",
+                "description": "registers a master writes (setpoint, 2001H, 0x2001, 8193, F00.10, status1 ...) = raw value",
             },
             "keypad": {"oneOf": [{"enum": list(ops.KEYS)}, {"type": "integer", "minimum": 1, "maximum": 8}]},
             "expect_exception": {
@@ -252,7 +252,7 @@ def scenario_schema() -> dict[str, Any]:
                         },
                     ]
                 },
-                "description": "raw values registers must read, optionally within a tolerance",
+                "description": "raw values registers (speed, 3006H, motor_speed ...) must read, optionally within a tolerance",
             },
         },
         "required": ["at"],

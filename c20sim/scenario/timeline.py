@@ -72,7 +72,7 @@ from ..wire.protocol import (
     decode_response,
     encode,
 )
-from ..wire.registers import Reg, format_fcode
+from ..wire.registers import Reg, UnknownRegister, resolve_register
 
 if TYPE_CHECKING:
     from ..core.bus import Reply
@@ -307,8 +307,15 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
     elif not isinstance(clear_value, bool):
         raise fail("clear_fault", 'expected true or false, or { cause = "undervoltage" }')
 
+    def unquoted(key: str, register: str, value: object) -> None:
+        """TOML reads ``F00.10 = 5000`` unquoted as the table F00 = { 10 = 5000 }: say to quote it."""
+        if isinstance(value, dict) and register.upper().startswith("F") and all(k.isdigit() for k in value):
+            first = sorted(value)[0]
+            raise fail(key, f'{register}: unknown key {first!r}; quote a function code, as "{register}.{first}" = N')
+
     writes: list[tuple[str, int, int]] = []
     for register, value in table("write").items():
+        unquoted("write", register, value)
         address = checked("write", functools.partial(ops.register_address, register))
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
             raise fail("write", f"{register}: expected a raw value 0-65535, got {value!r}")
@@ -321,6 +328,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
     expects: list[Expect] = []
     for register, given in table("expect").items():
         value = given
+        unquoted("expect", register, given)
         address = checked("expect", functools.partial(ops.register_address, register))
         tolerance: object = 0
         if isinstance(given, dict):
@@ -472,12 +480,10 @@ def check(scenario: Scenario, sim: Simulator) -> None:
         ):
             for register, address in items:
                 if address not in registers:
-                    shown = format_fcode(address) if address < 0x2000 else f"{address:04X}H"
-                    raise ScenarioError(
-                        scenario.path,
-                        f"{step.label}, key {key!r}",
-                        f"{register}: the profile {sim.profile.name} has no register {shown}",
-                    )
+                    try:  # the vocabulary's own words, with its did-you-mean (2100 is decimal: 2100H?)
+                        resolve_register(register, registers, f"the profile {sim.profile.name}")
+                    except UnknownRegister as exc:
+                        raise ScenarioError(scenario.path, f"{step.label}, key {key!r}", str(exc)) from None
 
 
 def _drive_of(step: Step, sim: Simulator) -> int:

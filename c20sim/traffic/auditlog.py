@@ -25,6 +25,7 @@ from typing import IO
 
 from ..audit import RULES, Auditor, Finding, Severity
 from ..audit.engine import LineDemand
+from ..drive.files import FileReadError, open_stream
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES
@@ -90,10 +91,12 @@ def audit_log(path: str, auditor: Auditor, *, server_port: int | None = None) ->
     conversation (and says which side is the master when the capture starts mid-connection)."""
     where = "stdin" if path == "-" else path
     last = 0.0
-    try:
-        raw = sys.stdin.buffer if path == "-" else open(path, "rb")  # noqa: SIM115
-    except OSError as exc:
-        raise C20SimError(f"{path}: cannot read: {exc.strerror}") from None
+    try:  # a file: never a FIFO or a device, as replay and decode (stdin is the way to pipe a log in)
+        raw = sys.stdin.buffer if path == "-" else open_stream(path, "frame log or capture")
+    except FileReadError as exc:
+        if exc.reason.startswith("is a FIFO"):
+            raise C20SimError(f"{exc}; to read a pipe, give - and pipe it to stdin") from None
+        raise
     try:
         head = raw.peek(4)[:4] if isinstance(raw, io.BufferedReader) else b""
         frames = (

@@ -35,7 +35,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import IO, Any, Protocol
+from typing import IO, Any, Protocol, TypeVar
 
 from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, load_profile
@@ -55,7 +55,18 @@ from ..wire.protocol import (
     expected_length,
     with_crc,
 )
-from ..wire.registers import BAUD_RATES, Command, Reg, RegisterMap, RegisterSpec, address_label, is_fcode, parse_fcode
+from ..wire.registers import (
+    BAUD_RATES,
+    SHORT_NAMES,
+    Command,
+    Reg,
+    RegisterMap,
+    RegisterSpec,
+    UnknownRegister,
+    address_label,
+    is_fcode,
+    resolve_register,
+)
 
 __all__ = [
     "NAMES",
@@ -63,6 +74,7 @@ __all__ = [
     "DriveRefused",
     "DriveSilent",
     "Master",
+    "NoReply",
     "SimulatedLink",
     "SimulatedTime",
     "Step",
@@ -73,37 +85,10 @@ __all__ = [
     "simulated_capture",
 ]
 
-#: Short names a person at a bench types, for the registers they read and write most.
-NAMES: dict[str, int] = {
-    "command": Reg.COMMAND,
-    "setpoint": Reg.SPEED_SETPOINT,
-    "pole-pairs": Reg.POLE_PAIRS,
-    "accel": Reg.ACCEL_TIME,
-    "decel": Reg.DECEL_TIME,
-    "control-mode": Reg.CONTROL_MODE,
-    "run-channel": Reg.RUN_CHANNEL,
-    "speed-source": Reg.SPEED_SOURCE,
-    "address": Reg.ADDRESS,
-    "baud": Reg.BAUD,
-    "status": Reg.STATUS1,
-    "status2": Reg.STATUS2,
-    "fault": Reg.FAULT_CODE,
-    "id": Reg.DRIVE_ID,
-    "set-frequency": Reg.SET_FREQUENCY,
-    "frequency": Reg.OUTPUT_FREQUENCY,
-    "ramp": Reg.RAMP_FREQUENCY,
-    "voltage": Reg.OUTPUT_VOLTAGE,
-    "current": Reg.OUTPUT_CURRENT,
-    "set-speed": Reg.SET_SPEED,
-    "speed": Reg.MOTOR_SPEED,
-    "power": Reg.OUTPUT_POWER,
-    "bus": Reg.BUS_VOLTAGE,
-    "hall": Reg.HALL,
-    "version": Reg.SOFTWARE_VERSION,
-    "temperature": Reg.TEMPERATURE,
-    "inputs": Reg.INPUT_TERMINALS,
-    "outputs": Reg.OUTPUT_TERMINALS,
-}
+#: The short names of the one register vocabulary (kept here for those who import them from exercise).
+NAMES = SHORT_NAMES
+
+T = TypeVar("T")
 
 #: What the programme polls, in turn: the physical quantities, the status words and the fault code.
 POLL: tuple[int, ...] = (
@@ -159,6 +144,10 @@ class Interrupted(C20SimError):
     """Ctrl-C during the programme; the message says how stopping the drive went."""
 
 
+class NoReply(DriveSilent):
+    """Nothing came back at all: no drive at that address, or no drive on that link."""
+
+
 class DriveRefused(C20SimError):
     """The drive answered an exception."""
 
@@ -167,32 +156,22 @@ class DriveRefused(C20SimError):
         self.code = code
 
 
-def register_of(word: str, registers: RegisterMap) -> RegisterSpec:
-    """A register by short name (``speed``), label (``3006H``, ``F00.12``) or number (``0x3006``)."""
-    key = word.strip().lower().replace("_", "-")
-    address: int | None = NAMES.get(key)
-    if address is None:
-        text = word.strip().upper()
-        try:
-            if text.startswith("F") and "." in text:
-                address = parse_fcode(text)
-            elif text.endswith("H"):
-                address = int(text[:-1], 16)
-            elif text.startswith("0X"):
-                address = int(text, 16)
-        except ValueError:
-            address = None
-    spec = registers.get(address) if address is not None else None
-    if spec is None:
-        raise C20SimError(
-            f"no register {word!r}; give a name ({', '.join(NAMES)}), an address such as 3006H or a function "
-            "code such as F00.12"
-        )
-    return spec
+def register_of(word: str, registers: RegisterMap, owner: str = "the profile") -> RegisterSpec:
+    """A register in the one vocabulary of every tool (:func:`~c20sim.wire.registers.resolve_register`): a short
+    name (``speed``), the sheet's name, an address (``3006H``, ``0x3006``, ``12294``) or a function code."""
+    try:
+        return registers[resolve_register(word, registers, owner)]
+    except UnknownRegister as exc:
+        raise C20SimError(str(exc)) from None
 
 
 def parse_value(spec: RegisterSpec, text: str) -> int:
-    """A value for ``spec`` in its units (``1500``, ``2.5`` s) or by name (``stop``, ``forward-run``): raw."""
+    """A value for ``spec`` in its units (``1500``, ``2.5`` s) or by name (``stop``, ``forward-run``): raw.
+
+    Never a value other than the one typed: a number outside the register's range, one that would wrap in 16 bits
+    (65536), one between the register's steps (2.55 s where it counts 0.1 s) or not finite (nan, inf) is refused
+    in one line.
+    """
     wanted = text.strip().lower().replace("_", " ").replace("-", " ")
     for raw, name in spec.values.items():
         if name.lower().replace("-", " ") == wanted or name.lower().split(" (")[0] == wanted:
@@ -201,18 +180,37 @@ def parse_value(spec: RegisterSpec, text: str) -> int:
         for command in Command:
             if command.key.replace("_", " ") == wanted:
                 return int(command)
+    where = f"{spec.label} {spec.name}"
     try:
-        number = float(text)
+        number = float(int(text, 16)) if spec.hex_display and text.lower().startswith("0x") else float(text)
     except ValueError:
         names = ", ".join(f"{raw} = {name}" for raw, name in spec.values.items())
         raise C20SimError(
-            f"{spec.label} {spec.name}: {text!r} is not a number" + (f" nor a value's name ({names})" if names else "")
+            f"{where}: {text!r} is not a number" + (f" nor a value's name ({names})" if names else "")
         ) from None
+    low, high = _amount(spec, spec.minimum), _amount(spec, spec.maximum)
+    if not math.isfinite(number):
+        raise C20SimError(f"{where}: {text} is not a finite number; give one from {low} to {high}")
     raw = round(number / spec.scale)
-    if not math.isfinite(number) or not spec.accepts(raw & 0xFFFF if raw >= 0 else raw):
-        low, high = spec.describe(spec.minimum & 0xFFFF), spec.describe(spec.maximum & 0xFFFF)
-        raise C20SimError(f"{spec.label} {spec.name}: {text} is outside {low} to {high}")
+    if not spec.minimum <= raw <= spec.maximum or not (-0x8000 if spec.signed else 0) <= raw <= 0xFFFF:
+        raise C20SimError(f"{where}: {text} is outside {low} to {high}")
+    if not math.isclose(raw * spec.scale, number, rel_tol=1e-9, abs_tol=1e-9):
+        step = f"{spec.scale:g} {spec.unit}".rstrip()
+        raise C20SimError(
+            f"{where}: {text} is not a whole number of its steps of {step}; the nearest is {_amount(spec, raw)}"
+        )
     return raw & 0xFFFF
+
+
+def _amount(spec: RegisterSpec, raw: int) -> str:
+    """A raw value as a number in the register's units, with its name where it has one: ``8 (jog stop)``."""
+    if spec.hex_display:
+        text = f"0x{raw & 0xFFFF:04X}"
+    else:
+        decimals = max(0, len(f"{spec.scale:g}".partition(".")[2]))
+        text = f"{raw * spec.scale:.{decimals}f} {spec.unit}".rstrip()
+    name = spec.values.get(raw & 0xFFFF)
+    return f"{text} ({name})" if name else text
 
 
 # --- The links: one RTU frame out, one back, over whatever carries them.
@@ -552,7 +550,7 @@ class Master:
             reply = self.link.receive(self.timeout)
             t = self.clock.now()
         if not reply:
-            raise DriveSilent(f"no reply to {what} within {self.timeout:g} s")
+            raise NoReply(f"no reply to {what} within {self.timeout:g} s")
         if not crc_ok(reply):
             self._record(t, "tx", reply, None, request)
             raise DriveSilent(f"a broken reply (bad CRC) to {what}: {reply.hex(' ').upper()}")
@@ -805,11 +803,11 @@ def cmd_exercise(args: argparse.Namespace) -> int:
     elif action == "read":
         if not args.words:
             raise C20SimError("read what? give register names, such as: read speed status fault")
-        specs = [register_of(word, registers) for word in args.words]
+        specs = [register_of(word, registers, f"the profile {profile.name}") for word in args.words]
     elif action == "write":
         if len(args.words) != 2:
             raise C20SimError("write needs a register and a value, such as: write setpoint 1500")
-        spec = register_of(args.words[0], registers)
+        spec = register_of(args.words[0], registers, f"the profile {profile.name}")
         if not spec.access.writable:
             raise C20SimError(f"{spec.label} {spec.name} is read-only")
         value = parse_value(spec, args.words[1])
@@ -821,13 +819,16 @@ def cmd_exercise(args: argparse.Namespace) -> int:
         raise C20SimError(f"--hold {args.hold:g}: give seconds, from 0 to 86400 (a day)")
     if not 0 < args.timeout <= 60:
         raise C20SimError(f"--timeout {args.timeout:g}: give seconds, above 0 and at most 60")
+    if not 1 <= args.address <= 247:
+        raise C20SimError(f"--address {args.address}: give the drive's address, 1-247 (2008H)")
+    speeds = _speeds(args.speeds, profile.motor.rated_speed_rpm) if action is None else []
     baud = args.baud or BAUD_RATES[min(profile.default(Reg.BAUD), len(BAUD_RATES) - 1)]
     link = open_link(args.port, baud, args.parity, args.stopbits)
     try:
         if action == "read":
             master = Master(link, registers, args.address, timeout=args.timeout)
-            for spec in specs:
-                raw = master.read(spec.address)
+            for index, spec in enumerate(specs):
+                raw = _first(master.read, spec.address, args, baud) if index == 0 else master.read(spec.address)
                 print(f"{spec.label} {spec.name}: {spec.describe(raw)}")
             return 0
         if action == "write":
@@ -837,14 +838,42 @@ def cmd_exercise(args: argparse.Namespace) -> int:
                 print(f"writing a function code, kept in the drive's EEPROM: {words}")
             else:
                 print(f"writing {words}")
-            master.write(spec.address, value)
+            _first(master.write, spec.address, args, baud, value)
             return 0
-        return _run(args, link, registers, profile.motor.rated_speed_rpm)
+        return _run(args, link, registers, speeds, profile.motor.rated_speed_rpm)
     finally:
         link.close()
 
 
-def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: float) -> int:
+def _first(act: Callable[..., T], address: int, args: argparse.Namespace, baud: int, *more: int) -> T:
+    """The first exchange with the drive: silence there is the address's or the link's, not the action's."""
+    try:
+        return act(address, *more)
+    except NoReply:
+        serial = "" if args.port.startswith(("tcp://", "modbus-tcp://")) else f", {baud} baud {args.parity}"
+        raise C20SimError(
+            f"{args.port}: no drive answered at address {args.address} within {args.timeout:g} s; check --address "
+            f"(the drive's 2008H, 1 as shipped) and the link (the port{serial})"
+        ) from None
+
+
+def _speeds(text: str | None, rated: float) -> list[float]:
+    """--speeds: rpm, each above 0 and at most the rated speed; one line for anything else."""
+    if text is None:
+        return [rated * f for f in (0.3, 0.6, 0.9, 0.5)]
+    out = []
+    for word in text.split(","):
+        try:
+            speed = float(word)
+        except ValueError:
+            raise C20SimError(f"--speeds {text}: {word.strip()!r} is not a number; give rpm such as 900,1800") from None
+        if not (math.isfinite(speed) and 0 < speed <= rated):
+            raise C20SimError(f"--speeds {text}: each speed above 0 and at most {rated:g} rpm (the profile's rated)")
+        out.append(speed)
+    return out
+
+
+def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, speeds: list[float], rated: float) -> int:
     try:
         out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the stop
     except OSError as exc:
@@ -855,13 +884,6 @@ def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: fl
         settings = check_ready(master)
         accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
         decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
-        speeds = (
-            [float(s) for s in args.speeds.split(",")] if args.speeds else [rated * f for f in (0.3, 0.6, 0.9, 0.5)]
-        )
-        if any(not 0 < s <= rated for s in speeds):
-            raise C20SimError(
-                f"--speeds {args.speeds}: each speed above 0 and at most {rated:g} rpm (the profile's rated)"
-            )
         steps = programme(speeds, args.hold, accel, decel, rated, args.load_change)
         total = sum(s.hold for s in steps)
         print(
@@ -924,4 +946,24 @@ def add_exercise_command(sub: argparse._SubParsersAction[argparse.ArgumentParser
         "--speeds", metavar="LIST", help="speeds to step through, rpm (default 30,60,90,50 %% of rated)"
     )
     parser.add_argument("--load-change", action="store_true", help="ask for a load change by hand, and hold with it")
-    parser.set_defaults(func=cmd_exercise)
+    parser.set_defaults(func=cmd_exercise, trailing_words=_trailing_words)
+
+
+def _trailing_words(args: argparse.Namespace, extras: list[str]) -> list[str]:
+    """``exercise PORT --address 7 read speed``: argparse leaves the words after an option over; take them as the
+    action and its words. Options among them stay over, for argparse's one-line error."""
+    if any(word.startswith("-") and not _is_number(word) for word in extras):
+        return extras
+    words = list(extras)
+    if args.action is None:
+        args.action = words.pop(0)
+    args.words = [*args.words, *words]
+    return []
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True

@@ -24,7 +24,10 @@ the RTU frame on the line beside it.
 A Modbus TCP master pointed at the RTU-over-TCP port by mistake sends MBAP
 frames: the port answers nothing, as a serial device server in front of a
 drive would, but says once (the server's log, so stderr, and the simulator's
-notices, which the dashboard shows) where Modbus TCP is served.
+notices, which the dashboard shows) where Modbus TCP is served. The opposite
+mistake, an RTU master at the Modbus TCP port, sends no MBAP header: the
+connection is closed, as a gateway would, and the simulator says once where
+RTU over TCP is served.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from typing import Any, cast
 
 from ..core.bus import Direction, FrameRecord, RecordKind, Reply
 from ..wire.errors import C20SimError
-from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, mbap_adus, with_crc
+from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, expected_length, mbap_adus, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
@@ -308,6 +311,9 @@ class _MbapConnection(_Connection):
             transaction, protocol, length, unit = struct.unpack_from(">HHHB", buf)
             if protocol != 0 or not 2 <= length <= 254:
                 log.info("modbus tcp: bad MBAP header %s; closing the connection", bytes(buf[:7]).hex(" "))
+                size = expected_length(bytes(buf), "request")
+                if size is not None and len(buf) >= size and crc_ok(bytes(buf[:size])):
+                    self._gateway.rtu_seen(bytes(buf))  # an RTU master at the Modbus TCP port: said once
                 self.close()
                 return
             if len(buf) < 6 + length:
@@ -388,6 +394,34 @@ class ModbusTcpServer(_TcpServer):
     def __init__(self, line: Line, host: str, port: int, *, timeout: float = 0.5) -> None:
         super().__init__(line, host, port)
         self.timeout = timeout
+        #: where RTU over TCP is served (HOST:PORT), or None: for the word to an RTU master that came here
+        self.rtu_tcp: Callable[[], str | None] = lambda: None
 
     def _connection(self) -> _Connection:
         return _MbapConnection(self)
+
+    def rtu_seen(self, data: bytes) -> None:
+        """An RTU frame (with its CRC) arrived here, as from a master that speaks RTU over TCP: the connection is
+        closed (it is no Modbus TCP), the frame logged, and the mistake said once, as the opposite one is."""
+        sim = self.line.sim
+        sim.bus.noise += 1
+        sim.bus.record(
+            FrameRecord(
+                asyncio.get_running_loop().time(),
+                Direction.RX,
+                data,
+                RecordKind.NOISE,
+                None,
+                "an RTU frame (with its CRC) on the Modbus TCP port: not answered, the connection closed",
+                model_t=sim.now(),
+            )
+        )
+        where = self.rtu_tcp()
+        use = (
+            f"use --tcp (RTU over TCP, open on {where})"
+            if where
+            else "use --tcp HOST:PORT (RTU over TCP, not open now)"
+        )
+        text = f"Modbus TCP {self.name}: this looks like Modbus RTU over TCP: {use}"
+        if sim.notice(text):
+            log.warning("c20sim: %s; this port answers Modbus TCP (MBAP) frames only, as a gateway would", text)

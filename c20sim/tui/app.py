@@ -92,9 +92,9 @@ endpoints in the top line; the drive answers there while you watch it here.
 |---|---|
 | `F2` | frame log: `space` pause, `a` drive, `n` function, `e` errors only, `w` save, `Del` clear |
 | `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
-| `F4` | device faults: one key each, the cause switched on or off; `z` clears all |
+| `F4` | device faults: one key each, the cause switched on or off (a letter: a physical cause, the drive trips by its model; a digit: a fault held on, the model has no physics for it); RESET (`x`, or a master's 2000H = 7) clears a fault once its cause is off; `z` clears all |
 | `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
-| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code) |
+| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code); `/` finds one by any name (speed, motor speed, 3006H, 12294, F00.10) |
 | `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |

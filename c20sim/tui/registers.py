@@ -3,7 +3,9 @@
 Grouped as the sheet groups them, each with its value in words, its access
 class and whether it is locked now (W/R* while running). Enter on a row edits
 it by a master's rules: a refusal shows the exception code a master would
-get. The traffic counters of the drive sit above the table. Everything comes
+get. ``/`` finds a register by any name of the one vocabulary (``speed``,
+``motor speed``, ``3006H``, ``0x3006``, ``12294``, ``F00.10``), with a
+did-you-mean for a misspelt one. The traffic counters of the drive sit above the table. Everything comes
 through the :class:`~c20sim.tui.workbench.Workbench`, as the other panels.
 """
 
@@ -19,6 +21,7 @@ from textual.containers import Horizontal, Vertical
 from textual.reactive import reactive
 from textual.widgets import DataTable, Input, Label, Static
 
+from ..wire.registers import UnknownRegister, address_label, resolve_register
 from .messages import ConditionsChanged
 from .workbench import Workbench
 
@@ -68,9 +71,17 @@ class RegistersPanel(Vertical, can_focus=False):
     RegistersPanel #reg-editor.-editing { display: block; }
     RegistersPanel #reg-editor Label { padding: 0 1 0 0; }
     RegistersPanel #reg-editor Input { width: 12; }
+    RegistersPanel #reg-finder { height: 1; display: none; }
+    RegistersPanel #reg-finder.-finding { display: block; }
+    RegistersPanel #reg-finder Label { padding: 0 1 0 0; }
+    RegistersPanel #reg-finder Input { width: 24; }
     """
 
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "Cancel edit", show=False)]
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("escape", "cancel", "Cancel edit", show=False),
+        # not in the footer: at 80 columns it would push q Quit off (the help, ?, lists it)
+        Binding("slash", "find", "Find register", show=False),
+    ]
 
     #: the drive shown (the dashboard pushes it down)
     selected = reactive(0)
@@ -89,6 +100,10 @@ class RegistersPanel(Vertical, can_focus=False):
             yield Label("", id="reg-edit-label")
             yield Input(id="reg-edit", type="integer", compact=True)
             yield Label("Enter writes by a master's rules · Escape cancels", classes="hint")
+        with Horizontal(id="reg-finder"):
+            yield Label("find register:")
+            yield Input(id="reg-find", placeholder="speed, 3006H, F00.10", compact=True)
+            yield Label("Enter goes to it · Escape cancels", classes="hint")
 
     def on_mount(self) -> None:
         table = self.query_one(DataTable)
@@ -166,7 +181,36 @@ class RegistersPanel(Vertical, can_focus=False):
         self.action_cancel()
         self.post_message(ConditionsChanged(f"drive {self.selected}: {register} = {value}"))
 
+    def action_find(self) -> None:
+        """Open the finder: a register by any name of the vocabulary."""
+        field = self.query_one("#reg-find", Input)
+        field.value = ""
+        self.query_one("#reg-finder").add_class("-finding")
+        self.call_after_refresh(field.focus)
+
+    @on(Input.Submitted, "#reg-find")
+    def _find(self, event: Input.Submitted) -> None:
+        event.stop()
+        found = self.find(event.value)
+        if found is not None:
+            self.action_cancel()
+            table = self.query_one(DataTable)
+            table.move_cursor(row=self._rows.index(found))
+
+    def find(self, text: str) -> str | None:
+        """The row key of the register ``text`` names, or None after saying (one line) why there is none."""
+        try:
+            label = address_label(resolve_register(text))
+        except UnknownRegister as exc:
+            self.notify(str(exc), severity="error", timeout=8)
+            return None
+        if label not in self._shown:
+            self.notify(f"register {text!r}: drive {self.selected} has no register {label}", severity="error")
+            return None
+        return label
+
     def action_cancel(self) -> None:
         self._editing = None
         self.query_one("#reg-editor").remove_class("-editing")
+        self.query_one("#reg-finder").remove_class("-finding")
         self.query_one(DataTable).focus()

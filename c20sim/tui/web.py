@@ -8,6 +8,9 @@ are dashboards attached at once; closing a tab ends only its dashboard. The
 control API's token reaches them in the environment
 (``C20SIM_CONTROL_TOKEN``), never on a command line.
 
+Until its dashboard's first byte the page says that it is starting (:data:`SPLASH`): a headless screenshot
+taken at page load shows that, never a blank page.
+
 The page is a dashboard with every switch: beyond loopback it asks for a
 token (``--web-token``, or generated), given once as ``?token=`` in the URL
 and kept in a cookie for the page's WebSocket; the ready line prints the URL
@@ -34,6 +37,14 @@ from .session import check_attach_options, served
 __all__ = ["run_web"]
 
 COOKIE = "c20sim_web_token"
+
+#: What the page shows until its dashboard's first byte: each tab starts a dashboard process of its own, which
+#: takes a second or two, so the page's first paint cannot be the dashboard. A screenshot taken at page load
+#: (``chromium --headless --screenshot``, which does not wait for the page's WebSocket) shows this, and says so.
+SPLASH = (
+    "c20sim: the dashboard of this page is starting (a second or two). A screenshot taken as the page loads shows "
+    "only this: take it once the dashboard shows (docs/dashboard.md)."
+)
 
 
 def dashboard_command(url: str) -> str:
@@ -73,7 +84,7 @@ async def _serve_web(host: str, port: int, control: str, web_token: str | None) 
     from aiohttp import web
     from textual_serve.server import Server
 
-    server = Server(dashboard_command(control), host=host, port=port, title="c20sim")
+    server = Server(dashboard_command(control), host=host, port=port, title=SPLASH)
 
     @web.middleware
     async def guard(request: web.Request, handler: Any) -> web.StreamResponse:

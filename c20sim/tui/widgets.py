@@ -601,7 +601,8 @@ class DeviceFaultsPanel(_SwitchPanel):
 
     def on_mount(self) -> None:
         self.query_one("#dev-hint", Static).update(
-            "A key switches a cause on or off, then RESET (x); digits latch faults without a cause."
+            "Each key switches a cause on or off; a digit holds a fault on (no physics).\n"
+            "RESET (x, or a master's 2000H = 7) clears a fault once its cause is off."
         )
 
     def toggle(self, key: str) -> None:

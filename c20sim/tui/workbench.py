@@ -301,7 +301,7 @@ class Workbench:
         if key == "reset":
             if state != "fault":
                 return "RESET: no fault to reset"
-            return "RESET refused: the fault's cause is still present"
+            return f"RESET refused: {self.holding(address)}"
         channel = tel.run_channel
         return (
             f"{key.upper()} refused: run commands come from the "
@@ -413,6 +413,17 @@ class Workbench:
         if key in self._latched_cause:
             return self._latched_cause[key]
         raise KeyError(key)
+
+    def holding(self, address: int) -> str:
+        """What keeps the drive's fault from a reset, in words, with the F4 key that ends it."""
+        active = self.ops.causes(address)
+        for key, (code, name) in self.forced.items():
+            if active.get(self._latched_cause[key]):
+                return f"{name} (0x{code:02X}) is held on by F4 key {key}; press {key} to release it, then reset"
+        for switch in self.device_switches:
+            if active.get(CAUSE_OF_KEY.get(switch.key, "")):
+                return f"its cause, {CAUSE_OF_KEY[switch.key]}, is still present; press {switch.key} (F4) to end it"
+        return "the fault's cause is still present"
 
     def device_fault_active(self, address: int, key: str) -> bool:
         """Whether the cause behind switch ``key`` is there now, whoever brought it about."""

@@ -76,7 +76,7 @@ async def test_bad_bodies_and_fields(client: Callable[[Simulator], Awaitable[Api
     )
     assert await api("GET", "/drives/1/registers/F00.50") == (
         400,
-        {"error": "register 'F00.50': the profile c20-400hr has no register 0032H"},
+        {"error": "register 'F00.50': the profile c20-400hr has no register F00.50"},
     )
     assert await api("PATCH", "/link", {"forced_exception": 9}) == (
         400,

@@ -125,7 +125,9 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "fault", "16", "--persistent", "--format", "json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["fault_name"].startswith("OH2")
-    result = ctl(ready, "read", "fault_code")
+    result = ctl(ready, "read", "fault_code")  # one line, the fault by its name
+    assert (result.returncode, result.stdout) == (0, "2102H fault code: OH2: power module overheat\n")
+    result = ctl(ready, "read", "fault", "--format", "json")
     assert json.loads(result.stdout)["raw"] == 16
     result = ctl(ready, "advance", "1.5", "--format", "json")
     assert json.loads(result.stdout) == {"t": 1.5}

@@ -143,11 +143,34 @@ def test_the_command_writes_profile_report_and_plots(
     out, report = tmp_path / "mydrive.toml", tmp_path / "report"
     assert main(["fit", str(capture_file), "--out", str(out), "--report", str(report)]) == 0
     printed = capsys.readouterr().out
-    assert "thermal.time_constant_s" in printed and "not identifiable from this capture" in printed
-    assert f"wrote {out} (mydrive)" in printed
-    assert load_profile(str(out)).name == "mydrive"
+    lines = printed.splitlines()
+    assert lines[0].startswith(f"fit {capture_file} to c20-400hr: drive 1, ")
+    # the profile the command wrote is the drive on the bench, each parameter within what the fit promises
+    written = load_profile(str(out))
+    assert written.name == "mydrive"
+    base = load_profile()
+    for name, (true, tolerance) in TRUE.items():
+        section, key = name.split(".")
+        value = getattr(getattr(written, section), key)
+        assert value == pytest.approx(true, rel=tolerance), name
+        shown = next(line for line in lines if line.split()[:1] == [name])  # the printed line says the same
+        assert float(shown.split()[1]) == pytest.approx(value, rel=1e-5), shown
+        assert shown.endswith(f"(base {getattr(getattr(base, section), key):g})"), shown
+    assert written.protocol.turnaround_ms == pytest.approx(TURNAROUND_MS, abs=0.01)
+    assert written.thermal == base.thermal  # not identifiable: kept, and said so
+    for name in ("thermal.time_constant_s", "thermal.resistance_k_per_w"):
+        shown = next(line for line in lines if line.split()[:1] == [name])
+        assert "not identifiable from this capture: the temperature moved 0." in shown, shown
+    load = next(line for line in lines if line.startswith("  the load applied by hand: "))
+    assert float(load.split(": ")[1].split()[0]) == pytest.approx(0.4, rel=0.05)
+    assert f"wrote {out} (mydrive); compare: c20sim replay {capture_file} --profile {out}" in lines
+    matched = next(line for line in lines if line.startswith(f"replay against {out}: "))
+    same, total = (int(n) for n in matched.split(": ")[1].split(" replies")[0].split(" of "))
+    assert total > 400 and same > total * 0.7, matched  # the fitted model answers most reads byte for byte
     words = (report / "report.md").read_text()
-    assert "motor.kt_nm_per_a" in words and "![current](current.png)" in words
+    table = printed.split(f"wrote {out}")[0]
+    assert f"```\n{table}```" in words  # the report keeps the table the command printed
+    assert "![current](current.png)" in words
     for name in ("current", "speed", "output-voltage", "bus-voltage", "temperature", "ramp-frequency"):
         png = (report / f"{name}.png").read_bytes()
         assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000

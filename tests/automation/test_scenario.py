@@ -46,7 +46,7 @@ def test_undervoltage_report_from_the_command_line() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
     lines = result.stdout.splitlines()
     assert lines[0] == f"scenario undervoltage trip and recovery ({SCENARIOS / 'undervoltage.toml'})"
-    assert "  ok   step 4 (at 2.1 s): 2102H (fault code) = 10 (0x000A), expected 10" in lines
+    assert "  ok   step 4 (at 2.1 s): 2102H (fault code) = 10 (UV: bus undervoltage), expected 10" in lines
     assert lines[-1] == "passed: 16 check(s)"
 
 
@@ -133,8 +133,8 @@ def test_a_refused_keypad_press_fails() -> None:
         ),
         (
             {"at": 1, "expect": {"statu1": 4}},
-            "s.toml: step 1 (at 1 s), key 'expect': register 'statu1': give an address such as 2100H or 0x2100, "
-            "a function code such as F00.10, or a name such as status1",
+            "s.toml: step 1 (at 1 s), key 'expect': unknown register 'statu1'; did you mean 'status1'? (give a name "
+            "such as speed or status, an address such as 3006H, 0x3006 or 12294, or a function code such as F00.10)",
         ),
         (
             {"at": 1, "link": {"offline": "yes"}},
@@ -148,6 +148,15 @@ def test_a_refused_keypad_press_fails() -> None:
         (
             {"at": 1, "fault": 0},
             "s.toml: step 1 (at 1 s), key 'fault': code: 0 is outside 1-255",
+        ),
+        (
+            {"at": 1, "write": {"sped": 5}},
+            "s.toml: step 1 (at 1 s), key 'write': unknown register 'sped'; did you mean 'speed'? (give a name such "
+            "as speed or status, an address such as 3006H, 0x3006 or 12294, or a function code such as F00.10)",
+        ),
+        (
+            {"at": 1, "write": {"F00": {"10": 5000}}},  # TOML read F00.10 = 5000 unquoted as a table
+            "s.toml: step 1 (at 1 s), key 'write': F00: unknown key '10'; quote a function code, as \"F00.10\" = N",
         ),
         (
             {"at": 1, "expect": {"F00": {"10": 5000}}},  # TOML read F00.10 = 5000 unquoted as a table
@@ -192,7 +201,7 @@ def test_bad_files(tmp_path: Path) -> None:
     result = c20sim("run-scenario", str(path))
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
-        f"c20sim: {path}: step 1 (at 0 s), key 'expect': F09.99: the profile c20-400hr has no register F09.99\n"
+        f"c20sim: {path}: step 1 (at 0 s), key 'expect': register 'F09.99': the profile c20-400hr has no register F09.99\n"
     )
     path = write(tmp_path, "[[step]]\nat = 0\n[[step]]\nat = inf\nexpect = { status1 = 1 }\n")
     result = c20sim("run-scenario", str(path))
@@ -261,7 +270,7 @@ def test_serve_plays_a_scenario_in_virtual_time(tmp_path: Path) -> None:
         assert lines[0].startswith("c20sim ready: c20-400hr, drives 1, virtual clock; tcp 127.0.0.1:")
         assert lines[-1] == "scenario communication timeout: passed\n"
         assert (
-            "scenario communication timeout: ok   step 4 (at 2.5 s): 2102H (fault code) = 18 (0x0012), expected 18\n"
+            "scenario communication timeout: ok   step 4 (at 2.5 s): 2102H (fault code) = 18 (CE: RS485 communication fault (timeout)), expected 18\n"
             in lines
         )
         from c20sim.control.ctl import call

@@ -157,6 +157,54 @@ async def test_a_cyclic_function_code_writer(bench: Bench, tmp_path: Path, capsy
     assert offline["value"] == pytest.approx(finding.value, rel=0.01)
 
 
+async def write_many(client: Client, start: int, values: list[int], slave: int = 1) -> bool:
+    """A 0x10 write (Write Multiple Registers), as many PLC masters send even one register."""
+    return not (await client.write_registers(start, values, device_id=slave)).isError()
+
+
+async def test_a_cyclic_function_code_writer_with_0x10(
+    bench: Bench, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The audit follows function-code writes sent with 0x10 as it follows 0x06: F00.10 alone, every 50 ms."""
+    client = await bench.client()
+    try:
+        assert await write_many(client, Reg.WRITE_ENABLE, [1])
+        for i in range(10):
+            assert await write_many(client, F00_10, [2000 + i])
+            await asyncio.sleep(0.05)
+        assert await write_many(client, Reg.WRITE_ENABLE, [0])
+    finally:
+        client.close()
+    finding = exactly(await bench.until("eeprom-wear"), "eeprom-wear")
+    assert (finding.severity, finding.subject) == (Severity.ERROR, "F00.10")
+    assert 36_000 < finding.value < 80_000
+    assert (
+        finding.figure.startswith("F00.10 stored ")
+        and " (10 writes): rated 100,000 writes reached in " in finding.figure
+    )
+    offline = offline_exactly(bench.offline(tmp_path / "log.jsonl", capsys), "eeprom-wear")
+    assert (offline["subject"], offline["value"]) == ("F00.10", pytest.approx(finding.value, rel=0.01))
+
+
+async def test_a_0x10_block_whose_second_register_is_kept_in_eeprom(
+    bench: Bench, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """2001H (RAM) and 2002H (pole pairs, the EEPROM cell of F02.00) in one 0x10, every 50 ms: the wear is the
+    second register's, which a 0x10 carries as surely as a 0x06 would."""
+    client = await bench.client()
+    try:
+        for i in range(10):
+            assert await write_many(client, Reg.SPEED_SETPOINT, [1000 + i, 4])
+            await asyncio.sleep(0.05)
+    finally:
+        client.close()
+    finding = exactly(await bench.until("eeprom-wear"), "eeprom-wear")
+    assert (finding.severity, finding.subject) == (Severity.ERROR, "2002H")
+    assert "the same value each time; 10 writes" in finding.figure
+    offline = offline_exactly(bench.offline(tmp_path / "log.jsonl", capsys), "eeprom-wear")
+    assert (offline["subject"], offline["value"]) == ("2002H", pytest.approx(finding.value, rel=0.01))
+
+
 async def test_a_slow_poller_near_the_watchdog(
     bench: Bench, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -53,7 +53,7 @@ def test_read_and_write_by_name_in_units_on_every_transport(served: dict[str, st
         assert result.stdout.splitlines() == [
             "3008H DC bus voltage: 48.0 V",
             "2100H status word 1: stopped",
-            "2102H fault code: 0x0000",
+            "2102H fault code: no fault",
             "2103H drive ID: 0x0020",
         ]
     result = exercise(served["pty"], "write", "setpoint", "1234")
@@ -72,7 +72,16 @@ def test_read_and_write_by_name_in_units_on_every_transport(served: dict[str, st
 @pytest.mark.parametrize(
     ("words", "message"),
     [
-        (["read", "torque"], "c20sim: no register 'torque'; give a name"),
+        (
+            ["read", "torque"],
+            "c20sim: unknown register 'torque' (give a name such as speed or status, an address such as 3006H, "
+            "0x3006 or 12294, or a function code such as F00.10)\n",
+        ),
+        (
+            ["read", "sped"],
+            "c20sim: unknown register 'sped'; did you mean 'speed'? (give a name such as speed or status, an address "
+            "such as 3006H, 0x3006 or 12294, or a function code such as F00.10)\n",
+        ),
         (["write", "setpoint", "fast"], "c20sim: 2001H communication speed setting: 'fast' is not a number"),
         (["write", "setpoint", "4000"], "c20sim: 2001H communication speed setting: 4000 is outside 0 rpm to 3000 rpm"),
         (["write", "speed", "10"], "c20sim: 3006H motor speed is read-only"),

@@ -24,6 +24,7 @@ import urllib.request
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -149,7 +150,9 @@ def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, started: l
 
 @pytest.mark.parametrize("line", lines_starting("c20sim serve"))
 def test_every_serve_line_of_the_readme_serves(line: str, place: Place, started: list[subprocess.Popen[str]]) -> None:
-    """Each ``c20sim serve`` line of the README starts and stops cleanly (a serial port that is not here: one line)."""
+    """Each ``c20sim serve`` line of the README opens what it names, and only that (the ready file), each endpoint
+    answers a master for each drive, the clock is the one asked for (a virtual one moved by ``ctl advance`` as the
+    README says), and it stops cleanly with nothing on stderr (a serial port that is not here: one line)."""
     words = shlex.split(place.local(line), comments=True)
     assert words[:2] == ["c20sim", "serve"]
     if "--serial" in words and not os.path.exists(words[words.index("--serial") + 1]):
@@ -165,12 +168,59 @@ def test_every_serve_line_of_the_readme_serves(line: str, place: Place, started:
     )
     started.append(proc)
     info = wait_for_ready_file(ready, proc)
-    assert info, line
+    asked = {"pty": "--pty" in words, "tcp": "--tcp" in words, "modbus_tcp": "--modbus-tcp" in words}
+    asked["control"] = "--control" in words
+    assert {key for key in info if key != "token"} == {key for key, on in asked.items() if on}, (line, info)
+    drives = [int(d) for d in words[words.index("--drives") + 1].split(",")] if "--drives" in words else [1]
+    for drive in drives:  # every endpoint the line opens answers a master, for every drive it serves
+        for key in ("pty", "tcp", "modbus_tcp"):
+            if key in info:
+                assert status_over(key, info[key], drive) == 3, (line, key, drive)  # stopped
+    clock = words[words.index("--clock") + 1] if "--clock" in words else "realtime"
+    if "control" in info:
+        time_before = get_json(info["control"] + "/time")
+        assert time_before["clock"] == clock
+        if clock == "virtual":  # the README's way to move it
+            done = subprocess.run(
+                [sys.executable, "-m", "c20sim", "ctl", "--ready-file", str(ready), "advance", "1"],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert done.returncode == 0, done.stderr
+            assert get_json(info["control"] + "/time")["t"] == pytest.approx(time_before["t"] + 1.0)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=20)
     assert (proc.returncode, err) == (0, ""), line
-    assert out.startswith("c20sim ready: ")
+    assert out.startswith(f"c20sim ready: c20-400hr, drives {','.join(map(str, drives))}, {clock} clock; "), out
     assert not ready.exists()
+
+
+def get_json(url: str) -> dict[str, Any]:
+    with urllib.request.urlopen(url, timeout=10) as response:
+        data: dict[str, Any] = json.load(response)
+    return data
+
+
+def status_over(kind: str, where: str, drive: int) -> int:
+    """2100H (status word 1) of ``drive``, read by pymodbus over the endpoint ``where`` of ``kind``."""
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+
+    client: ModbusSerialClient | ModbusTcpClient
+    if kind == "pty":
+        client = ModbusSerialClient(where, framer=FramerType.RTU, baudrate=19200, timeout=2, retries=0)
+    else:
+        host, port = where.rsplit(":", 1)
+        framer = FramerType.RTU if kind == "tcp" else FramerType.SOCKET
+        client = ModbusTcpClient(host, port=int(port), framer=framer, timeout=2, retries=0)
+    assert client.connect(), where
+    try:
+        response = client.read_holding_registers(0x2100, count=1, device_id=drive)
+        assert not response.isError(), response
+        return int(response.registers[0])
+    finally:
+        client.close()
 
 
 @pytest.mark.parametrize("line", [*lines_starting("c20sim decode"), *lines_starting("c20sim profiles")])

@@ -361,3 +361,61 @@ async def test_telemetry_left_when_the_screens_are_gone_is_dropped() -> None:
         assert not app.screen_stack
         app.on_telemetry_updated(TelemetryUpdated(app.bench.sample()))
         assert app.views  # taken; nothing shown, nothing raised
+
+
+async def test_register_view_finds_a_register_by_any_name_of_the_vocabulary(bench: Bench) -> None:
+    """F6, then /: a register by the name ctl, exercise and scenarios take; a misspelt one gets a did-you-mean."""
+    await bench.press("f6")
+    screen = bench.app.get_screen_main()
+    table = screen.query_one("#reg-table", DataTable)
+    finder = screen.query_one("#reg-find", Input)
+    for name, register in (("speed", "3006H"), ("motor speed", "3006H"), ("8193", "2001H"), ("F00.10", "F00.10")):
+        await bench.press("slash")
+        await until(lambda: finder.has_focus, "the finder, focused")
+        await bench.press(*["space" if c == " " else c for c in name], "enter")
+        await until(lambda: table.has_focus, "the table, focused again")
+        row = table.get_row_at(table.cursor_row)
+        assert str(row[0]) == register, name
+    await bench.press("slash")
+    await until(lambda: finder.has_focus, "the finder, focused")
+    await bench.press(*"sped", "enter")
+    errors = [str(n.message) for n in bench.app._notifications if n.severity == "error"]
+    assert errors[-1] == (
+        "unknown register 'sped'; did you mean 'speed'? (give a name such as speed or status, an address such as "
+        "3006H, 0x3006 or 12294, or a function code such as F00.10)"
+    )
+    assert str(table.get_row_at(table.cursor_row)[0]) == "F00.10"  # where it was
+    await bench.press("escape")
+    await until(lambda: table.has_focus, "the table, focused again")
+    assert await bench.read(0x3006) == 0
+    # the fault code's value in its name, as ctl and the frame log say it
+    assert str(table.get_cell("2102H", "value")) == "no fault"
+
+
+async def test_a_digit_holds_a_fault_on_and_a_masters_reset_clears_it_once_released(bench: Bench) -> None:
+    """F4: the screen says what a digit does, and a master's 2000H = 7 (over the wire) does what the screen says."""
+    await bench.press("f4")
+    hint = str(bench.app.get_screen_main().query_one("#dev-hint", Static).render())
+    assert hint == (  # two lines, each whole at 80 columns
+        "Each key switches a cause on or off; a digit holds a fault on (no physics).\n"
+        "RESET (x, or a master's 2000H = 7) clears a fault once its cause is off."
+    )
+    await bench.press("1")  # OUt1, held on
+    assert await bench.read(FAULT) == 0x01
+    await bench.write(0x2000, 7)  # a master's reset while the digit holds it on: the fault stays, as the hint says
+    assert await bench.read(FAULT) == 0x01
+    await bench.press("x")
+    said = [str(n.message) for n in bench.app._notifications if n.severity == "warning"]
+    assert said[-1] == "RESET refused: OUt1 (0x01) is held on by F4 key 1; press 1 to release it, then reset"
+    await bench.press("1")  # released: the fault stays until a reset
+    assert await bench.read(FAULT) == 0x01
+    await bench.write(0x2000, 7)  # the master's reset now clears it
+    assert await bench.read(FAULT) == 0
+    await bench.press("e", "t")  # a letter: the external fault terminal, the drive trips by its model
+    assert await bench.read(FAULT) == 0x11
+    await bench.press("x")
+    said = [str(n.message) for n in bench.app._notifications if n.severity == "warning"]
+    assert said[-1] == "RESET refused: its cause, external, is still present; press e (F4) to end it"
+    await bench.press("e", "t")
+    await bench.write(0x2000, 7)
+    assert await bench.read(FAULT) == 0

@@ -71,3 +71,31 @@ async def test_a_modbus_tcp_master_on_the_rtu_port_is_told_where_to_go_on_the_da
 
             await until(lambda: said in shown(), f"the notice on the dashboard; it shows {shown()}")
             assert shown().count(said) == 1
+
+
+async def test_an_rtu_master_on_the_modbus_tcp_port_is_told_where_to_go_on_the_dashboard() -> None:
+    from pymodbus import FramerType
+
+    with serving(modbus_tcp=True) as served:
+        assert served.server.endpoints.modbus_tcp is not None
+        where = served.server.endpoints.modbus_tcp.name
+        async with attached(served) as (app, _pilot):
+            for _ in range(2):
+                host, port = where.rsplit(":", 1)
+                master = AsyncModbusTcpClient(host, port=int(port), framer=FramerType.RTU, timeout=0.3, retries=0)
+                assert await master.connect()
+                try:
+                    with pytest.raises(Exception, match=r"Connection unexpectedly closed|No response received"):
+                        await master.read_holding_registers(0x2100, count=1, device_id=1)
+                finally:
+                    master.close()
+            said = (
+                f"Modbus TCP {where}: this looks like Modbus RTU over TCP: use --tcp (RTU over TCP, open on "
+                f"127.0.0.1:{served.port})"
+            )
+
+            def shown() -> list[str]:
+                return [str(n.message) for n in app._notifications if n.severity == "warning"]
+
+            await until(lambda: said in shown(), f"the notice on the dashboard; it shows {shown()}")
+            assert shown().count(said) == 1

@@ -276,3 +276,17 @@ def read_png(data: bytes) -> tuple[int, int, list[tuple[int, int, int]]]:
         pixels += [(line[i], line[i + 1], line[i + 2]) for i in range(0, stride, channels)]
         previous = line
     return width, height, pixels
+
+
+def test_the_page_says_that_its_dashboard_is_starting(web: Web) -> None:
+    """The first paint, before the dashboard process's first byte: what it is and that a screenshot at load
+    shows only it (a plain headless screenshot does)."""
+    from c20sim.tui.web import SPLASH
+
+    with urllib.request.urlopen(web.page, timeout=20) as response:
+        page = response.read().decode()
+    assert f"<div>{SPLASH}</div>" in page
+    assert SPLASH == (
+        "c20sim: the dashboard of this page is starting (a second or two). A screenshot taken as the page loads shows "
+        "only this: take it once the dashboard shows (docs/dashboard.md)."
+    )

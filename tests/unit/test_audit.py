@@ -6,6 +6,8 @@ read back as a frame log (t, dir, hex) give the same findings: live and offline 
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from c20sim.audit import RULES, Auditor, Finding, Limits, Severity
@@ -18,6 +20,7 @@ from c20sim.wire.protocol import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
+    WriteMultipleRequest,
     WriteSingleRequest,
     encode,
     transaction_time,
@@ -150,6 +153,35 @@ def test_a_cyclic_function_code_writer_wears_the_eeprom(master: Master) -> None:
     assert finding.figure == "F00.10 stored 28,800 times an hour (20 writes): rated 100,000 writes reached in 3.5 h"
     assert "800AH" in finding.advice
     assert "assumed" in finding.source
+
+
+def test_a_cyclic_0x10_writer_wears_the_eeprom_of_every_register_it_carries(master: Master) -> None:
+    """0x10 stores each of its registers as 0x06 would: 2001H (RAM) then 2002H and 2003H (EEPROM cells)."""
+    for i in range(20):
+        master.line.send(encode(WriteMultipleRequest(1, Reg.SPEED_SETPOINT, (1000 + i, 4, 30 + i % 2))), 0.125)
+    found = master.findings()
+    assert [(f.rule, f.severity, f.subject, f.figure) for f in found] == [
+        (
+            "eeprom-wear",
+            Severity.ERROR,
+            "2002H",
+            "2002H stored 28,800 times an hour (the same value each time; 20 writes): rated 100,000 writes reached "
+            "in 3.5 h",
+        ),
+        (
+            "eeprom-wear",
+            Severity.ERROR,
+            "2003H",
+            "2003H stored 28,800 times an hour (20 writes): rated 100,000 writes reached in 3.5 h",
+        ),
+    ]
+
+
+def test_a_speed_above_the_maximum_inside_a_0x10_block_is_seen(master: Master) -> None:
+    """2000H then 2001H in one 0x10: the speed reference is the block's second register."""
+    master.line.send(encode(WriteMultipleRequest(1, Reg.COMMAND, (1, 3000 + 500))), 0.1)
+    finding = only(master)
+    assert (finding.rule, finding.subject) == ("speed-above-max", "2001H")
 
 
 def test_writing_the_ram_only_address_is_no_wear(master: Master) -> None:
@@ -320,9 +352,23 @@ def test_events_give_new_and_grown_findings_once(profile: Profile) -> None:
         auditor.feed(k / 100, "rx", request)  # 100 a second: 135 %
         auditor.feed(k / 100 + 0.002, "tx", reply)
     events = auditor.events()
-    assert events and all(e.rule == "line-demand" for e in events)
+    assert [(e.rule, e.severity, e.count) for e in events] == [("line-demand", Severity.ERROR, 1)]  # new: once
+    assert events[0] == auditor.findings()[0]
+    assert auditor.events() == []  # asked again: nothing said twice
+    for k in range(200, 400):  # the same demand two seconds more: not grown, so no event
+        auditor.feed(k / 100, "rx", request)
+        auditor.feed(k / 100 + 0.002, "tx", reply)
     assert auditor.events() == []
-    assert events[-1] == auditor.findings()[0]
+    for k in range(400):  # the master speeds up to 200 a second: the finding grows
+        auditor.feed(4 + k / 200, "rx", request)
+        auditor.feed(4 + k / 200 + 0.002, "tx", reply)
+    grown = auditor.events()
+    assert len(grown) >= 10
+    assert [e.count for e in grown] == list(range(2, 2 + len(grown)))  # each growth said once, in order
+    peaks = [events[0].value] + [e.value for e in grown]
+    assert all(later > earlier + 0.5 for earlier, later in itertools.pairwise(peaks))  # each one grown
+    assert grown[-1] == auditor.findings()[0] and len(auditor.findings()) == 1
+    assert auditor.events() == []
 
 
 def test_the_line_demand_now_falls_to_0_when_the_master_is_quiet(profile: Profile) -> None:

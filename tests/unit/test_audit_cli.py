@@ -110,7 +110,9 @@ def test_files_it_cannot_read(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert main(["audit", str(tmp_path / "none.jsonl")]) == 2
     assert capsys.readouterr().err == f"c20sim: {tmp_path / 'none.jsonl'}: cannot read: No such file or directory\n"
     assert main(["audit", str(tmp_path)]) == 2
-    assert capsys.readouterr().err == f"c20sim: {tmp_path}: cannot read: Is a directory\n"
+    assert capsys.readouterr().err == (
+        f"c20sim: {tmp_path}: is a directory, not a regular file; give the frame log or capture as a file\n"
+    )
     (tmp_path / "empty.jsonl").write_text("")
     assert main(["audit", str(tmp_path / "empty.jsonl")]) == 2
     assert "no frames" in capsys.readouterr().err

@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+import itertools
+import json
+import signal
+import socket
+import struct
 import subprocess
 import sys
+import urllib.request
+from pathlib import Path
 
 import pytest
 
 from c20sim import cli
 from c20sim.cli import main
+from c20sim.drive.profile import load_profile
+from c20sim.wire.protocol import SHEET_CHAR_BITS, transaction_time
+from tests.conftest import wait_for_ready_file
+from tests.plugin.test_bus_timing_setting import mbap, receive
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
@@ -133,8 +144,43 @@ def test_a_mistyped_option_is_one_line_naming_the_command_and_what_was_meant(arg
     assert (result.returncode, result.stdout, result.stderr) == (2, "", said + "\n")
 
 
-def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to() -> None:
-    parser = cli.build_parser()
+def _four_at_once_at_1200_baud(tmp_path: Path, *options: str) -> list[float]:
+    """A served drive at 1200 baud, four reads sent in one segment by a Modbus TCP master: the frame log's times of
+    the four requests (from the control API), as ``c20sim serve`` with ``options`` put them on the line."""
+    tmp_path.mkdir()
+    ready = tmp_path / "ready.json"
+    argv = ["serve", "--modbus-tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--ready-file", str(ready), *options]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        info = wait_for_ready_file(ready, proc)
+        host, port = info["modbus_tcp"].rsplit(":", 1)
+        with socket.create_connection((host, int(port)), timeout=10) as sock:
+            sock.sendall(mbap(1, struct.pack(">BHH", 0x06, 0x2009, 0)))  # 1200 baud, after this reply
+            assert receive(sock, 12) == mbap(1, struct.pack(">BHH", 0x06, 0x2009, 0))
+            read = struct.pack(">BHH", 0x03, 0x2100, 1)
+            sock.sendall(b"".join(mbap(n, read) for n in range(2, 6)))
+            assert len(receive(sock, 44)) == 44
+        with urllib.request.urlopen(info["control"] + "/frames", timeout=10) as response:
+            frames = json.load(response)["frames"]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+    reads = [f for f in frames if f["dir"] == "rx" and f["kind"] == "request" and f["rtu"].startswith("01 03")]
+    assert len(reads) == 4
+    return [float(f["t"]) for f in reads]
+
+
+def test_serve_holds_the_line_for_its_rs485_time_unless_told_not_to(tmp_path: Path) -> None:
+    """Judged on the wire, on the serve's own loop (uvloop where installed): each of four requests in flight
+    starts on the line no earlier than the last transaction's end (its request, the drive's turnaround, its
+    reply, each frame with its t3.5), unless --no-bus-timing, when all four are served as they came."""
+    turnaround = load_profile().protocol.turnaround_ms / 1000
+    line_time = transaction_time(8, 7, 1200, SHEET_CHAR_BITS, turnaround)  # about 185 ms
+    held = _four_at_once_at_1200_baud(tmp_path / "on")
+    assert all(later - earlier >= line_time for earlier, later in itertools.pairwise(held)), held
+    free = _four_at_once_at_1200_baud(tmp_path / "off", "--no-bus-timing")
+    assert free[-1] - free[0] < line_time, free
+    parser = cli.build_parser()  # and the option is what serve's options say
     assert cli.serve_options(parser.parse_args(["serve", "--tcp", "127.0.0.1:0"])).bus_timing is True
-    off = parser.parse_args(["serve", "--tcp", "127.0.0.1:0", "--no-bus-timing"])
-    assert cli.serve_options(off).bus_timing is False

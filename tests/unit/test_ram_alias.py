@@ -56,9 +56,29 @@ def saved(state: Path) -> dict[str, int]:
     return parameters
 
 
-def test_the_shipped_profiles_have_the_alias() -> None:
-    for name in ("c20-400hr", "c20-2200hv"):
-        assert load_profile(name).protocol.ram_only_alias is True
+@pytest.mark.parametrize("name", ["c20-400hr", "c20-2200hv"])
+def test_the_shipped_profiles_have_the_alias(name: str, tmp_path: Path) -> None:
+    """Each shipped profile's drive takes every function code at its RAM-only address: in effect, not saved."""
+    profile = load_profile(name)
+    assert profile.protocol.ram_only_alias is True
+    slave, drive, state = served(profile, tmp_path)
+    before = state.read_bytes()
+    taken = 0
+    for spec in profile.registers.parameters():
+        if not spec.access.writable or spec.address == profile.password_address:
+            continue
+        value = spec.minimum if profile.defaults[spec.address] != spec.minimum else spec.minimum + 1
+        alias = spec.address | 0x8000
+        assert slave.handle(WriteSingleRequest(1, alias, value), 0.1) == WriteSingleResponse(1, alias, value), (
+            spec.label
+        )
+        assert drive.parameters.get(spec.address) == value, spec.label  # in effect
+        taken += 1
+    assert taken >= 20
+    assert state.read_bytes() == before  # nothing saved
+    drive.power_cycle()
+    for spec in profile.registers.parameters():
+        assert drive.parameters.get(spec.address) == profile.defaults[spec.address], spec.label  # the EEPROM's
 
 
 def test_a_write_at_the_alias_acts_in_ram_and_is_not_saved(profile: Profile, tmp_path: Path) -> None:
