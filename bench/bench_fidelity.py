@@ -14,6 +14,7 @@ import itertools
 import math
 from collections.abc import Callable
 
+from c20sim.drive.integrator import STALL_SLEW_SHARE
 from c20sim.drive.model import (
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
@@ -25,6 +26,7 @@ from c20sim.drive.model import (
 )
 from c20sim.drive.physics import HALL_SEQUENCE, RPM
 from c20sim.drive.profile import Profile, available_profiles, load_profile
+from c20sim.drive.statemachine import State
 from c20sim.wire.registers import Reg
 
 Row = tuple[str, str, str]
@@ -94,6 +96,42 @@ def stall_prevention(profile: Profile) -> list[Row]:
                 )
             )
     return rows
+
+
+def stall_regulator(profile: Profile) -> list[Row]:
+    """A heavy stop (170x the rotor, 0.1 s asked) polled every 1 ms: how long, and how smooth 3004H is."""
+    inertia = 170 * profile.motor.inertia_kg_m2
+    drive = run(profile, 3000, inertia=inertia, t=0.0)
+    until(drive, lambda d: d.read(Reg.MOTOR_SPEED) == 3000, 30.0)
+    drive.write(cell(profile, Reg.DECEL_TIME), 1)
+    drive.write(Reg.COMMAND, 5)
+    began, jump = drive.t, 0
+    last: int | None = None  # from the stop's first millisecond: the step to it is the command's
+
+    def watch(d: Drive) -> bool:
+        nonlocal last, jump
+        now = d.read(Reg.OUTPUT_CURRENT)
+        if (
+            last is not None and d.state is State.DECELERATING
+        ):  # the stop's last step, to braking at zero, is not the regulator's
+            jump = max(jump, abs(now - last))
+        last = now
+        return d.read(Reg.STATUS1) in (4, 6)
+
+    end = until(drive, watch, began + 60.0) or began + 60.0
+    stall_v = profile.supply.voltage_v * 1.2
+    power = stall_v**2 / profile.supply.brake_resistor_ohm
+    energy = 0.5 * (inertia + profile.motor.inertia_kg_m2) * (3000 * RPM) ** 2
+    slew = STALL_SLEW_SHARE * profile.protection.current_limit_a
+    return [
+        (
+            "stop from 3000 rpm, 170x rotor inertia, 0.1 s asked, F11.03 = 1; 3004H read every 1 ms",
+            f"the rotor's {energy:.0f} J into the brake resistor at the stall level ({power:.0f} W): "
+            f"{energy / power:.2f} s (assumed: no other loss); 3004H moves at most the stall regulator's "
+            f"slew, {slew:.1f} A per ms (assumed)",
+            f"{fault_name(drive)}; stopped in {end - began:.2f} s; largest 1 ms step of 3004H {jump / 100:.2f} A",
+        )
+    ]
 
 
 def overload_seconds(profile: Profile, amps: float, coefficient_raw: int) -> tuple[float, str]:
@@ -378,6 +416,7 @@ def main() -> None:
         rows: list[Row] = []
         for part in (
             stall_prevention,
+            stall_regulator,
             overload,
             speed_loop,
             heating,

@@ -9,7 +9,7 @@ The drive behaves as an INVT-family drive does where it matters for trips
 (see the integrator): current limiting holds the ramp where the speed loop
 would ask more than its level, overcurrent trips on the current the loop asks
 (limiting off, or a load step faster than the limit), overvoltage stall
-prevention holds the ramp, overload curves have thermal
+prevention regulates the braking current to hold the bus at its level, overload curves have thermal
 memory, 3006H is measured from the Hall edges.
 
 Faults are causes: each protection watches a physical condition, trips by a

@@ -106,21 +106,29 @@ def bus_step(
 
     The supply feeds through its source resistance and a rectifier (it can
     only charge the bus); the load draws ``load_a`` (negative when the motor
-    regenerates); the brake resistor is switched in above ``chopper_v``. The
-    ODE is linear over one step, solved exactly.
+    regenerates); the brake chopper above ``chopper_v`` switches the brake
+    resistor at kHz, so over a step it acts by its average: it holds the bus
+    at ``chopper_v`` with the duty that takes what is fed in, up to the
+    resistor fully on, and a bus fed more than that rises above the level. The
+    ODE is linear over one step for each duty, solved exactly.
     """
     b = inv_bleed
     a = -load_a
-    if chopper_v > 0.0 and v > chopper_v:
-        b += inv_brake
     if v < supply:
         a += supply * inv_source
         b += inv_source
-    v_inf = a / b
-    new = v_inf + (v - v_inf) * math.exp(-dt * b / capacitance)
+    new = _bus_solve(v, a, b, capacitance, dt)
+    if chopper_v > 0.0 and new > chopper_v:
+        new = max(_bus_solve(v, a, b + inv_brake, capacitance, dt), chopper_v)
     if new < 0.0 or (supply == 0.0 and new < 0.05):
         return 0.0  # a dead bus settles at exactly zero, so an unpowered drive idles
     return new
+
+
+def _bus_solve(v: float, a: float, b: float, capacitance: float, dt: float) -> float:
+    """The bus after ``dt`` from ``v`` under C dv/dt = a - b v."""
+    v_inf = a / b
+    return v_inf + (v - v_inf) * math.exp(-dt * b / capacitance)
 
 
 def overload_rate(ratio: float, curve: tuple[tuple[float, float], ...], cooling_s: float) -> float:
