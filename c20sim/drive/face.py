@@ -22,6 +22,7 @@ from ..wire.errors import ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, SpeedSource
 from .config import CHANNEL_COMM, limit_speed
+from .faultrecord import RECORD
 from .physics import BUDGET, RPM, STEP
 from .profile import FaultCause, Profile
 from .sensors import noise
@@ -135,7 +136,7 @@ def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None
         d.ram[address] = value
     elif address == Reg.RESTORE_DEFAULTS:
         if value == 1:
-            d.parameters.restore_defaults()
+            d.parameters.restore_defaults(keep=RECORD)
     elif ram_only:  # a function code written at its RAM-only address: acts now, never saved
         d.parameters.set_ram(address, value)
     else:

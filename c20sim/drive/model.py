@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import face
+from . import face, faultrecord
 from .bench import BenchSetters
 from .config import (
     CHANNEL_KEYPAD,
@@ -94,6 +94,8 @@ class Drive(BenchSetters):
         self.hall = Hall()
         self.motion = Integrator(profile, self.bench, self.hall, self.t0)
         self.machine = Machine(profile, self.motion, self.hall, self.t0)
+        if faultrecord.has_record(profile.defaults):
+            self.machine.on_trip = self._record_trip
         self._power_up()
 
     # --- DrivePort.
@@ -226,6 +228,11 @@ class Drive(BenchSetters):
         self.hall.reset()
         self.machine.power_up()
         self._try_segment()
+
+    def _record_trip(self, code: int) -> None:
+        """A trip with ``code``: the fault record shifts and keeps the state now, in EEPROM."""
+        stored = self.parameters.stored()
+        self.parameters.record(faultrecord.shifted(stored, code, self.read))
 
     def _changed(self) -> None:
         self.motion.segment = None

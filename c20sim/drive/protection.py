@@ -19,7 +19,7 @@ conditions the drive is in, whoever set them; the control layer's causes
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
@@ -68,6 +68,8 @@ class Machine:
         }
         self.recover_v = s.undervoltage_recover_v or s.undervoltage_v
         self.stall_steps_limit = max(1, round(p.stall_time_s / STEP))
+        #: Called with the fault code at each trip, before the output goes off (the drive's fault record).
+        self.on_trip: Callable[[int], None] | None = None
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
 
     def power_up(self) -> None:
@@ -103,6 +105,8 @@ class Machine:
     def trip(self, code: int, cause: FaultCause | None) -> None:
         if self.state is State.FAULT:
             return
+        if self.on_trip is not None:
+            self.on_trip(code)  # the fault record, while the output still shows what the trip met
         self.fault, self.cause = code, cause
         if cause is FaultCause.COMMUNICATION:
             self.last_comm = None  # re-armed by the next request
