@@ -106,6 +106,7 @@ class DriveStatus(Static):
             ("current", f"{abs(tel.current_a):.2f} A · {tel.output_power_w:.0f} W · bus {tel.bus_v:.1f} V"),
             ("temp", f"{tel.temperature_c:.1f} °C · Hall {tel.hall} · supply {tel.supply_v:g} V"),
             ("fault", fault),
+            *record_row(view.record),
             ("status 2", f"{view.status2:04X} {status2_short(view.status2)}"),
             ("inputs", _bits(tel.input_terminals, ((t.name or "", t.value) for t in Terminal))),
             ("outputs", _bits(tel.output_terminals, ((o.name or "", o.value) for o in Output))),
@@ -122,6 +123,17 @@ class DriveStatus(Static):
         out.no_wrap = True
         out.overflow = "ellipsis"
         return out
+
+
+def record_row(record: tuple[int, ...]) -> list[tuple[str, Text | str]]:
+    """Beside a fault, the fault record (F07): the state the trip met and the fault before; none if not faulted."""
+    if not record:
+        return []
+    before, hz, amps, bus = record
+    text = Text(f"at {hz / 100:.2f} Hz {amps / 100:.2f} A bus {bus / 10:.1f} V", style="red")
+    if before:
+        text.append(f" · before 0x{before:02X}", style="dim")
+    return [("at trip", text)]
 
 
 def status2_short(raw: int) -> str:

@@ -34,6 +34,10 @@ async def test_undervoltage_while_running_trips_0x0A(bench: Bench) -> None:
     assert await bench.read(FAULT) == 0x000A
     assert await bench.read(STATUS1) == 4
     assert "0x0A UV: bus undervoltage" in bench.screen_text()
+    # Beside the fault, the fault record (F07.33, F07.36, F07.37): what the trip met, as a master reads it.
+    hz, amps, bus = await bench.read(0x0721), await bench.read(0x0724), await bench.read(0x0725)
+    assert hz == 10000 and 195 <= bus <= 200  # running at 100.00 Hz, the bus at the 20 V trip level
+    assert f"at 100.00 Hz {amps / 100:.2f} A bus {bus / 10:.1f} V" in bench.screen_text()
     await bench.press("x")  # reset refused: the supply is still low
     assert await bench.read(FAULT) == 0x000A
     await bench.press("u", "t", "x", "t", "t")  # supply back, reset, the rotor coasts to rest
