@@ -35,6 +35,7 @@ from .audit import RULES, Finding, Severity
 from .control import causes, liveaudit, ops
 from .core.bus import Direction, FrameRecord, RecordKind
 from .core.simulator import Simulator, check_addresses, make_clock
+from .drive import faultrecord
 from .drive.model import Telemetry
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .serve import ServeOptions, Server
@@ -267,6 +268,10 @@ class C20Sim:
     def set(self, drive: int | None = None, **conditions: object) -> None:
         self.drive(drive).set(**conditions)
 
+    def fault_record(self, drive: int | None = None) -> dict[str, Any]:
+        """The fault record of a drive (:meth:`DriveHandle.fault_record`)."""
+        return self.drive(drive).fault_record()
+
     def inject_fault(self, code: int, drive: int | None = None, *, persistent: bool = False) -> None:
         self.drive(drive).inject_fault(code, persistent=persistent)
 
@@ -456,6 +461,18 @@ class DriveHandle:
         """A register's raw value, as a master reads it (``2100H``, ``0x2100``, ``F00.10`` or ``status1``)."""
         value: int = self._owner._op(ops.read_register, self.address, register)["raw"]
         return value
+
+    def fault_record(self) -> dict[str, Any]:
+        """The fault record (F07.27-F07.48) as an alarm screen reads it: ``faults`` (six codes, newest first),
+        ``at_fault`` and ``at_previous`` (running_hz, ramp_hz, output_v, current_a, bus_v, temperature_c, inputs,
+        outputs). Read through the registers, as a master reads them."""
+
+        def record(sim: Simulator) -> dict[str, Any]:
+            found = ops.drive(sim, self.address)
+            sim.sync()
+            return faultrecord.decode(found.read)
+
+        return self._owner._op(record)
 
     def set(self, **conditions: object) -> None:
         """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ...

@@ -19,16 +19,19 @@ own P00.18 = 2).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from typing import Any
 
 from ..wire.registers import Reg, fcode_address
 
 __all__ = [
     "CONTEXT",
+    "CONTEXT_KEYS",
     "CONTEXT_NAMES",
     "CURRENT_CONTEXT",
     "FAULT_TYPES",
     "PREVIOUS_CONTEXT",
     "RECORD",
+    "decode",
     "has_record",
     "shifted",
 ]
@@ -66,6 +69,39 @@ RECORD = frozenset(FAULT_TYPES + CURRENT_CONTEXT + PREVIOUS_CONTEXT)
 def has_record(addresses: Mapping[int, object]) -> bool:
     """Whether a profile's function codes include the whole record."""
     return all(a in addresses for a in RECORD)
+
+
+#: The keys of a decoded context (:func:`decode`), with each register's scale to engineering units.
+CONTEXT_KEYS = (
+    ("running_hz", 0.01),
+    ("ramp_hz", 0.01),
+    ("output_v", 0.1),
+    ("current_a", 0.01),
+    ("bus_v", 0.1),
+    ("temperature_c", 0.1),
+    ("inputs", 1),
+    ("outputs", 1),
+)
+
+
+def decode(read: Callable[[int], int]) -> dict[str, Any]:
+    """The record in words: ``faults`` (newest first, 0 = none), ``at_fault`` and ``at_previous`` (the state at the
+    current and the previous fault, in Hz, V, A, degC and terminal bit masks), from ``read`` of each cell."""
+
+    def context(cells: tuple[int, ...]) -> dict[str, float | int]:
+        out: dict[str, float | int] = {}
+        for (key, scale), cell in zip(CONTEXT_KEYS, cells, strict=True):
+            raw = read(cell)
+            if key == "temperature_c" and raw >= 0x8000:
+                raw -= 0x10000  # signed, as 300CH
+            out[key] = raw if scale == 1 else round(raw * scale, 2)
+        return out
+
+    return {
+        "faults": [read(cell) for cell in FAULT_TYPES],
+        "at_fault": context(CURRENT_CONTEXT),
+        "at_previous": context(PREVIOUS_CONTEXT),
+    }
 
 
 def shifted(stored: Mapping[int, int], code: int, read: Callable[[int], int]) -> dict[int, int]:
