@@ -54,6 +54,11 @@ F_OV_STALL = fcode_address(11, 3)
 F_OV_STALL_LEVEL = fcode_address(11, 4)
 F_CURRENT_LIMITING = fcode_address(11, 5)
 F_CURRENT_LIMIT_LEVEL = fcode_address(11, 6)
+# Automatic behaviours (issue 42), numbered as the INVT family's (GD20 P08.28/P08.29, P01.21/P01.22): assumed.
+F_AUTO_RESET_TRIALS = fcode_address(8, 28)
+F_AUTO_RESET_INTERVAL = fcode_address(8, 29)
+F_POWER_RESTART = fcode_address(1, 21)
+F_POWER_RESTART_WAIT = fcode_address(1, 22)
 
 #: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
 CURRENT_LIMITING_DEFAULT = 1
@@ -116,6 +121,10 @@ class Config:
     limit_a: float  #: current limiting level, A: the ramp holds while the loop would ask more; 0 = off
     motor_rated_a: float  #: rated current times the overload coefficient
     comm_action: int
+    auto_reset_trials: int  #: F08.28: automatic fault resets before the fault stays; 0 = none
+    auto_reset_steps: int  #: F08.29: steps from a trip (or a refused attempt) to the next automatic reset
+    power_restart: bool  #: F01.21: run again once the power is back after an undervoltage trip while running
+    power_restart_steps: int  #: F01.22: steps from the bus back to that restart
 
 
 def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench: Conditions) -> Config:
@@ -184,7 +193,18 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         limit_a=limit_a if limiting else 0.0,
         motor_rated_a=m.rated_current_a * max(coefficient, 0.01),
         comm_action=P.get(F_COMM_ACTION) if F_COMM_ACTION in P else COMM_TRIP,
+        auto_reset_trials=P.get(F_AUTO_RESET_TRIALS) if F_AUTO_RESET_TRIALS in P else 0,
+        auto_reset_steps=_steps(profile, P, F_AUTO_RESET_INTERVAL),
+        power_restart=bool(P.get(F_POWER_RESTART)) if F_POWER_RESTART in P else False,
+        power_restart_steps=_steps(profile, P, F_POWER_RESTART_WAIT),
     )
+
+
+def _steps(profile: Profile, P: ParameterStore, address: int) -> int:
+    """A time function code as a number of steps (at least one); one step where the profile lacks it."""
+    if address not in P:
+        return 1
+    return max(1, round(P.get(address) * profile.registers[address].scale / STEP))
 
 
 def limit_speed(profile: Profile, rpm: float, max_rpm: float) -> float:

@@ -109,8 +109,9 @@ class Drive(BenchSetters):
         motion, machine = self.motion, self.machine
         while motion.k < target:
             if motion.segment is not None:
-                if motion.advance_segment(target, machine.comm_expired):
+                if motion.advance_segment(target, machine.due):
                     machine.protect()
+                    machine.auto_events()
                     motion.segment = None
             else:
                 state = machine.state

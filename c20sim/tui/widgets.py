@@ -107,6 +107,7 @@ class DriveStatus(Static):
             ("temp", f"{tel.temperature_c:.1f} °C · Hall {tel.hall} · supply {tel.supply_v:g} V"),
             ("fault", fault),
             *record_row(view.record),
+            *([("auto", Text(tel.auto_action, style="yellow"))] if tel.auto_action else []),
             ("status 2", f"{view.status2:04X} {status2_short(view.status2)}"),
             ("inputs", _bits(tel.input_terminals, ((t.name or "", t.value) for t in Terminal))),
             ("outputs", _bits(tel.output_terminals, ((o.name or "", o.value) for o in Output))),
