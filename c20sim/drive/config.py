@@ -33,6 +33,7 @@ __all__ = [
     "CURRENT_LIMITING_DEFAULT",
     "CURRENT_LIMIT_LEVEL_DEFAULT_PCT",
     "DIAL_SPEED_SOURCE",
+    "F_ANSWER_DELAY",
     "F_CURRENT_LIMITING",
     "F_CURRENT_LIMIT_LEVEL",
     "SOURCE_DIAL",
@@ -59,6 +60,8 @@ F_AUTO_RESET_TRIALS = fcode_address(8, 28)
 F_AUTO_RESET_INTERVAL = fcode_address(8, 29)
 F_POWER_RESTART = fcode_address(1, 21)
 F_POWER_RESTART_WAIT = fcode_address(1, 22)
+#: The answer delay, ms (INVT P14.03 "communication response delay", 0-200 ms); read by the slave, not the step.
+F_ANSWER_DELAY = fcode_address(8, 4)
 
 #: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
 CURRENT_LIMITING_DEFAULT = 1
