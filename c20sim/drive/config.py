@@ -62,6 +62,11 @@ F_POWER_RESTART = fcode_address(1, 21)
 F_POWER_RESTART_WAIT = fcode_address(1, 22)
 #: The answer delay, ms (INVT P14.03 "communication response delay", 0-200 ms); read by the slave, not the step.
 F_ANSWER_DELAY = fcode_address(8, 4)
+#: Power-loss ride-through on/off and its level, % of the nominal bus (INVT GD20 P11.01; the level assumed).
+F_RIDE_THROUGH = fcode_address(11, 1)
+F_RIDE_THROUGH_LEVEL = fcode_address(11, 2)
+#: The ride-through level where a profile has no F11.02, % of the nominal bus (assumed).
+RIDE_THROUGH_LEVEL_DEFAULT_PCT = 80
 
 #: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
 CURRENT_LIMITING_DEFAULT = 1
@@ -128,6 +133,7 @@ class Config:
     auto_reset_steps: int  #: F08.29: steps from a trip (or a refused attempt) to the next automatic reset
     power_restart: bool  #: F01.21: run again once the power is back after an undervoltage trip while running
     power_restart_steps: int  #: F01.22: steps from the bus back to that restart
+    ride_v: float  #: F11.01/F11.02: the bus the drive holds from the load's energy on a power loss, V; 0 = off
 
 
 def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench: Conditions) -> Config:
@@ -168,6 +174,7 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     )
     # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
     limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
+    ride_pct = P.get(F_RIDE_THROUGH_LEVEL) if F_RIDE_THROUGH_LEVEL in P else RIDE_THROUGH_LEVEL_DEFAULT_PCT
     coefficient = (
         P.get(F_MOTOR_OVERLOAD_COEFFICIENT) * regs[F_MOTOR_OVERLOAD_COEFFICIENT].scale / 100.0
         if F_MOTOR_OVERLOAD_COEFFICIENT in P
@@ -200,6 +207,7 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         auto_reset_steps=_steps(profile, P, F_AUTO_RESET_INTERVAL),
         power_restart=bool(P.get(F_POWER_RESTART)) if F_POWER_RESTART in P else False,
         power_restart_steps=_steps(profile, P, F_POWER_RESTART_WAIT),
+        ride_v=profile.supply.voltage_v * ride_pct / 100.0 if F_RIDE_THROUGH in P and P.get(F_RIDE_THROUGH) else 0.0,
     )
 
 

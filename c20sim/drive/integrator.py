@@ -49,6 +49,11 @@ STALL_CLOSE_S = 0.002
 STALL_SLEW_SHARE = 0.1
 #: What is left of the bus's distance from the stall level after one step on the regulator's path.
 STALL_DECAY = math.exp(-STEP / STALL_CLOSE_S)
+#: Riding through a power loss (F11.01), the output frequency may fall from the maximum to zero in this share of
+#: a second (a ramp faster than the regulator lets it go: the regulator sets the pace; assumed).
+RIDE_DOWN = STEP / 0.05
+#: The ride-through ends when the bus is back this far above its level (the supply back; assumed).
+RIDE_EXIT = 1.05
 
 Control = tuple[float, float, float, float, bool, float]  # ramp, current, new speed, integrator, limited, demand
 
@@ -59,7 +64,7 @@ class Integrator(SteadySegments):
     __slots__ = (  # k, temp, the two I^2 t budgets and the segment are SteadySegments' slots, which move them too
         *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0"),
         *("brake_steps", "bus", "bus_settled", "current", "demand", "integ", "limited", "loss"),
-        *("phase", "power", "ramp", "regen_a", "speed", "speed_before", "stall_steps"),
+        *("phase", "power", "ramp", "regen_a", "riding", "speed", "speed_before", "stall_steps"),
         *("temp_decay", "temp_rate", "active_now"),
     )
     cfg: Config
@@ -82,6 +87,7 @@ class Integrator(SteadySegments):
         self.speed = self.speed_before = self.ramp = self.current = self.power = self.loss = 0.0
         self.integ = self.demand = self.active_now = 0.0
         self.regen_a = -1.0  # the stall regulator's braking current; < 0: disengaged
+        self.riding = False  # riding through a power loss (F11.01)
         self.bus: float = self.bus_rest(self.bench.supply)  # annotated: mypyc's own type pass cannot infer it
         self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
@@ -120,15 +126,17 @@ class Integrator(SteadySegments):
         )
         if state in DRIVEN:
             target = target_rpm(state, cfg)
-            ramp, phase = physics.ramp_toward(self.ramp, target, cfg.up, cfg.down)
-            full = self.control(state, ramp, target, speed, emf)
+            riding = self.ride(state)
+            aim = 0.0 if riding else target  # riding through a power loss: slowing, on the load's energy
+            ramp, phase = physics.ramp_toward(self.ramp, aim, cfg.up, cfg.max_rpm * RIDE_DOWN if riding else cfg.down)
+            full = self.control(state, ramp, aim, speed, emf)
             bound = cfg.limit_a if cfg.limit_a and phase != CONSTANT else math.inf
-            if phase == DECEL and cfg.stall_v:
-                bound = min(bound, self.stall_regulate(speed, emf))
+            if phase == DECEL and (riding or cfg.stall_v):
+                bound = min(bound, self.stall_regulate(speed, emf, cfg.ride_v if riding else cfg.stall_v))
             else:
                 self.regen_a = -1.0  # disengaged: the next deceleration starts it afresh
             if bound < math.inf and ramp != self.ramp:
-                full = self.limited_to(state, full, ramp, target, speed, emf, bound)
+                full = self.limited_to(state, full, ramp, aim, speed, emf, bound)
             ramp, current, new_speed, integ, limited, wanted = full
             self.integ, self.demand = integ, wanted
         else:
@@ -209,8 +217,22 @@ class Integrator(SteadySegments):
             return held
         return self.control(state, self.ramp + share * (asked - self.ramp), target, speed, emf)
 
-    def stall_regulate(self, speed: float, emf: float) -> float:
-        """Overvoltage stall prevention as a regulator: the braking current (A) a deceleration may ask now.
+    def ride(self, state: State) -> bool:
+        """Whether the drive rides through a power loss this step (F11.01): from the bus falling below the
+        ride-through level while running, until it is back :data:`RIDE_EXIT` above it (the supply back)."""
+        ride_v = self.cfg.ride_v
+        if not ride_v or state not in RUNNING:
+            self.riding = False
+        elif self.riding:
+            self.riding = self.bus < ride_v * RIDE_EXIT
+        else:
+            self.riding = self.bus < ride_v
+        return self.riding
+
+    def stall_regulate(self, speed: float, emf: float, level: float) -> float:
+        """Overvoltage stall prevention as a regulator: the braking current (A) a deceleration may ask now to hold
+        the bus at ``level`` (the stall level; riding through a power loss, the ride-through level, where the
+        same regulator feeds the bus from the load's energy).
 
         The bus is led to the stall level along a first-order path (time constant :data:`STALL_CLOSE_S`):
         the braking current is the one whose regenerated power brings the bus this step to the next point
@@ -222,9 +244,9 @@ class Integrator(SteadySegments):
         stretches while the bus is high), and 3004H and the bus move smoothly: a poll 1 ms after another
         differs by at most the slew (the regulator's own rate).
         """
-        cfg, m, s, th = self.cfg, self.profile.motor, self.profile.supply, self.profile.thermal
+        m, s, th = self.profile.motor, self.profile.supply, self.profile.thermal
         v, supply = self.bus, self.bench.supply
-        goal = cfg.stall_v + (v - cfg.stall_v) * STALL_DECAY
+        goal = level + (v - level) * STALL_DECAY
         a, b = 0.0, self.inv_bleed
         if s.brake_chopper_v > 0.0 and goal > s.brake_chopper_v:
             b += self.inv_brake  # the chopper's duty is full above its level (physics.bus_step)

@@ -90,6 +90,7 @@ class Machine:
         self.restart_due: int | None = None  #: the step of that restart, once the bus is back
         #: the last automatic action, in words with its time ("" if none since power-up): a dashboard names it
         self.auto_note = ""
+        self.riding = False  #: the integrator's ride-through, as last seen (to name it when it changes)
 
     # --- Transitions.
 
@@ -278,6 +279,14 @@ class Machine:
         """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
         state, motion = self.state, self.motion
         supply, prot = self.profile.supply, self.profile.protection
+        if motion.riding != self.riding:  # name a ride-through when it begins and when it ends
+            self.riding = motion.riding
+            t, v = self.t0 + motion.k * STEP, motion.bus
+            self.auto_note = (
+                f"ride-through from {t:.3f} s: bus {v:.1f} V, slowing on the load's energy"
+                if self.riding
+                else f"ride-through ended at {t:.3f} s: bus {v:.1f} V"
+            )
         was_ok = self.bus_ok
         if motion.bus < supply.undervoltage_v:
             self.bus_ok = False
