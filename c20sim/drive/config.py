@@ -67,6 +67,10 @@ F_RIDE_THROUGH = fcode_address(11, 1)
 F_RIDE_THROUGH_LEVEL = fcode_address(11, 2)
 #: The ride-through level where a profile has no F11.02, % of the nominal bus (assumed).
 RIDE_THROUGH_LEVEL_DEFAULT_PCT = 80
+#: S-curve ramps: 0 linear, 1 S curve; the start and end segments, 0.1 % of the ramp time (INVT GD20 P01.05-P01.07).
+F_RAMP_SHAPE = fcode_address(1, 5)
+F_S_START = fcode_address(1, 6)
+F_S_END = fcode_address(1, 7)
 
 #: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
 CURRENT_LIMITING_DEFAULT = 1
@@ -133,6 +137,8 @@ class Config:
     auto_reset_steps: int  #: F08.29: steps from a trip (or a refused attempt) to the next automatic reset
     power_restart: bool  #: F01.21: run again once the power is back after an undervoltage trip while running
     power_restart_steps: int  #: F01.22: steps from the bus back to that restart
+    s_start: float  #: F01.06: the S curve's start segment, a share of the ramp time; 0 with F01.05 = 0 (linear)
+    s_end: float  #: F01.07: its end segment
     ride_v: float  #: F11.01/F11.02: the bus the drive holds from the load's energy on a power loss, V; 0 = off
 
 
@@ -174,6 +180,7 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     )
     # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
     limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
+    s_curve = F_RAMP_SHAPE in P and P.get(F_RAMP_SHAPE) == 1
     ride_pct = P.get(F_RIDE_THROUGH_LEVEL) if F_RIDE_THROUGH_LEVEL in P else RIDE_THROUGH_LEVEL_DEFAULT_PCT
     coefficient = (
         P.get(F_MOTOR_OVERLOAD_COEFFICIENT) * regs[F_MOTOR_OVERLOAD_COEFFICIENT].scale / 100.0
@@ -207,8 +214,15 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         auto_reset_steps=_steps(profile, P, F_AUTO_RESET_INTERVAL),
         power_restart=bool(P.get(F_POWER_RESTART)) if F_POWER_RESTART in P else False,
         power_restart_steps=_steps(profile, P, F_POWER_RESTART_WAIT),
+        s_start=_share(profile, P, F_S_START) if s_curve else 0.0,
+        s_end=_share(profile, P, F_S_END) if s_curve else 0.0,
         ride_v=profile.supply.voltage_v * ride_pct / 100.0 if F_RIDE_THROUGH in P and P.get(F_RIDE_THROUGH) else 0.0,
     )
+
+
+def _share(profile: Profile, P: ParameterStore, address: int) -> float:
+    """A percentage function code as a share (0 where the profile lacks it)."""
+    return P.get(address) * profile.registers[address].scale / 100.0 if address in P else 0.0
 
 
 def _steps(profile: Profile, P: ParameterStore, address: int) -> int:

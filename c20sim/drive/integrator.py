@@ -64,7 +64,7 @@ class Integrator(SteadySegments):
     __slots__ = (  # k, temp, the two I^2 t budgets and the segment are SteadySegments' slots, which move them too
         *("bench", "capacitance", "cfg", "hall", "inv_bleed", "inv_brake", "inv_source", "profile", "t0"),
         *("brake_steps", "bus", "bus_settled", "current", "demand", "integ", "limited", "loss"),
-        *("phase", "power", "ramp", "regen_a", "riding", "speed", "speed_before", "stall_steps"),
+        *("phase", "power", "ramp", "rate", "regen_a", "riding", "speed", "speed_before", "stall_steps"),
         *("temp_decay", "temp_rate", "active_now"),
     )
     cfg: Config
@@ -88,6 +88,7 @@ class Integrator(SteadySegments):
         self.integ = self.demand = self.active_now = 0.0
         self.regen_a = -1.0  # the stall regulator's braking current; < 0: disengaged
         self.riding = False  # riding through a power loss (F11.01)
+        self.rate = 0.0  # the ramp's rate, rpm per step (an S curve goes on from it)
         self.bus: float = self.bus_rest(self.bench.supply)  # annotated: mypyc's own type pass cannot infer it
         self.bus_settled, self.limited, self.phase = True, False, CONSTANT
         self.motor_i2t = self.drive_i2t = 0.0
@@ -108,6 +109,8 @@ class Integrator(SteadySegments):
             self.ramp = self.current = self.power = self.loss = 0.0
             self.integ = self.demand = 0.0
         self.regen_a = -1.0
+        if not driven:
+            self.rate = 0.0
         self.brake_steps = self.stall_steps = 0
         self.segment = None
 
@@ -128,7 +131,13 @@ class Integrator(SteadySegments):
             target = target_rpm(state, cfg)
             riding = self.ride(state)
             aim = 0.0 if riding else target  # riding through a power loss: slowing, on the load's energy
-            ramp, phase = physics.ramp_toward(self.ramp, aim, cfg.up, cfg.max_rpm * RIDE_DOWN if riding else cfg.down)
+            down = cfg.max_rpm * RIDE_DOWN if riding else cfg.down
+            if cfg.s_start or cfg.s_end:
+                ramp, _rate, phase = physics.s_ramp_toward(
+                    self.ramp, self.rate, aim, cfg.up, down, cfg.s_start, cfg.s_end, cfg.max_rpm
+                )
+            else:
+                ramp, phase = physics.ramp_toward(self.ramp, aim, cfg.up, down)
             full = self.control(state, ramp, aim, speed, emf)
             bound = cfg.limit_a if cfg.limit_a and phase != CONSTANT else math.inf
             if phase == DECEL and (riding or cfg.stall_v):
@@ -139,6 +148,8 @@ class Integrator(SteadySegments):
                 full = self.limited_to(state, full, ramp, aim, speed, emf, bound)
             ramp, current, new_speed, integ, limited, wanted = full
             self.integ, self.demand = integ, wanted
+            # The S curve goes on from the rate the ramp actually moved at (a limit may have cut the step).
+            self.rate = ramp - self.ramp if ramp != aim else 0.0
         else:
             target, ramp, phase = 0.0, 0.0, CONSTANT
             # Output off: only the freewheeling diodes conduct, once the back-EMF exceeds the bus.
