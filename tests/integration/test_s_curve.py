@@ -8,6 +8,7 @@ the S curve's jerk per poll, where the linear ramp's jumps at each end.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import AsyncIterator
 
 import pytest
@@ -57,8 +58,8 @@ async def ramp(sim: Simulator, client: AsyncModbusTcpClient, shape: int) -> list
 
 
 def second_differences(values: list[int]) -> list[int]:
-    rates = [b - a for a, b in zip(values, values[1:], strict=False)]
-    return [b - a for a, b in zip(rates, rates[1:], strict=False)]
+    rates = [b - a for a, b in itertools.pairwise(values)]
+    return [b - a for a, b in itertools.pairwise(rates)]
 
 
 async def test_an_s_curve_reaches_speed_in_the_ramp_time_with_a_bounded_jerk(link: Link) -> None:
@@ -69,7 +70,7 @@ async def test_an_s_curve_reaches_speed_in_the_ramp_time_with_a_bounded_jerk(lin
     assert read[99] == pytest.approx(10000, abs=30)  # half way at half time: the curve is symmetric
     jerk = max(abs(j) for j in second_differences(read))
     assert jerk <= JERK + 2  # 0.01 Hz rounding on each of three reads
-    assert max(b - a for a, b in zip(read, read[1:], strict=False)) == pytest.approx(PEAK, abs=2)
+    assert max(b - a for a, b in itertools.pairwise(read)) == pytest.approx(PEAK, abs=2)
 
 
 async def test_the_linear_ramp_takes_as_long_with_a_jerk_at_each_end(link: Link) -> None:
