@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from .config import Conditions
     from .integrator import Integrator
     from .params import ParameterStore
+    from .plc import Plc
     from .protection import Machine
     from .sensors import Hall
 
@@ -50,6 +51,7 @@ class Drive(Protocol):
     hall: Hall
     machine: Machine
     motion: Integrator
+    plc: Plc
 
     def _reconfigure(self) -> None: ...
 
@@ -217,6 +219,7 @@ def outputs(d: Drive) -> int:
     own = Output.RUN if state in DRIVEN else 0
     if state is State.FAULT:
         own |= Output.FAULT
+    own |= d.plc.flags(d.motion.k)  # the simple PLC's stage and cycle flags (Y3, Y4)
     return (int(own) | d.ram[Reg.VIRTUAL_OUTPUTS]) & 0x0F
 
 
