@@ -22,6 +22,7 @@ from ..wire.errors import ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, SpeedSource
 from .config import CHANNEL_COMM, limit_speed
+from .counters import F_POWER_ON_HOURS, F_RUNNING_HOURS
 from .faultrecord import RECORD
 from .physics import BUDGET, RPM, STEP
 from .profile import FaultCause, Profile
@@ -77,6 +78,8 @@ MOTOR_SPEED_MAX = FIXED_REGISTERS[Reg.MOTOR_SPEED].maximum
 STATUS2_BUS = 0x0001
 STATUS2_OVERLOAD = 0x0010
 _RUN_VALUES = frozenset(e.value for e in RUN_COMMANDS)
+#: What a restore of the defaults keeps: the fault record and the hour counters.
+KEPT = RECORD | {F_POWER_ON_HOURS, F_RUNNING_HOURS}
 
 
 def read(d: Drive, address: int) -> int:
@@ -138,7 +141,7 @@ def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None
         d.ram[address] = value
     elif address == Reg.RESTORE_DEFAULTS:
         if value == 1:
-            d.parameters.restore_defaults(keep=RECORD)
+            d.parameters.restore_defaults(keep=KEPT)
     elif ram_only:  # a function code written at its RAM-only address: acts now, never saved
         d.parameters.set_ram(address, value)
     else:

@@ -48,6 +48,7 @@ from .config import (
     configure,
     limit_speed,
 )
+from .counters import F_POWER_ON_HOURS, F_RUNNING_HOURS, Counters
 from .integrator import Integrator
 from .params import ParameterStore
 from .physics import STEP
@@ -106,6 +107,11 @@ class Drive(BenchSetters):
         self._plc_scale = profile.registers[F_STAGE_TIME[0]].scale if F_STAGE_TIME[0] in profile.defaults else 0.0
         if faultrecord.has_record(profile.defaults):
             self.machine.on_trip = self._record_trip
+        #: the power-on and running hours (F07.13, F07.14), where the profile has them
+        self.counters: Counters | None = None
+        if F_POWER_ON_HOURS in profile.defaults and F_RUNNING_HOURS in profile.defaults:
+            self.counters = Counters(self.parameters.get, self.parameters.record)
+            self.machine.on_drive = self._driven
         self._power_up()
 
     # --- DrivePort.
@@ -123,6 +129,7 @@ class Drive(BenchSetters):
                     machine.protect()
                     machine.auto_events()
                     self._plc_watch()
+                    self._count()
                     motion.segment = None
             else:
                 state = machine.state
@@ -130,6 +137,7 @@ class Drive(BenchSetters):
                 machine.protect()
                 machine.auto_events()
                 self._plc_watch()
+                self._count()
                 if machine.state is state:
                     self._try_segment()
 
@@ -241,11 +249,24 @@ class Drive(BenchSetters):
         self.motion.power_up()
         self.hall.reset()
         self.machine.power_up()
+        if self.counters is not None:
+            self.counters.power_up(self.motion.k)
         self._try_segment()
 
     def _due(self, k: int) -> bool:
         """Whether the drive does something by itself by step ``k``: a steady segment stops there."""
-        return self.machine.due(k) or self.plc.due(k)
+        counters = self.counters
+        return self.machine.due(k) or self.plc.due(k) or (counters is not None and counters.due(k))
+
+    def _driven(self, on: bool) -> None:
+        if self.counters is not None:
+            self.counters.driven(self.motion.k, on)
+
+    def _count(self) -> None:
+        """The hour counters, at their whole hours."""
+        counters = self.counters
+        if counters is not None and counters.due(self.motion.k):
+            counters.tick(self.motion.k)
 
     def _plc_watch(self) -> None:
         """The simple PLC (speed source 6): its start with a run, its stages, its end, its reset with a stop."""

@@ -73,6 +73,8 @@ class Machine:
         self.stall_steps_limit = max(1, round(p.stall_time_s / STEP))
         #: Called with the fault code at each trip, before the output goes off (the drive's fault record).
         self.on_trip: Callable[[int], None] | None = None
+        #: Called with True when the inverter starts driving the motor, False when it stops.
+        self.on_drive: Callable[[bool], None] | None = None
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
 
     def power_up(self) -> None:
@@ -111,6 +113,8 @@ class Machine:
             self.command = 0
         self.motion.entered(old in DRIVEN, new in DRIVEN)
         self.state = new
+        if (old in DRIVEN) != (new in DRIVEN) and self.on_drive is not None:
+            self.on_drive(new in DRIVEN)  # the running-hour counter
 
     def trip(self, code: int, cause: FaultCause | None) -> None:
         if self.state is State.FAULT:

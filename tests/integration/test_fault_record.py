@@ -110,3 +110,25 @@ async def test_the_record_holds_the_state_at_the_trip_shifts_on_the_next_and_sur
     finally:
         client.close()
         await server.aclose()
+
+
+async def test_the_hour_counters_read_over_the_wire_and_survive_a_new_process(tmp_path: Path) -> None:
+    """F07.13 (power-on hours) and F07.14 (running hours), in EEPROM beside the record (issue 42)."""
+    state = tmp_path / "drive.json"
+    sim, server, client = await served(state)
+    try:
+        sim.advance(1800.0)  # half an hour stopped
+        await run_at(sim, client, 1200)
+        sim.advance(2 * 3600.0)  # then two hours running (3 s of it before, in run_at)
+        assert await read(client, (0x070D, 0x070E)) == [2, 2]
+        refused = await client.write_register(0x070D, 0, device_id=1)
+        assert refused.isError() and refused.exception_code == 0x07  # read-only
+    finally:
+        client.close()
+        await server.aclose()
+    sim, server, client = await served(state)
+    try:
+        assert await read(client, (0x070D, 0x070E)) == [2, 2]
+    finally:
+        client.close()
+        await server.aclose()
