@@ -78,6 +78,9 @@ CURRENT_LIMITING_DEFAULT = 1
 #: G type default 160.0 %).
 CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
 
+#: F00.00 / 2005H: the control modes the model tells apart.
+CONTROL_OPEN_LOOP, CONTROL_DIAL = 1, 3
+
 #: F08.03, the action on a communication timeout (INVT GD20 P14.03).
 COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
 
@@ -128,7 +131,8 @@ class Config:
     active_free_rpm: float  #: and falls to nothing at this one (its own drag): [motor] active_load_free_rpm
     inputs: int  #: effective input terminals
     kp: float  #: speed loop, N m per rad/s
-    ki: float  #: speed loop, N m per rad
+    ki: float  #: speed loop, N m per rad; 0 in open loop
+    open_loop: bool  #: F00.00 = 1 (or 3 with SW1 on): no speed feedback, the speed droops under load
     stall_v: float  #: overvoltage stall level, V; 0 = off
     limit_a: float  #: current limiting level, A: the ramp holds while the loop would ask more; 0 = off
     motor_rated_a: float  #: rated current times the overload coefficient
@@ -180,6 +184,10 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     )
     # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
     limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
+    mode = P.get(Reg.CONTROL_MODE)
+    # Open loop (F00.00 = 1; 3 hands it to SW1: on open loop, off closed, assumed): a voltage-mode drive, whose
+    # speed droops under load by the I R drop; assumed, the sheet names the mode only.
+    open_loop = mode == CONTROL_OPEN_LOOP or (mode == CONTROL_DIAL and bench.dial[0])
     s_curve = F_RAMP_SHAPE in P and P.get(F_RAMP_SHAPE) == 1
     ride_pct = P.get(F_RIDE_THROUGH_LEVEL) if F_RIDE_THROUGH_LEVEL in P else RIDE_THROUGH_LEVEL_DEFAULT_PCT
     coefficient = (
@@ -204,8 +212,9 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         active_knee_rpm=m.rated_speed_rpm,
         active_free_rpm=m.active_load_free_rpm,
         inputs=inputs,
-        kp=inertia * bandwidth,
-        ki=inertia * bandwidth * bandwidth / 4.0,
+        kp=m.kt_nm_per_a**2 / m.resistance_ohm if open_loop else inertia * bandwidth,
+        ki=0.0 if open_loop else inertia * bandwidth * bandwidth / 4.0,
+        open_loop=open_loop,
         stall_v=profile.supply.voltage_v * stall_pct / 100.0 if stall_on else 0.0,
         limit_a=limit_a if limiting else 0.0,
         motor_rated_a=m.rated_current_a * max(coefficient, 0.01),

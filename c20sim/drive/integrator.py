@@ -176,8 +176,9 @@ class Integrator(SteadySegments):
     def control(self, state: State, ramp: float, target: float, speed: float, emf: float) -> Control:
         """One step of the speed loop toward ``ramp``: (ramp, current, new speed, integrator, limited, demand).
 
-        The ramp's acceleration torque is fed forward and a PI on the speed error does the rest; the
-        current limit clamps the current and holds the ramp back to the rotor. Nothing is changed.
+        The ramp's acceleration torque is fed forward and a PI on the speed error does the rest (open loop,
+        F00.00 = 1: a P alone, so the speed droops under load); the current limit clamps the current and holds
+        the ramp back to the rotor. Nothing is changed.
         """
         cfg, m, prot = self.cfg, self.profile.motor, self.profile.protection
         kt, resistance = m.kt_nm_per_a, m.resistance_ohm
@@ -195,13 +196,29 @@ class Integrator(SteadySegments):
         new_speed = physics.free_motion(speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP)
         if limited:
             ramp = new_speed  # the current limit holds the ramp back
-        elif ramp == target and new_speed != ramp and abs(new_speed - ramp) < settled_rpm(state):
+        elif (
+            ramp == target and new_speed != (rest := self.rest_rpm(ramp)) and abs(new_speed - rest) < settled_rpm(state)
+        ):
             # The loop has settled on a constant set speed: at rest exactly, so the drive can skip ahead.
-            new_speed = ramp
-            active = physics.active_torque(cfg.active, ramp, cfg.active_knee_rpm, cfg.active_free_rpm)
-            integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - active
-            current = integ / kt
+            new_speed = rest
+            if cfg.open_loop:  # no integrator: the rotor rests where the error's torque holds the load
+                integ, current = 0.0, cfg.kp * (ramp - rest) * RPM / kt
+            else:
+                active = physics.active_torque(cfg.active, ramp, cfg.active_knee_rpm, cfg.active_free_rpm)
+                integ = (math.copysign(cfg.hold, ramp) if ramp else 0.0) + cfg.viscous * ramp - active
+                current = integ / kt
         return ramp, current, new_speed, integ, limited, wanted
+
+    def rest_rpm(self, ramp: float) -> float:
+        """Where the rotor settles at a constant ramp: on it in closed loop; in open loop (F00.00 = 1) below it
+        by the slip the load needs, the loop's proportional torque kt^2 / R per rad/s (a voltage-mode drive's
+        I R drop) meeting the load's (friction, viscous drag, load torque; an active load at its full pull)."""
+        cfg = self.cfg
+        if not cfg.open_loop or ramp == 0.0:
+            return ramp
+        gain = cfg.kp * RPM  # N m per rpm of slip
+        pull = cfg.active if abs(ramp) <= cfg.active_knee_rpm else 0.0
+        return (gain * ramp - math.copysign(cfg.hold, ramp) + pull) / (gain + cfg.viscous)
 
     def limited_to(
         self, state: State, full: Control, asked: float, target: float, speed: float, emf: float, bound: float
