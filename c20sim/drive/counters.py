@@ -31,7 +31,7 @@ HOUR = round(3600.0 / STEP)
 class Counters:
     """Where one drive's two hour counters stand between their whole hours."""
 
-    __slots__ = ("get", "on_mark", "record", "run_done", "run_since")
+    __slots__ = ("get", "mark", "on_mark", "record", "run_done", "run_since")
 
     def __init__(self, get: Callable[[int], int], record: Callable[[Mapping[int, int]], object]) -> None:
         self.get, self.record = get, record
@@ -42,6 +42,7 @@ class Counters:
         self.on_mark = k  #: the step the power-on hour under way began
         self.run_done = 0  #: running steps of the hour under way, up to ``run_since``
         self.run_since: int | None = None  #: the step the run under way began (or was last counted from)
+        self.mark = self.next_mark()  #: the step the next whole hour falls on (kept: the step loop reads it)
 
     def driven(self, k: int, on: bool) -> None:
         """The inverter started (``on``) or stopped driving the motor at step ``k``."""
@@ -50,6 +51,7 @@ class Counters:
         elif not on and self.run_since is not None:
             self.run_done += k - self.run_since
             self.run_since = None
+        self.mark = self.next_mark()
 
     def next_mark(self) -> int:
         """The step the next whole hour falls on."""
@@ -59,7 +61,7 @@ class Counters:
         return mark
 
     def due(self, k: int) -> bool:
-        return k >= self.next_mark()
+        return k >= self.mark
 
     def tick(self, k: int) -> None:
         """Count the whole hours reached by step ``k`` and save them."""
@@ -72,5 +74,6 @@ class Counters:
                 self.run_since += HOUR - self.run_done
                 self.run_done = 0
                 counted[F_RUNNING_HOURS] = min(counted.get(F_RUNNING_HOURS, self.get(F_RUNNING_HOURS)) + 1, 0xFFFF)
+        self.mark = self.next_mark()
         if counted:
             self.record(counted)

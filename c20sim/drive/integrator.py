@@ -129,7 +129,7 @@ class Integrator(SteadySegments):
         )
         if state in DRIVEN:
             target = target_rpm(state, cfg)
-            riding = self.ride(state)
+            riding = self.ride(state) if cfg.ride_v or self.riding else False
             aim = 0.0 if riding else target  # riding through a power loss: slowing, on the load's energy
             down = cfg.max_rpm * RIDE_DOWN if riding else cfg.down
             if cfg.s_start or cfg.s_end:

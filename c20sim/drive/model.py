@@ -122,7 +122,7 @@ class Drive(BenchSetters):
             return
         self.t = t
         target = int((t - self.t0) / STEP + 1e-6)
-        motion, machine = self.motion, self.machine
+        motion, machine, plc, counters = self.motion, self.machine, self.plc, self.counters
         while motion.k < target:
             if motion.segment is not None:
                 if motion.advance_segment(target, self._due):
@@ -136,8 +136,10 @@ class Drive(BenchSetters):
                 motion.step(state)
                 machine.protect()
                 machine.auto_events()
-                self._plc_watch()
-                self._count()
+                if plc.active or motion.cfg.source == SpeedSource.SIMPLE_PLC:
+                    self._plc_watch()
+                if counters is not None and motion.k >= counters.mark:
+                    counters.tick(motion.k)
                 if machine.state is state:
                     self._try_segment()
 

@@ -283,7 +283,7 @@ class Machine:
         """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
         state, motion = self.state, self.motion
         supply, prot = self.profile.supply, self.profile.protection
-        if motion.riding != self.riding:  # name a ride-through when it begins and when it ends
+        if motion.riding is not self.riding:  # name a ride-through when it begins and when it ends
             self.riding = motion.riding
             t, v = self.t0 + motion.k * STEP, motion.bus
             self.auto_note = (
