@@ -131,7 +131,7 @@ def record_row(record: tuple[int, ...]) -> list[tuple[str, Text | str]]:
     if not record:
         return []
     before, hz, amps, bus = record
-    text = Text(f"at {hz / 100:.2f} Hz {amps / 100:.2f} A bus {bus / 10:.1f} V", style="red")
+    text = Text(f"{hz / 100:.2f} Hz · {amps / 100:.2f} A · bus {bus / 10:.1f} V", style="red")
     if before:
         text.append(f" · before 0x{before:02X}", style="dim")
     return [("at trip", text)]
