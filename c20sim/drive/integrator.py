@@ -158,7 +158,7 @@ class Integrator(SteadySegments):
                 speed, kt * current + self.active_now, cfg.hold, cfg.viscous, cfg.inertia, STEP
             )
         bus, power, loss = self.bus_after(new_speed, current)
-        self.bus_settled = abs(bus - self.bus) <= 1e-9  # a chopper at its threshold never settles
+        self.bus_settled = abs(bus - self.bus) <= 1e-9  # the chopper's average holds a bus at its level: settled
         temp_ss = self.bench.ambient + loss * th.resistance_k_per_w
         self.temp = temp_ss + (self.temp - temp_ss) * self.temp_decay
         self.motor_i2t = max(0.0, self.motor_i2t + STEP * self.motor_rate(current))
