@@ -27,7 +27,7 @@ from c20sim.drive.model import (
 from c20sim.drive.physics import HALL_SEQUENCE, RPM
 from c20sim.drive.profile import Profile, available_profiles, load_profile
 from c20sim.drive.statemachine import State
-from c20sim.wire.registers import Reg
+from c20sim.wire.registers import Reg, fcode_address
 
 Row = tuple[str, str, str]
 
@@ -132,6 +132,45 @@ def stall_regulator(profile: Profile) -> list[Row]:
             f"{fault_name(drive)}; stopped in {end - began:.2f} s; largest 1 ms step of 3004H {jump / 100:.2f} A",
         )
     ]
+
+
+def automatic(profile: Profile) -> list[Row]:
+    """Issue 42's behaviours against the figures their physics gives: a ride-through's length, an S curve's time."""
+    m = profile.motor
+    inertia = 30 * m.inertia_kg_m2
+    load = 0.3 * m.kt_nm_per_a * m.rated_current_a
+    drive = run(profile, 1500, inertia=inertia, t=0.0)
+    drive.write(fcode_address(11, 1), 1)  # F11.01: ride-through on
+    drive.set_load_torque(load)
+    drive.advance_to(5.0)
+    drive.set_supply_voltage(0.0)
+    end = until(drive, lambda d: d.read(Reg.FAULT_CODE) != 0, 20.0) or 20.0
+    speed_at_trip = drive.read(Reg.MOTOR_SPEED)
+    omega = 1500 * RPM
+    torque = load + m.friction_nm + m.viscous_nm_per_krpm * 1.5 / 2  # the drag at the mean speed
+    coast = (m.inertia_kg_m2 + inertia) * (omega - speed_at_trip * RPM) / torque
+    rows = [
+        (
+            "supply lost at 1500 rpm, 30x rotor inertia, 30 % load, F11.01 = 1",
+            f"rides through while the rotor slows under its load: J dw / T = {coast:.2f} s to {speed_at_trip} rpm "
+            "(assumed: the drive takes only what holds the bus); then UV",
+            f"{fault_name(drive)} after {end - 5.0:.2f} s, at {speed_at_trip} rpm",
+        )
+    ]
+    drive = Drive(profile)
+    drive.write(fcode_address(1, 5), 1)  # F01.05: S curve, 30 % / 30 %
+    drive.write(cell(profile, Reg.ACCEL_TIME), 20)
+    drive.write(Reg.SPEED_SETPOINT, 3000)
+    drive.write(Reg.COMMAND, 1)
+    reached = until(drive, lambda d: d.motion.ramp == 3000.0, 5.0)
+    rows.append(
+        (
+            "S-curve ramp (F01.05 = 1, 30 % / 30 %), 2003H = 2.0 s, 0 to 3000 rpm",
+            "the ramp time kept, the rate's peak 1 / 0.7 of the linear one (INVT P01.05-P01.07, as remembered)",
+            f"ramp at 3000 rpm after {reached or 5.0:.3f} s",
+        )
+    )
+    return rows
 
 
 def overload_seconds(profile: Profile, amps: float, coefficient_raw: int) -> tuple[float, str]:
@@ -417,6 +456,7 @@ def main() -> None:
         for part in (
             stall_prevention,
             stall_regulator,
+            automatic,
             overload,
             speed_loop,
             heating,
