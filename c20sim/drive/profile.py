@@ -102,8 +102,7 @@ class ProtocolParams:
         metadata=_num(1, 8, "", "exception refusing a setting for a feature this model lacks (simple_plc = false)"),
     )
     simple_plc: bool = field(
-        default=False,
-        metadata={"doc": "the model runs a simple PLC program (2007H = 6, the F10 programme); false: refused"},
+        default=False, metadata={"doc": "the model runs a simple PLC program (2007H = 6); false: refused"}
     )
     ram_only_alias: bool = field(
         default=False,
