@@ -13,7 +13,7 @@ from textual.widgets import Markdown, Static
 
 from c20sim.tui import app as app_module
 from c20sim.tui.app import HelpScreen
-from c20sim.tui.widgets import STATUS_STYLES, DriveStatus
+from c20sim.tui.status import STATUS_STYLES, DriveStatus
 from tests.tui.conftest import Bench, attached, running, serving, until
 
 #: Colour systems a terminal may have: 16 colours, 256, truecolor.
