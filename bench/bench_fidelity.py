@@ -14,6 +14,7 @@ import itertools
 import math
 from collections.abc import Callable
 
+from c20sim.drive.integrator import STALL_SLEW_SHARE
 from c20sim.drive.model import (
     F_COMM_ACTION,
     F_COMM_TIMEOUT,
@@ -25,7 +26,8 @@ from c20sim.drive.model import (
 )
 from c20sim.drive.physics import HALL_SEQUENCE, RPM
 from c20sim.drive.profile import Profile, available_profiles, load_profile
-from c20sim.wire.registers import Reg
+from c20sim.drive.statemachine import State
+from c20sim.wire.registers import Reg, fcode_address
 
 Row = tuple[str, str, str]
 
@@ -93,6 +95,81 @@ def stall_prevention(profile: Profile) -> list[Row]:
                     f"{fault_name(drive)} after {took * 1000:.0f} ms; bus {peak:.1f} V",
                 )
             )
+    return rows
+
+
+def stall_regulator(profile: Profile) -> list[Row]:
+    """A heavy stop (170x the rotor, 0.1 s asked) polled every 1 ms: how long, and how smooth 3004H is."""
+    inertia = 170 * profile.motor.inertia_kg_m2
+    drive = run(profile, 3000, inertia=inertia, t=0.0)
+    until(drive, lambda d: d.read(Reg.MOTOR_SPEED) == 3000, 30.0)
+    drive.write(cell(profile, Reg.DECEL_TIME), 1)
+    drive.write(Reg.COMMAND, 5)
+    began, jump = drive.t, 0
+    last: int | None = None  # from the stop's first millisecond: the step to it is the command's
+
+    def watch(d: Drive) -> bool:
+        nonlocal last, jump
+        now = d.read(Reg.OUTPUT_CURRENT)
+        if (
+            last is not None and d.state is State.DECELERATING
+        ):  # the stop's last step, to braking at zero, is not the regulator's
+            jump = max(jump, abs(now - last))
+        last = now
+        return d.read(Reg.STATUS1) in (4, 6)
+
+    end = until(drive, watch, began + 60.0) or began + 60.0
+    stall_v = profile.supply.voltage_v * 1.2
+    power = stall_v**2 / profile.supply.brake_resistor_ohm
+    energy = 0.5 * (inertia + profile.motor.inertia_kg_m2) * (3000 * RPM) ** 2
+    slew = STALL_SLEW_SHARE * profile.protection.current_limit_a
+    return [
+        (
+            "stop from 3000 rpm, 170x rotor inertia, 0.1 s asked, F11.03 = 1; 3004H read every 1 ms",
+            f"the rotor's {energy:.0f} J into the brake resistor at the stall level ({power:.0f} W): "
+            f"{energy / power:.2f} s (assumed: no other loss); 3004H moves at most the stall regulator's "
+            f"slew, {slew:.1f} A per ms (assumed)",
+            f"{fault_name(drive)}; stopped in {end - began:.2f} s; largest 1 ms step of 3004H {jump / 100:.2f} A",
+        )
+    ]
+
+
+def automatic(profile: Profile) -> list[Row]:
+    """Issue 42's behaviours against the figures their physics gives: a ride-through's length, an S curve's time."""
+    m = profile.motor
+    inertia = 30 * m.inertia_kg_m2
+    load = 0.3 * m.kt_nm_per_a * m.rated_current_a
+    drive = run(profile, 1500, inertia=inertia, t=0.0)
+    drive.write(fcode_address(11, 1), 1)  # F11.01: ride-through on
+    drive.set_load_torque(load)
+    drive.advance_to(5.0)
+    drive.set_supply_voltage(0.0)
+    end = until(drive, lambda d: d.read(Reg.FAULT_CODE) != 0, 20.0) or 20.0
+    speed_at_trip = drive.read(Reg.MOTOR_SPEED)
+    omega = 1500 * RPM
+    torque = load + m.friction_nm + m.viscous_nm_per_krpm * 1.5 / 2  # the drag at the mean speed
+    coast = (m.inertia_kg_m2 + inertia) * (omega - speed_at_trip * RPM) / torque
+    rows = [
+        (
+            "supply lost at 1500 rpm, 30x rotor inertia, 30 % load, F11.01 = 1",
+            f"rides through while the rotor slows under its load: J dw / T = {coast:.2f} s to {speed_at_trip} rpm "
+            "(assumed: the drive takes only what holds the bus); then UV",
+            f"{fault_name(drive)} after {end - 5.0:.2f} s, at {speed_at_trip} rpm",
+        )
+    ]
+    drive = Drive(profile)
+    drive.write(fcode_address(1, 5), 1)  # F01.05: S curve, 30 % / 30 %
+    drive.write(cell(profile, Reg.ACCEL_TIME), 20)
+    drive.write(Reg.SPEED_SETPOINT, 3000)
+    drive.write(Reg.COMMAND, 1)
+    reached = until(drive, lambda d: d.motion.ramp == 3000.0, 5.0)
+    rows.append(
+        (
+            "S-curve ramp (F01.05 = 1, 30 % / 30 %), 2003H = 2.0 s, 0 to 3000 rpm",
+            "the ramp time kept, the rate's peak 1 / 0.7 of the linear one (INVT P01.05-P01.07, as remembered)",
+            f"ramp at 3000 rpm after {reached or 5.0:.3f} s",
+        )
+    )
     return rows
 
 
@@ -378,6 +455,8 @@ def main() -> None:
         rows: list[Row] = []
         for part in (
             stall_prevention,
+            stall_regulator,
+            automatic,
             overload,
             speed_loop,
             heating,

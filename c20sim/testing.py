@@ -32,11 +32,12 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from .audit import RULES, Finding, Severity
-from .control import causes, liveaudit, ops
+from .control import liveaudit, ops
 from .core.bus import Direction, FrameRecord, RecordKind
 from .core.simulator import Simulator, check_addresses, make_clock
 from .drive.model import Telemetry
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
+from .drivehandle import DriveHandle
 from .serve import ServeOptions, Server
 from .wire.errors import C20SimError
 from .wire.protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
@@ -276,6 +277,10 @@ class C20Sim:
     def set(self, drive: int | None = None, **conditions: object) -> None:
         self.drive(drive).set(**conditions)
 
+    def fault_record(self, drive: int | None = None) -> dict[str, Any]:
+        """The fault record of a drive (:meth:`DriveHandle.fault_record`)."""
+        return self.drive(drive).fault_record()
+
     def inject_fault(self, code: int, drive: int | None = None, *, persistent: bool = False) -> None:
         self.drive(drive).inject_fault(code, persistent=persistent)
 
@@ -439,77 +444,6 @@ def _written(request: object) -> dict[int, int]:
     if isinstance(request, WriteMultipleRequest):
         return {request.start + i: v for i, v in enumerate(request.values)}
     return {}
-
-
-class DriveHandle:
-    """One drive of a :class:`C20Sim`: its state, registers, conditions and device faults."""
-
-    def __init__(self, owner: C20Sim, address: int) -> None:
-        self._owner = owner
-        self.address = address
-
-    def __repr__(self) -> str:
-        return f"<c20sim drive {self.address}>"
-
-    def state(self) -> Telemetry:
-        """Telemetry now (speed, bus voltage, state, fault, ...)."""
-
-        def telemetry(sim: Simulator) -> Telemetry:
-            found = ops.drive(sim, self.address)
-            sim.sync()
-            return found.telemetry()
-
-        return self._owner._op(telemetry)
-
-    def read(self, register: str | int) -> int:
-        """A register's raw value, as a master reads it (``2100H``, ``0x2100``, ``F00.10`` or ``status1``)."""
-        value: int = self._owner._op(ops.read_register, self.address, register)["raw"]
-        return value
-
-    def set(self, **conditions: object) -> None:
-        """Set conditions now: ``supply_v``, ``load_torque_nm``, ``ambient_c``, ``hall_fault``, ...
-
-        A continuous condition may be given a generator: ``set(supply_v={"ramp": 30, "over": 5})``,
-        ``{"sine": 2, "period": 0.5}`` or ``{"noise": 0.5, "seed": 1}`` (c20sim.core.generators).
-        """
-        self._owner._op(ops.set_conditions, self.address, conditions)
-
-    def generators(self) -> dict[str, dict[str, Any]]:
-        """The generators running on this drive's conditions, by condition."""
-        return self._owner._op(ops.generators, self.address)
-
-    def clear_generators(self, condition: str | None = None) -> None:
-        """Stop the generator on ``condition`` (all for None); the conditions stay where they are."""
-        self._owner._op(ops.clear_generators, self.address, condition)
-
-    def inject_fault(self, code: int, *, persistent: bool = False) -> None:
-        self._owner._op(causes.request, self.address, {"code": code, "persistent": persistent})
-
-    def clear_fault(self, *, reset: bool = True) -> bool:
-        """Release an injected fault and (with ``reset``) press reset; True if the drive left the fault."""
-        return self._owner._op(ops.clear_fault, self.address, reset)
-
-    def trip(self, cause: str) -> None:
-        """Bring a fault's cause about (``undervoltage``, ``overheat``, ``eeprom``, ...); the drive trips by its model."""
-        self._owner._op(causes.request, self.address, {"cause": cause})
-
-    def release(self, cause: str) -> None:
-        """End a fault's cause; the fault stays until reset."""
-        self._owner._op(causes.release, self.address, cause)
-
-    def conditions(self) -> dict[str, object]:
-        """The conditions the drive is in now, by the names :meth:`set` takes."""
-        return self._owner._op(ops.conditions, self.address)
-
-    def press(self, key: str | int) -> bool:
-        """Press a keypad key (``forward``, ``stop``, ``reset``, ... or a 2000H value); False if refused."""
-        return self._owner._op(ops.press_key, self.address, key)
-
-    def power_cycle(self) -> None:
-        self._owner._op(ops.power_cycle, self.address)
-
-    def link_faults(self, **switches: object) -> dict[str, Any]:
-        return self._owner.link_faults(self.address, **switches)
 
 
 def _transports(value: object) -> tuple[str, ...]:

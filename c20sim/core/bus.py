@@ -431,7 +431,7 @@ class Bus:
     ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
-        delay = slave.profile.protocol.turnaround_ms / 1000.0
+        delay = slave.answer_delay
         notes: list[str] = []
         for link in self._links(slave):
             if not link.active_reply_faults:

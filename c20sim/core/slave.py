@@ -28,6 +28,7 @@ gets 0x02, as the address is write-only. The drive behind it is any
 from __future__ import annotations
 
 from ..drive.base import DrivePort
+from ..drive.config import F_ANSWER_DELAY
 from ..drive.profile import Profile
 from ..wire.errors import ModbusError
 from ..wire.protocol import (
@@ -72,6 +73,10 @@ class Slave:
         self._baud_cell = self.registers.canonical(Reg.BAUD)
         self._speed_source_cell = self.registers.canonical(Reg.SPEED_SOURCE)
         self._run_channel_cell = self.registers.canonical(Reg.RUN_CHANNEL)
+        self._turnaround = profile.protocol.turnaround_ms / 1000.0
+        #: the answer delay's function code (F08.04), if the profile has it, and its scale to seconds
+        spec = self.registers.get(F_ANSWER_DELAY)
+        self._answer_delay = (F_ANSWER_DELAY, spec.scale / 1000.0) if spec is not None else None
 
     def attach(self, drive: DrivePort) -> None:
         """Answer for ``drive`` from now on (a reset to a set-up): as a drive switched on, the password locks."""
@@ -88,6 +93,16 @@ class Slave:
         """The line speed the drive listens at now (2009H)."""
         code = self.drive.read(self._baud_cell)
         return BAUD_RATES[code] if 0 <= code < len(BAUD_RATES) else BAUD_RATES[4]
+
+    @property
+    def answer_delay(self) -> float:
+        """Seconds from a request's end to its reply's start: the profile's turnaround (the drive's own processing
+        time), or the answer delay F08.04 a master set, whichever is longer (INVT P14.03: "the reply waits at
+        least this long"; assumed for the C20)."""
+        if self._answer_delay is None:
+            return self._turnaround
+        cell, scale = self._answer_delay
+        return max(self._turnaround, self.drive.read(cell) * scale)
 
     @property
     def unlocked(self) -> bool:

@@ -89,7 +89,7 @@ class BenchSetters:
     def set_dial_switches(self, sw1: bool, sw2: bool, sw3: bool) -> None:
         """Set the dial switches SW1-SW3; they act where 2005H = 3, 2006H = 3 or 2007H = 5 select them.
 
-        SW1 (2005H = 3) picks the control mode, which the model does not simulate; SW3 (2006H = 3)
+        SW1 (2005H = 3) picks the control mode (on: open loop, off: closed loop; assumed); SW3 (2006H = 3)
         the run channel; SW2 and SW3 (2007H = 5) the speed source: see
         :data:`~c20sim.drive.config.DIAL_SPEED_SOURCE`.
         """

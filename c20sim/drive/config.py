@@ -33,6 +33,7 @@ __all__ = [
     "CURRENT_LIMITING_DEFAULT",
     "CURRENT_LIMIT_LEVEL_DEFAULT_PCT",
     "DIAL_SPEED_SOURCE",
+    "F_ANSWER_DELAY",
     "F_CURRENT_LIMITING",
     "F_CURRENT_LIMIT_LEVEL",
     "SOURCE_DIAL",
@@ -54,12 +55,31 @@ F_OV_STALL = fcode_address(11, 3)
 F_OV_STALL_LEVEL = fcode_address(11, 4)
 F_CURRENT_LIMITING = fcode_address(11, 5)
 F_CURRENT_LIMIT_LEVEL = fcode_address(11, 6)
+# Automatic behaviours (issue 42), numbered as the INVT family's (GD20 P08.28/P08.29, P01.21/P01.22): assumed.
+F_AUTO_RESET_TRIALS = fcode_address(8, 28)
+F_AUTO_RESET_INTERVAL = fcode_address(8, 29)
+F_POWER_RESTART = fcode_address(1, 21)
+F_POWER_RESTART_WAIT = fcode_address(1, 22)
+#: The answer delay, ms (INVT P14.03 "communication response delay", 0-200 ms); read by the slave, not the step.
+F_ANSWER_DELAY = fcode_address(8, 4)
+#: Power-loss ride-through on/off and its level, % of the nominal bus (INVT GD20 P11.01; the level assumed).
+F_RIDE_THROUGH = fcode_address(11, 1)
+F_RIDE_THROUGH_LEVEL = fcode_address(11, 2)
+#: The ride-through level where a profile has no F11.02, % of the nominal bus (assumed).
+RIDE_THROUGH_LEVEL_DEFAULT_PCT = 80
+#: S-curve ramps: 0 linear, 1 S curve; the start and end segments, 0.1 % of the ramp time (INVT GD20 P01.05-P01.07).
+F_RAMP_SHAPE = fcode_address(1, 5)
+F_S_START = fcode_address(1, 6)
+F_S_END = fcode_address(1, 7)
 
 #: Current limiting where a profile has no F11.05: on, as INVT ships it (GD20 P11.05 default "valid").
 CURRENT_LIMITING_DEFAULT = 1
 #: The current limiting level where a profile has no F11.06, % of the drive's rated current (GD20 P11.06,
 #: G type default 160.0 %).
 CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
+
+#: F00.00 / 2005H: the control modes the model tells apart.
+CONTROL_OPEN_LOOP, CONTROL_DIAL = 1, 3
 
 #: F08.03, the action on a communication timeout (INVT GD20 P14.03).
 COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
@@ -111,11 +131,19 @@ class Config:
     active_free_rpm: float  #: and falls to nothing at this one (its own drag): [motor] active_load_free_rpm
     inputs: int  #: effective input terminals
     kp: float  #: speed loop, N m per rad/s
-    ki: float  #: speed loop, N m per rad
+    ki: float  #: speed loop, N m per rad; 0 in open loop
+    open_loop: bool  #: F00.00 = 1 (or 3 with SW1 on): no speed feedback, the speed droops under load
     stall_v: float  #: overvoltage stall level, V; 0 = off
     limit_a: float  #: current limiting level, A: the ramp holds while the loop would ask more; 0 = off
     motor_rated_a: float  #: rated current times the overload coefficient
     comm_action: int
+    auto_reset_trials: int  #: F08.28: automatic fault resets before the fault stays; 0 = none
+    auto_reset_steps: int  #: F08.29: steps from a trip (or a refused attempt) to the next automatic reset
+    power_restart: bool  #: F01.21: run again once the power is back after an undervoltage trip while running
+    power_restart_steps: int  #: F01.22: steps from the bus back to that restart
+    s_start: float  #: F01.06: the S curve's start segment, a share of the ramp time; 0 with F01.05 = 0 (linear)
+    s_end: float  #: F01.07: its end segment
+    ride_v: float  #: F11.01/F11.02: the bus the drive holds from the load's energy on a power loss, V; 0 = off
 
 
 def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench: Conditions) -> Config:
@@ -156,6 +184,12 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     )
     # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
     limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
+    mode = P.get(Reg.CONTROL_MODE)
+    # Open loop (F00.00 = 1; 3 hands it to SW1: on open loop, off closed, assumed): a voltage-mode drive, whose
+    # speed droops under load by the I R drop; assumed, the sheet names the mode only.
+    open_loop = mode == CONTROL_OPEN_LOOP or (mode == CONTROL_DIAL and bench.dial[0])
+    s_curve = F_RAMP_SHAPE in P and P.get(F_RAMP_SHAPE) == 1
+    ride_pct = P.get(F_RIDE_THROUGH_LEVEL) if F_RIDE_THROUGH_LEVEL in P else RIDE_THROUGH_LEVEL_DEFAULT_PCT
     coefficient = (
         P.get(F_MOTOR_OVERLOAD_COEFFICIENT) * regs[F_MOTOR_OVERLOAD_COEFFICIENT].scale / 100.0
         if F_MOTOR_OVERLOAD_COEFFICIENT in P
@@ -178,13 +212,33 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         active_knee_rpm=m.rated_speed_rpm,
         active_free_rpm=m.active_load_free_rpm,
         inputs=inputs,
-        kp=inertia * bandwidth,
-        ki=inertia * bandwidth * bandwidth / 4.0,
+        kp=m.kt_nm_per_a**2 / m.resistance_ohm if open_loop else inertia * bandwidth,
+        ki=0.0 if open_loop else inertia * bandwidth * bandwidth / 4.0,
+        open_loop=open_loop,
         stall_v=profile.supply.voltage_v * stall_pct / 100.0 if stall_on else 0.0,
         limit_a=limit_a if limiting else 0.0,
         motor_rated_a=m.rated_current_a * max(coefficient, 0.01),
         comm_action=P.get(F_COMM_ACTION) if F_COMM_ACTION in P else COMM_TRIP,
+        auto_reset_trials=P.get(F_AUTO_RESET_TRIALS) if F_AUTO_RESET_TRIALS in P else 0,
+        auto_reset_steps=_steps(profile, P, F_AUTO_RESET_INTERVAL),
+        power_restart=bool(P.get(F_POWER_RESTART)) if F_POWER_RESTART in P else False,
+        power_restart_steps=_steps(profile, P, F_POWER_RESTART_WAIT),
+        s_start=_share(profile, P, F_S_START) if s_curve else 0.0,
+        s_end=_share(profile, P, F_S_END) if s_curve else 0.0,
+        ride_v=profile.supply.voltage_v * ride_pct / 100.0 if F_RIDE_THROUGH in P and P.get(F_RIDE_THROUGH) else 0.0,
     )
+
+
+def _share(profile: Profile, P: ParameterStore, address: int) -> float:
+    """A percentage function code as a share (0 where the profile lacks it)."""
+    return P.get(address) * profile.registers[address].scale / 100.0 if address in P else 0.0
+
+
+def _steps(profile: Profile, P: ParameterStore, address: int) -> int:
+    """A time function code as a number of steps (at least one); one step where the profile lacks it."""
+    if address not in P:
+        return 1
+    return max(1, round(P.get(address) * profile.registers[address].scale / STEP))
 
 
 def limit_speed(profile: Profile, rpm: float, max_rpm: float) -> float:

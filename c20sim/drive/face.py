@@ -22,6 +22,8 @@ from ..wire.errors import ModbusError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import FIXED_REGISTERS, RUN_CHANNELS, Reg, SpeedSource
 from .config import CHANNEL_COMM, limit_speed
+from .counters import F_POWER_ON_HOURS, F_RUNNING_HOURS
+from .faultrecord import RECORD
 from .physics import BUDGET, RPM, STEP
 from .profile import FaultCause, Profile
 from .sensors import noise
@@ -32,6 +34,7 @@ if TYPE_CHECKING:
     from .config import Conditions
     from .integrator import Integrator
     from .params import ParameterStore
+    from .plc import Plc
     from .protection import Machine
     from .sensors import Hall
 
@@ -49,6 +52,7 @@ class Drive(Protocol):
     hall: Hall
     machine: Machine
     motion: Integrator
+    plc: Plc
 
     def _reconfigure(self) -> None: ...
 
@@ -74,6 +78,8 @@ MOTOR_SPEED_MAX = FIXED_REGISTERS[Reg.MOTOR_SPEED].maximum
 STATUS2_BUS = 0x0001
 STATUS2_OVERLOAD = 0x0010
 _RUN_VALUES = frozenset(e.value for e in RUN_COMMANDS)
+#: What a restore of the defaults keeps: the fault record and the hour counters.
+KEPT = RECORD | {F_POWER_ON_HOURS, F_RUNNING_HOURS}
 
 
 def read(d: Drive, address: int) -> int:
@@ -135,7 +141,7 @@ def write(d: Drive, address: int, value: int, *, ram_only: bool = False) -> None
         d.ram[address] = value
     elif address == Reg.RESTORE_DEFAULTS:
         if value == 1:
-            d.parameters.restore_defaults()
+            d.parameters.restore_defaults(keep=KEPT)
     elif ram_only:  # a function code written at its RAM-only address: acts now, never saved
         d.parameters.set_ram(address, value)
     else:
@@ -216,6 +222,7 @@ def outputs(d: Drive) -> int:
     own = Output.RUN if state in DRIVEN else 0
     if state is State.FAULT:
         own |= Output.FAULT
+    own |= d.plc.flags(d.motion.k)  # the simple PLC's stage and cycle flags (Y3, Y4)
     return (int(own) | d.ram[Reg.VIRTUAL_OUTPUTS]) & 0x0F
 
 

@@ -9,7 +9,7 @@ The drive behaves as an INVT-family drive does where it matters for trips
 (see the integrator): current limiting holds the ramp where the speed loop
 would ask more than its level, overcurrent trips on the current the loop asks
 (limiting off, or a load step faster than the limit), overvoltage stall
-prevention holds the ramp, overload curves have thermal
+prevention regulates the braking current to hold the bus at its level, overload curves have thermal
 memory, 3006H is measured from the Hall edges.
 
 Faults are causes: each protection watches a physical condition, trips by a
@@ -29,9 +29,11 @@ with its steady segments (:mod:`~c20sim.drive.integrator`), the Hall sensors
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
-from . import face
+from ..wire.registers import SpeedSource
+from . import face, faultrecord
 from .bench import BenchSetters
 from .config import (
     CHANNEL_KEYPAD,
@@ -44,15 +46,21 @@ from .config import (
     Conditions,
     Config,
     configure,
+    limit_speed,
 )
+from .counters import F_POWER_ON_HOURS, F_RUNNING_HOURS, Counters
 from .integrator import Integrator
 from .params import ParameterStore
 from .physics import STEP
+from .plc import F_STAGE_TIME, Plc
 from .profile import FaultCause, Profile
 from .protection import Machine
 from .sensors import Hall, HallFault
 from .statemachine import DRIVEN, RUN_COMMANDS, Event, State
 from .telemetry import Telemetry, snapshot
+
+#: The states in which the simple PLC runs its programme (a jog or a stop is not a programme's run).
+PLC_RUNS = frozenset({State.FORWARD, State.REVERSE})
 
 __all__ = [
     "F_COMM_ACTION",
@@ -94,6 +102,16 @@ class Drive(BenchSetters):
         self.hall = Hall()
         self.motion = Integrator(profile, self.bench, self.hall, self.t0)
         self.machine = Machine(profile, self.motion, self.hall, self.t0)
+        self.plc = Plc()
+        #: the PLC stage times' scale (s per count); 0 where the profile has no simple PLC programme
+        self._plc_scale = profile.registers[F_STAGE_TIME[0]].scale if F_STAGE_TIME[0] in profile.defaults else 0.0
+        if faultrecord.has_record(profile.defaults):
+            self.machine.on_trip = self._record_trip
+        #: the power-on and running hours (F07.13, F07.14), where the profile has them
+        self.counters: Counters | None = None
+        if F_POWER_ON_HOURS in profile.defaults and F_RUNNING_HOURS in profile.defaults:
+            self.counters = Counters(self.parameters.get, self.parameters.record)
+            self.machine.on_drive = self._driven
         self._power_up()
 
     # --- DrivePort.
@@ -104,17 +122,24 @@ class Drive(BenchSetters):
             return
         self.t = t
         target = int((t - self.t0) / STEP + 1e-6)
-        motion, machine = self.motion, self.machine
+        motion, machine, plc, counters = self.motion, self.machine, self.plc, self.counters
         while motion.k < target:
             if motion.segment is not None:
-                if motion.advance_segment(target, machine.comm_expired):
+                if motion.advance_segment(target, self._due):
                     machine.protect()
+                    machine.auto_events()
+                    self._plc_watch()
+                    self._count()
                     motion.segment = None
             else:
                 state = machine.state
                 motion.step(state)
                 machine.protect()
                 machine.auto_events()
+                if plc.active or motion.cfg.source == SpeedSource.SIMPLE_PLC:
+                    self._plc_watch()
+                if counters is not None and motion.k >= counters.mark:
+                    counters.tick(motion.k)
                 if machine.state is state:
                     self._try_segment()
 
@@ -220,20 +245,66 @@ class Drive(BenchSetters):
 
     def _power_up(self) -> None:
         self.ram = dict.fromkeys(face.RAM_REGISTERS, 0)
+        self.plc = Plc()
         self.parameters.power_up()  # RAM-only function-code writes are lost
         self._reconfigure()
         self.motion.power_up()
         self.hall.reset()
         self.machine.power_up()
+        if self.counters is not None:
+            self.counters.power_up(self.motion.k)
         self._try_segment()
+
+    def _due(self, k: int) -> bool:
+        """Whether the drive does something by itself by step ``k``: a steady segment stops there."""
+        counters = self.counters
+        return self.machine.due(k) or self.plc.due(k) or (counters is not None and counters.due(k))
+
+    def _driven(self, on: bool) -> None:
+        if self.counters is not None:
+            self.counters.driven(self.motion.k, on)
+
+    def _count(self) -> None:
+        """The hour counters, at their whole hours."""
+        counters = self.counters
+        if counters is not None and counters.due(self.motion.k):
+            counters.tick(self.motion.k)
+
+    def _plc_watch(self) -> None:
+        """The simple PLC (speed source 6): its start with a run, its stages, its end, its reset with a stop."""
+        plc, cfg, machine = self.plc, self.motion.cfg, self.machine
+        if cfg.source != SpeedSource.SIMPLE_PLC or machine.state not in PLC_RUNS:
+            if plc.active:
+                plc.reset()
+                self._reconfigure()
+            return
+        get, k = self.parameters.get, self.motion.k
+        if not plc.active:
+            plc.start(k, get, self._plc_scale)
+            self._reconfigure()
+        elif plc.due(k):
+            stop = plc.next_stage(k, get, self._plc_scale)
+            self._reconfigure()
+            if stop:
+                machine.apply(Event.STOP)
+
+    def _record_trip(self, code: int) -> None:
+        """A trip with ``code``: the fault record shifts and keeps the state now, in EEPROM."""
+        stored = self.parameters.stored()
+        self.parameters.record(faultrecord.shifted(stored, code, self.read))
 
     def _changed(self) -> None:
         self.motion.segment = None
         self._reconfigure()
 
     def _reconfigure(self) -> None:
-        """Derive the step's settings again from the parameters, RAM registers and conditions."""
-        self.motion.cfg = configure(self.profile, self.parameters, self.ram, self.bench)
+        """Derive the step's settings again from the parameters, RAM registers and conditions (and the simple
+        PLC's stage, where it is the speed source)."""
+        cfg = configure(self.profile, self.parameters, self.ram, self.bench)
+        if cfg.source == SpeedSource.SIMPLE_PLC and self._plc_scale:
+            speed = limit_speed(self.profile, self.plc.speed(self.parameters.get), cfg.max_rpm)
+            cfg = dataclasses.replace(cfg, reference_rpm=speed)
+        self.motion.cfg = cfg
 
     def _try_segment(self) -> None:
         self.motion.try_segment(self.machine.state)

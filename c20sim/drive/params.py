@@ -29,7 +29,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any
@@ -98,9 +98,25 @@ class ParameterStore:
         """RAM takes the EEPROM's values again: RAM-only writes are lost."""
         self._values = dict(self._stored)
 
-    def restore_defaults(self) -> None:
-        self._commit(dict(self.profile.defaults))
+    def restore_defaults(self, keep: Iterable[int] = ()) -> None:
+        """Every function code back to its default but those in ``keep`` (a record the drive keeps)."""
+        values = dict(self.profile.defaults)
+        values.update({a: self._stored[a] for a in keep if a in self._stored})
+        self._commit(values)
         self._values = dict(self._stored)
+
+    def record(self, values: Mapping[int, int]) -> bool:
+        """The drive's own write of several cells (its fault record) in one EEPROM save, and in RAM.
+
+        A save the disk refuses keeps the values in RAM (the drive goes on; a power cycle loses them) and
+        is logged; False then.
+        """
+        self._values.update(values)
+        try:
+            self._commit({**self._stored, **values})
+        except ModbusError:
+            return False
+        return True
 
     def snapshot(self) -> dict[int, int]:
         """A copy of every value in effect (RAM), by function-code address."""

@@ -28,6 +28,7 @@ __all__ = [
     "hall_code",
     "overload_rate",
     "ramp_toward",
+    "s_ramp_toward",
 ]
 
 #: The model's fixed internal step, seconds.
@@ -57,6 +58,39 @@ def ramp_toward(ref: float, target: float, up: float, down: float) -> tuple[floa
         floor = target if ref * target > 0.0 else 0.0
         return (max(ref - down, floor) if ref > 0.0 else min(ref + down, floor)), DECEL
     return (min(ref + up, target) if target > ref else max(ref - up, target)), ACCEL
+
+
+def s_ramp_toward(
+    ref: float, rate: float, target: float, up: float, down: float, start: float, end: float, full: float
+) -> tuple[float, float, str]:
+    """Move an S-curve ramp one step toward ``target`` (rpm, signed): (new value, new rate per step, phase).
+
+    The rate (rpm per step) rises at a constant jerk over the ``start`` share of the ramp time, holds, and
+    falls at a constant jerk over the ``end`` share so the ramp arrives at its target with no rate left (INVT
+    P01.05-P01.07). Its peak is such that a change of ``full`` (the maximum speed) takes the time the linear
+    rate ``up`` or ``down`` gives it, as a linear ramp would; a shorter change ends sooner. Away from zero it
+    uses ``up``, toward zero (or through it) ``down``, as :func:`ramp_toward`.
+    """
+    if ref == target and rate == 0.0:
+        return ref, 0.0, CONSTANT
+    decel = ref * target < 0.0 or abs(target) < abs(ref)
+    linear = down if decel else up
+    peak = linear / (1.0 - 0.5 * (start + end))
+    steps = full / linear  # the ramp time in steps
+    rise = peak / (start * steps) if start > 0.0 else math.inf
+    fall = peak / (end * steps) if end > 0.0 else math.inf
+    way = 1.0 if target > ref else -1.0
+    speed = rate * way  # the rate toward the target (negative: still moving away from it)
+    left = abs(target - ref)
+    stopping = speed * speed / (2.0 * fall) + 0.5 * speed if fall < math.inf else 0.0
+    if speed > 0.0 and left <= stopping:
+        # The rate whose fall at the end jerk covers exactly what is left: the ramp lands with no rate left.
+        speed = math.sqrt(2.0 * fall * left + 0.25 * fall * fall) - 0.5 * fall
+    else:
+        speed = min(speed + rise, peak)
+    if speed >= left:
+        return target, 0.0, (DECEL if decel else ACCEL)
+    return ref + way * speed, way * speed, (DECEL if decel else ACCEL)
 
 
 def free_motion(speed: float, drive_torque: float, hold: float, viscous: float, inertia: float, dt: float) -> float:
@@ -106,21 +140,29 @@ def bus_step(
 
     The supply feeds through its source resistance and a rectifier (it can
     only charge the bus); the load draws ``load_a`` (negative when the motor
-    regenerates); the brake resistor is switched in above ``chopper_v``. The
-    ODE is linear over one step, solved exactly.
+    regenerates); the brake chopper above ``chopper_v`` switches the brake
+    resistor at kHz, so over a step it acts by its average: it holds the bus
+    at ``chopper_v`` with the duty that takes what is fed in, up to the
+    resistor fully on, and a bus fed more than that rises above the level. The
+    ODE is linear over one step for each duty, solved exactly.
     """
     b = inv_bleed
     a = -load_a
-    if chopper_v > 0.0 and v > chopper_v:
-        b += inv_brake
     if v < supply:
         a += supply * inv_source
         b += inv_source
-    v_inf = a / b
-    new = v_inf + (v - v_inf) * math.exp(-dt * b / capacitance)
+    new = _bus_solve(v, a, b, capacitance, dt)
+    if chopper_v > 0.0 and new > chopper_v:
+        new = max(_bus_solve(v, a, b + inv_brake, capacitance, dt), chopper_v)
     if new < 0.0 or (supply == 0.0 and new < 0.05):
         return 0.0  # a dead bus settles at exactly zero, so an unpowered drive idles
     return new
+
+
+def _bus_solve(v: float, a: float, b: float, capacitance: float, dt: float) -> float:
+    """The bus after ``dt`` from ``v`` under C dv/dt = a - b v."""
+    v_inf = a / b
+    return v_inf + (v - v_inf) * math.exp(-dt * b / capacitance)
 
 
 def overload_rate(ratio: float, curve: tuple[tuple[float, float], ...], cooling_s: float) -> float:

@@ -19,7 +19,7 @@ conditions the drive is in, whoever set them; the control layer's causes
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
@@ -37,6 +37,9 @@ __all__ = ["BY_PHASE", "TRIPS_ON_UNDERVOLTAGE", "Machine"]
 
 #: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
 TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
+#: The run an undervoltage trip in each state takes up again once the power is back, with F01.21 = 1 (a jog is
+#: a held key, a stop was ending anyway: neither restarts).
+RESTARTS = {State.FORWARD: Event.FORWARD, State.REVERSE: Event.REVERSE}
 #: The overcurrent and overvoltage causes by the ramp's phase when they trip.
 BY_PHASE = {
     "overcurrent": {
@@ -68,6 +71,10 @@ class Machine:
         }
         self.recover_v = s.undervoltage_recover_v or s.undervoltage_v
         self.stall_steps_limit = max(1, round(p.stall_time_s / STEP))
+        #: Called with the fault code at each trip, before the output goes off (the drive's fault record).
+        self.on_trip: Callable[[int], None] | None = None
+        #: Called with True when the inverter starts driving the motor, False when it stops.
+        self.on_drive: Callable[[bool], None] | None = None
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
 
     def power_up(self) -> None:
@@ -79,6 +86,13 @@ class Machine:
         self.forced_hold = False
         self.last_comm = None
         self.state = State.STOPPED if self.bus_ok else State.OFF
+        self.auto_resets = 0  #: automatic fault resets since power-up or the last manual reset (F08.28)
+        self.reset_due: int | None = None  #: the step of the next automatic reset
+        self.restart_event: Event | None = None  #: the run to take up again once the power is back (F01.21)
+        self.restart_due: int | None = None  #: the step of that restart, once the bus is back
+        #: the last automatic action, in words with its time ("" if none since power-up): a dashboard names it
+        self.auto_note = ""
+        self.riding = False  #: the integrator's ride-through, as last seen (to name it when it changes)
 
     # --- Transitions.
 
@@ -99,13 +113,23 @@ class Machine:
             self.command = 0
         self.motion.entered(old in DRIVEN, new in DRIVEN)
         self.state = new
+        if (old in DRIVEN) != (new in DRIVEN) and self.on_drive is not None:
+            self.on_drive(new in DRIVEN)  # the running-hour counter
 
     def trip(self, code: int, cause: FaultCause | None) -> None:
         if self.state is State.FAULT:
             return
+        if self.on_trip is not None:
+            self.on_trip(code)  # the fault record, while the output still shows what the trip met
         self.fault, self.cause = code, cause
         if cause is FaultCause.COMMUNICATION:
             self.last_comm = None  # re-armed by the next request
+        cfg, k = self.motion.cfg, self.motion.k
+        self.restart_event = self.reset_due = self.restart_due = None
+        if cause is FaultCause.UNDERVOLTAGE and cfg.power_restart and self.state in RESTARTS:
+            self.restart_event = RESTARTS[self.state]  # taken up again once the power is back (F01.21)
+        elif cfg.auto_reset_trials > self.auto_resets:
+            self.reset_due = k + cfg.auto_reset_steps  # F08.28 trials, F08.29 apart
         self.enter(next_state(self.state, Event.TRIP))
 
     def trip_on(self, cause: FaultCause) -> bool:
@@ -130,13 +154,50 @@ class Machine:
 
     # --- Guards.
 
-    def reset(self) -> bool:
-        """A fault reset: released only once the cause is gone; False if refused."""
+    def reset(self, *, auto: bool = False) -> bool:
+        """A fault reset: released only once the cause is gone; False if refused. A manual one (a master's, the
+        keypad's, the terminals') also clears the automatic reset's count and any restart pending."""
         if self.state is not State.FAULT or self.cause_persists():
             return False
         self.fault, self.cause = 0, None
+        if not auto:
+            self.auto_resets = 0
+            self.reset_due = self.restart_event = self.restart_due = None
         self.enter(next_state(self.state, Event.RESET))
         return True
+
+    def due(self, k: int) -> bool:
+        """Whether something the drive does by itself is due by step ``k`` (monotone in ``k``: a steady segment
+        stops there): the communication timeout, an automatic reset, a restart after power."""
+        if self.state is State.FAULT:
+            if self.reset_due is not None and k >= self.reset_due:
+                return True
+            if self.restart_due is not None and k >= self.restart_due:
+                return True
+        return self.comm_expired(k)
+
+    def automatic_reset(self) -> None:
+        """The timers of a latched fault: the restart after power (F01.21/F01.22), the automatic reset
+        (F08.28/F08.29). An automatic reset whose cause persists is refused and counts as a trial."""
+        k, cfg, t = self.motion.k, self.motion.cfg, self.t0 + self.motion.k * STEP
+        if self.restart_due is not None and k >= self.restart_due:
+            event, self.restart_event, self.restart_due = self.restart_event, None, None
+            if event is not None and self.reset(auto=True):
+                self.apply(event)
+                self.command = event.value if isinstance(event.value, int) else 0
+                self.auto_note = f"restart after power at {t:.3f} s ({event.name.lower()})"
+            return
+        if self.reset_due is not None and k >= self.reset_due:
+            self.auto_resets += 1
+            trial = f"automatic reset {self.auto_resets} of {cfg.auto_reset_trials} at {t:.3f} s"
+            code = self.fault
+            if self.reset(auto=True):
+                self.reset_due = None
+                self.auto_note = f"{trial}: fault 0x{code:02X} cleared"
+            else:
+                more = self.auto_resets < cfg.auto_reset_trials
+                self.reset_due = k + cfg.auto_reset_steps if more else None
+                self.auto_note = f"{trial}: refused, the cause persists" + ("" if more else "; no trials left")
 
     def cause_persists(self) -> bool:
         """The reset guard: whether the latched fault's cause still holds it (the fault may outlast the
@@ -222,11 +283,22 @@ class Machine:
         """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
         state, motion = self.state, self.motion
         supply, prot = self.profile.supply, self.profile.protection
+        if motion.riding is not self.riding:  # name a ride-through when it begins and when it ends
+            self.riding = motion.riding
+            t, v = self.t0 + motion.k * STEP, motion.bus
+            self.auto_note = (
+                f"ride-through from {t:.3f} s: bus {v:.1f} V, slowing on the load's energy"
+                if self.riding
+                else f"ride-through ended at {t:.3f} s: bus {v:.1f} V"
+            )
+        was_ok = self.bus_ok
         if motion.bus < supply.undervoltage_v:
             self.bus_ok = False
         elif motion.bus >= self.recover_v:
             self.bus_ok = True  # back only above the recover level: no flicker around the trip level
         if state is State.FAULT:
+            if self.restart_event is not None and self.bus_ok != was_ok:  # the power back, or gone again
+                self.restart_due = motion.k + motion.cfg.power_restart_steps if self.bus_ok else None
             return
         if not self.bus_ok:
             if state in TRIPS_ON_UNDERVOLTAGE:
@@ -278,9 +350,12 @@ class Machine:
         )
 
     def auto_events(self) -> None:
-        """The events the model raises itself: the rotor at zero, the brake's hold done."""
+        """The events the model raises itself: the rotor at zero, the brake's hold done, a latched fault's timers."""
         state, motion = self.state, self.motion
-        if state is State.DECELERATING and motion.speed == 0.0 and motion.ramp == 0.0:
+        if state is State.FAULT:
+            if self.reset_due is not None or self.restart_due is not None:
+                self.automatic_reset()
+        elif state is State.DECELERATING and motion.speed == 0.0 and motion.ramp == 0.0:
             self.apply(Event.AT_ZERO)
         elif state is State.BRAKING and motion.brake_steps >= self.brake_steps_limit:
             self.apply(Event.HOLD_DONE)

@@ -63,6 +63,9 @@ class SteadySegments:
     def drive_rate(self, current: float) -> float:
         raise NotImplementedError  # the integrator's
 
+    def rest_rpm(self, ramp: float) -> float:
+        raise NotImplementedError  # the integrator's
+
     def try_segment(self, state: State) -> None:
         """Enter a steady segment if the drive in ``state`` has settled and every input is constant."""
         if state in (State.DECELERATING, State.BRAKING, State.COASTING) or not self.bus_settled:
@@ -72,7 +75,7 @@ class SteadySegments:
         if state in DRIVEN:
             if self.limited or self.stall_steps or self.hall.fault is not None:
                 return
-            if self.ramp != target_rpm(state, self.cfg) or self.speed != self.ramp:
+            if self.ramp != target_rpm(state, self.cfg) or self.speed != self.rest_rpm(self.ramp):
                 return
         elif self.current != 0.0:
             return  # the diodes still conduct

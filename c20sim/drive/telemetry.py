@@ -49,6 +49,9 @@ class Telemetry:
     run_channel: int
     speed_source: int
     steady: bool  #: skipping ahead in closed form
+    #: the last thing the drive did by itself (an automatic reset, a restart after power, a ride-through), with
+    #: its time; "" if none since power-up
+    auto_action: str = ""
 
 
 def snapshot(d: Drive) -> Telemetry:
@@ -81,4 +84,5 @@ def snapshot(d: Drive) -> Telemetry:
         run_channel=motion.cfg.channel,
         speed_source=motion.cfg.source,
         steady=motion.segment is not None,
+        auto_action=d.machine.auto_note,
     )

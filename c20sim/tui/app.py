@@ -42,14 +42,12 @@ from ..wire.registers import RUN_CHANNELS
 from .audit import AuditPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
+from .status import STATUS_STYLES, DriveStatus, TrendPlot
 from .widgets import (
-    STATUS_STYLES,
     ConditionsPanel,
     DeviceFaultsPanel,
-    DriveStatus,
     FrameLog,
     LinkFaultsPanel,
-    TrendPlot,
     record_from_dict,
 )
 from .workbench import LINK_SWITCHES, DriveView, Workbench

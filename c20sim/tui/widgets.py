@@ -1,4 +1,5 @@
-"""The dashboard's widgets: the drive's state, the trend plot, the frame log, the bench panels.
+"""The dashboard's widgets: the frame log and the bench panels (the drive's state and the trend plots are in
+status.py).
 
 Views hold what they show in reactive attributes and render from them; the
 panels act on the drives only through the app's :class:`Workbench`, and say
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -21,19 +22,15 @@ from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Grid, Horizontal, Vertical
 from textual.reactive import reactive
-from textual.widget import Widget
 from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
 from ..control.ops import ControlError
 from ..core.bus import Direction, FrameRecord, RecordKind
 from ..drive.terminals import Input as Terminal
-from ..drive.terminals import Output
-from ..wire.registers import RUN_CHANNELS, SPEED_SOURCES, STATUS_WORDS
 from .messages import ConditionsChanged, FramesLogged, SaveLogRequested
 from .workbench import (
     DEVICE_SWITCHES,
     LINK_SWITCHES,
-    DriveView,
     Workbench,
     condition_range,
 )
@@ -41,144 +38,14 @@ from .workbench import (
 __all__ = [
     "ConditionsPanel",
     "DeviceFaultsPanel",
-    "DriveStatus",
     "FrameLog",
     "LinkFaultsPanel",
-    "TrendPlot",
     "format_record",
     "record_from_dict",
     "record_matches",
 ]
 
-#: Status word 1 -> the colour it is shown in.
-STATUS_STYLES = {
-    1: "bold black on green",
-    2: "bold black on green",
-    3: "bold white on dark_blue",
-    4: "bold white on red",
-    5: "bold black on yellow",
-    6: "bold white on magenta",
-}
 FUNCTIONS = {0x03: "read", 0x06: "write", 0x10: "write multiple"}
-BLOCKS = " ▁▂▃▄▅▆▇█"
-
-
-def _bits(value: int, names: Iterable[tuple[str, int]]) -> Text:
-    text = Text()
-    for name, bit in names:
-        if text:
-            text.append(" ")
-        text.append(name, style="bold black on bright_green" if value & bit else "bright_black")
-    return text
-
-
-class DriveStatus(Static):
-    """One drive's state, set point, telemetry, fault, status word 2 and terminals."""
-
-    view: reactive[DriveView | None] = reactive(None)
-
-    def render(self) -> Text:
-        view = self.view
-        if view is None:
-            return Text("waiting for the drive")
-        tel = view.telemetry
-        status = tel.status
-        words = STATUS_WORDS.get(status, f"status {status}")
-        # Each part is a span of its own: a base style on the whole Text would colour every row
-        # (the state's background behind the fault text, the terminals, everything).
-        out = Text()
-        out.append(f" {words.upper()} ", style=STATUS_STYLES.get(status, "bold"))
-        out.append(f" 2100H = {status}", style="dim")
-        if tel.state not in words:
-            out.append(f" ({tel.state})", style="dim")
-        if tel.fault_code:
-            fault = Text(f"0x{tel.fault_code:02X} {tel.fault_name}", style="bold bright_red")
-        else:
-            fault = Text("none", style="green")
-        rows: list[tuple[str, Text | str]] = [
-            (
-                "channel",
-                f"{RUN_CHANNELS.get(tel.run_channel, tel.run_channel)} · speed from "
-                f"{SPEED_SOURCES.get(tel.speed_source, tel.speed_source)}",
-            ),
-            ("speed", f"{tel.speed_rpm:.0f} rpm of {tel.set_speed_rpm:.0f} · ramp {tel.ramp_rpm:.0f}"),
-            ("freq", f"{view.output_hz:.2f} Hz of {view.set_hz:.2f} · {tel.output_voltage_v:.1f} V"),
-            ("current", f"{abs(tel.current_a):.2f} A · {tel.output_power_w:.0f} W · bus {tel.bus_v:.1f} V"),
-            ("temp", f"{tel.temperature_c:.1f} °C · Hall {tel.hall} · supply {tel.supply_v:g} V"),
-            ("fault", fault),
-            ("status 2", f"{view.status2:04X} {status2_short(view.status2)}"),
-            ("inputs", _bits(tel.input_terminals, ((t.name or "", t.value) for t in Terminal))),
-            ("outputs", _bits(tel.output_terminals, ((o.name or "", o.value) for o in Output))),
-        ]
-        width = max(1, self.content_size.width)
-        out.truncate(width, overflow="ellipsis")
-        for label, value in rows:
-            line = Text()
-            line.append(f"{label:<9}", style="bold")
-            line.append(value)
-            line.truncate(width, overflow="ellipsis")  # one line each, whatever the width: never wrapped
-            out.append("\n")
-            out.append_text(line)
-        out.no_wrap = True
-        out.overflow = "ellipsis"
-        return out
-
-
-def status2_short(raw: int) -> str:
-    """Status word 2 in a few words: bus, overload, control source."""
-    words = ["bus ok" if raw & 0x01 else "no bus"]
-    if raw & 0x10:
-        words.append("OVERLOAD")
-    words.append({0: "keypad", 1: "terminal", 2: "comm"}.get((raw >> 5) & 0b11, "source 11") + " control")
-    return " · ".join(words)
-
-
-class TrendPlot(Widget):
-    """A bar plot of the last minute of one quantity, newest on the right, scaled from zero to ``top``."""
-
-    DEFAULT_CSS = """
-    TrendPlot { height: 3; }
-    """
-
-    values: reactive[tuple[float, ...]] = reactive(())
-
-    def __init__(self, label: str, unit: str, top: float, digits: int = 0, id: str | None = None) -> None:
-        super().__init__(id=id)
-        self.label = label
-        self.unit = unit
-        self.top = top
-        self.digits = digits
-
-    def render(self) -> Text:
-        width, rows = max(1, self.size.width), max(1, self.size.height - 1)
-        values = self.values
-        last = values[-1] if values else 0.0
-        head = Text(f"{self.label} ", style="bold")
-        head.append(f"{last:.{self.digits}f} {self.unit}")
-        head.append(f" (scale {self.top:g}, 1 min)", style="dim")
-        head.truncate(width, overflow="ellipsis")
-        columns = _resample([abs(v) for v in values], width)
-        levels = [min(rows * 8, round(v / self.top * rows * 8)) if self.top > 0 else 0 for v in columns]
-        lines = []
-        for row in range(rows - 1, -1, -1):
-            lines.append("".join(BLOCKS[min(8, max(0, level - row * 8))] for level in levels).rjust(width))
-        head.append("\n")
-        head.append("\n".join(lines), style="cyan")
-        head.no_wrap = True
-        head.overflow = "ellipsis"
-        return head
-
-
-def _resample(values: Sequence[float], width: int) -> list[float]:
-    """At most ``width`` columns: the maximum of each bin, newest last."""
-    if len(values) <= width:
-        return list(values)
-    out = []
-    n = len(values)
-    for i in range(width):
-        lo, hi = i * n // width, (i + 1) * n // width
-        out.append(max(values[lo:hi]))
-    return out
 
 
 def record_matches(record: FrameRecord, drive: int | None, function: int | None, errors_only: bool) -> bool:
@@ -250,7 +117,8 @@ class FrameLog(Vertical, can_focus=True):
     """Every frame on the line, live and in words; pause, filter and save."""
 
     BINDINGS: ClassVar[list[BindingType]] = [
-        Binding("space", "pause", "Pause"),
+        # not in the footer: the log's own header says "space pause", and at 80 columns it pushed q Quit off
+        Binding("space", "pause", "Pause", show=False),
         Binding("a", "drive_filter", "Drive filter", show=False),
         Binding("n", "function_filter", "Function filter", show=False),
         Binding("e", "errors_only", "Errors only", show=False),

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 from ..control import causes, ops, routes
 from ..core.linkfaults import KNOBS
 from ..core.simulator import Simulator
+from ..drive.faultrecord import CURRENT_CONTEXT, FAULT_TYPES, has_record
 from ..drive.model import HallFault, Telemetry
 from ..drive.profile import Profile
 from ..wire.errors import C20SimError
@@ -132,6 +133,9 @@ class DriveView:
     status2: int  #: 2101H
     output_hz: float  #: 3001H
     set_hz: float  #: 3000H
+    #: while faulted, from the fault record (F07.28, F07.33, F07.36, F07.37): the fault before, and the running
+    #: frequency (0.01 Hz), output current (0.01 A) and bus (0.1 V) at the trip; empty otherwise
+    record: tuple[int, ...] = ()
 
 
 @dataclass
@@ -228,6 +232,7 @@ class Workbench:
         #: the simulator, for a bench in the same process (tests); None over the control API
         self.sim: Simulator | None = source if isinstance(source, Simulator) else None
         self.profile: Profile = self.ops.profile
+        self._has_record = has_record(self.profile.defaults)
         self.addresses: tuple[int, ...] = tuple(self.ops.addresses)
         self.virtual: bool = self.ops.virtual
         self.history = {a: History() for a in self.addresses}
@@ -274,8 +279,14 @@ class Workbench:
                 self.register(address, Reg.STATUS2),
                 self.register(address, Reg.OUTPUT_FREQUENCY) / 100.0,
                 self.register(address, Reg.SET_FREQUENCY) / 100.0,
+                self._record(address) if tel.fault_code and self._has_record else (),
             )
         return out
+
+    def _record(self, address: int) -> tuple[int, ...]:
+        """What the status shows of the fault record beside the fault (four reads, only while faulted)."""
+        cells = (FAULT_TYPES[1], CURRENT_CONTEXT[0], CURRENT_CONTEXT[3], CURRENT_CONTEXT[4])
+        return tuple(self.register(address, cell) for cell in cells)
 
     def advance(self, seconds: float) -> None:
         """Virtual clock only: move time on, sampling the plot history on the way."""

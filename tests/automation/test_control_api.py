@@ -271,7 +271,7 @@ async def test_fault_by_cause(client: Callable[[Simulator], Awaitable[Api]]) -> 
 async def test_register_table_edit_and_counters(client: Callable[[Simulator], Awaitable[Api]]) -> None:
     api = await client(virtual())
     status, table = await api("GET", "/drives/1/registers")
-    assert status == 200 and len(table["registers"]) == 62  # the fixed map and the profile's 26 function codes
+    assert status == 200 and len(table["registers"]) == 113  # the fixed map and the profile's 77 function codes
     assert await api("PUT", "/drives/1/registers/F00.10", {"value": 2500}) == (
         409,
         {

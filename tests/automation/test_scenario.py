@@ -47,7 +47,7 @@ def test_undervoltage_report_from_the_command_line() -> None:
     lines = result.stdout.splitlines()
     assert lines[0] == f"scenario undervoltage trip and recovery ({SCENARIOS / 'undervoltage.toml'})"
     assert "  ok   step 4 (at 2.1 s): 2102H (fault code) = 10 (UV: bus undervoltage), expected 10" in lines
-    assert lines[-1] == "passed: 16 check(s)"
+    assert lines[-1] == "passed: 21 check(s)"
 
 
 def test_a_wrong_expectation_fails_with_a_readable_report(tmp_path: Path) -> None:

@@ -49,7 +49,7 @@ def test_many_files_print_one_line_each_and_fail_if_one_fails(suite: Path) -> No
     assert result.stdout.splitlines() == [
         "PASS  communication timeout (comm_timeout.toml): 11 check(s)",
         "PASS  overload (overload.toml): 12 check(s)",
-        "PASS  undervoltage trip and recovery (undervoltage.toml): 16 check(s)",
+        "PASS  undervoltage trip and recovery (undervoltage.toml): 21 check(s)",
         "FAIL  too fast (zz_fails.toml): 1 of 3 check(s) failed; first: step 2 (at 0.2 s): "
         "3006H (motor speed) = 1194 (1194 rpm), expected 1500 +/- 5 (1500 rpm)",
         "4 scenario(s): 3 passed, 1 failed, 0 error(s)",

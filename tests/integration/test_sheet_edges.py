@@ -37,10 +37,11 @@ async def test_dial_switch_settings_are_taken_and_act(serve: ServeFactory) -> No
         drive.set_dial_switches(False, True, False)  # SW2 alone: the knob, AI1
         drive.set_ai(1, 5.0)
         assert (await client.read_holding_registers(0x3005, count=1, device_id=1)).registers[0] == 1500
-        # Simple PLC (2007H = 6) and 2006H = 4: features this model lacks, refused with the profile's code.
-        for register, value in ((0x2007, 6), (0x2006, 4)):
-            response = await client.write_register(register, value, device_id=1)
-            assert (response.function_code, response.exception_code) == (0x86, X.ILLEGAL_VALUE), hex(register)
+        # 2006H = 4: a channel no sheet line names, refused with the profile's code; simple PLC (2007H = 6) is
+        # taken (the F10 programme, issue 42).
+        response = await client.write_register(0x2006, 4, device_id=1)
+        assert (response.function_code, response.exception_code) == (0x86, X.ILLEGAL_VALUE)
+        assert not (await client.write_register(0x2007, 6, device_id=1)).isError()
     finally:
         client.close()
 

@@ -437,3 +437,33 @@ def test_trip_by_cause_and_never_written(c20sim: C20Sim) -> None:
     c20sim.assert_written("F00.10", count=0)
     with pytest.raises(AssertionError, match=r"^drive 1: 1 accepted write\(s\) of any value to 2001H, expected 0"):
         c20sim.assert_written("2001H", count=0)
+
+
+def test_the_handle_reads_the_fault_record_a_master_reads(pytester: pytest.Pytester) -> None:
+    """Issue 42: c20sim.fault_record() is the record in words; the same cells over the wire hold the raw values."""
+    result = run(
+        pytester,
+        """
+        from pymodbus import FramerType
+        from pymodbus.client import ModbusTcpClient
+
+        def test_record(c20sim):
+            client = ModbusTcpClient(c20sim.host, port=c20sim.port, framer=FramerType.RTU, timeout=2, retries=0)
+            assert client.connect()
+            client.write_register(0x2001, 1500, device_id=1)
+            client.write_register(0x2000, 1, device_id=1)
+            c20sim.advance(3.0)
+            c20sim.set(supply_v=15)
+            c20sim.advance(0.2)
+            record = c20sim.fault_record()
+            assert record["faults"] == [0x0A, 0, 0, 0, 0, 0]
+            at = record["at_fault"]
+            assert at["running_hz"] == 100.0 and at["outputs"] == 1 and 19.5 <= at["bus_v"] <= 20.0
+            assert record["at_previous"]["running_hz"] == 0
+            raw = [client.read_holding_registers(a, count=1, device_id=1).registers[0] for a in (0x071B, 0x0721)]
+            assert raw == [0x0A, 10000]
+            assert c20sim.drive(1).fault_record() == record
+            client.close()
+        """,
+    )
+    result.assert_outcomes(passed=1)

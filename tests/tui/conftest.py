@@ -134,7 +134,7 @@ class Bench:
 
     def screen_text(self) -> str:
         """The text of the drive's status (what a user reads)."""
-        from c20sim.tui.widgets import DriveStatus
+        from c20sim.tui.status import DriveStatus
 
         status = self.app.get_screen_main().query_one(DriveStatus)
         return str(status.render())

@@ -35,6 +35,10 @@ async def test_undervoltage_while_running_trips_0x0A(bench: Bench) -> None:
     assert await bench.read(FAULT) == 0x000A
     assert await bench.read(STATUS1) == 4
     assert "0x0A UV: bus undervoltage" in bench.screen_text()
+    # Beside the fault, the fault record (F07.33, F07.36, F07.37): what the trip met, as a master reads it.
+    hz, amps, bus = await bench.read(0x0721), await bench.read(0x0724), await bench.read(0x0725)
+    assert hz == 10000 and 195 <= bus <= 200  # running at 100.00 Hz, the bus at the 20 V trip level
+    assert f"at trip  100.00 Hz · {amps / 100:.2f} A · bus {bus / 10:.1f} V" in bench.screen_text()
     await bench.press("x")  # reset refused: the supply is still low
     assert await bench.read(FAULT) == 0x000A
     await bench.press("u", "t", "x", "t", "t")  # supply back, reset, the rotor coasts to rest
@@ -343,9 +347,11 @@ async def test_register_view_edits_by_a_masters_rules(bench: Bench) -> None:
 
 async def test_speed_source_and_keypad_speed_from_the_panel(bench: Bench) -> None:
     await bench.press("m")  # run channel: keypad
-    await bench.press("S", "S", "S", "S")  # speed source: Modbus -> multi-speed -> dial switch -> keypad -> AI1
-    assert await bench.read(0x0002) == 1  # the simple PLC (6) skipped: this model has none
-    await bench.press("S", "S", "S", "S", "S")  # AI2, Modbus, multi-speed, dial switch, keypad
+    await bench.press("S", "S", "S")  # speed source: Modbus -> multi-speed -> dial switch -> simple PLC
+    assert await bench.read(0x0002) == 6  # the simple PLC runs its F10 programme (issue 42)
+    await bench.press("S", "S")  # keypad -> AI1
+    assert await bench.read(0x0002) == 1
+    await bench.press("S", "S", "S", "S", "S", "S")  # AI2, Modbus, multi-speed, dial switch, simple PLC, keypad
     assert await bench.read(0x0002) == 0
     await bench.press("minus", "minus")  # keypad reference 50.00 Hz -> 48.00 Hz
     assert await bench.read(0x000A) == 4800

@@ -13,7 +13,7 @@ from textual.widgets import Markdown, Static
 
 from c20sim.tui import app as app_module
 from c20sim.tui.app import HelpScreen
-from c20sim.tui.widgets import STATUS_STYLES, DriveStatus
+from c20sim.tui.status import STATUS_STYLES, DriveStatus
 from tests.tui.conftest import Bench, attached, running, serving, until
 
 #: Colour systems a terminal may have: 16 colours, 256, truecolor.
@@ -46,7 +46,8 @@ def test_each_state_reads_in_each_colour_system(status: int, system: ColorSystem
 
 
 async def test_no_row_wraps_or_shares_the_states_background_at_80x24() -> None:
-    """Faulted with the longest words (a fault name, status word 2 with its flags): eleven lines, one each."""
+    """Faulted with the longest words (a fault name, status word 2 with its flags, the fault record's "at trip"
+    line): twelve lines, one each."""
     async with running(size=(80, 24)) as bench:
         await bench.write(0x2001, 1500)
         await bench.write(0x2000, 1)
@@ -55,7 +56,7 @@ async def test_no_row_wraps_or_shares_the_states_background_at_80x24() -> None:
         status = bench.app.get_screen_main().query_one(DriveStatus)
         lines = status.render().split("\n")
         assert [line.plain.split()[0] for line in lines[1:]] == [
-            "channel", "speed", "freq", "current", "temp", "fault", "status", "inputs", "outputs",
+            "channel", "speed", "freq", "current", "temp", "fault", "at", "status", "inputs", "outputs",
         ]  # fmt: skip
         width = status.content_size.width
         assert all(line.cell_len <= width for line in lines)

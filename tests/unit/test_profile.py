@@ -144,7 +144,7 @@ def test_the_active_loads_free_speed_lies_above_the_rated_speed(tmp_path: Path) 
 def test_protocol_quirks_of_the_sheets_edges(tmp_path: Path) -> None:
     protocol = load_profile().protocol
     assert (protocol.run_while_faulted_exception, protocol.byte_count_exception) == (1, 6)
-    assert (protocol.simple_plc, protocol.lacking_feature_exception) == (False, 3)
+    assert (protocol.simple_plc, protocol.lacking_feature_exception) == (True, 3)  # the F10 programme (issue 42)
     path = tmp_path / "bad.toml"
     path.write_text(DEFAULT_TEXT.replace("byte_count_exception = 6", "byte_count_exception = 4"))
     with pytest.raises(ProfileError) as info:

@@ -123,14 +123,14 @@ def test_dial_switch_settings_inside_the_sheets_ranges_are_taken(slave: Slave) -
 
 def test_a_feature_the_model_lacks_is_refused_with_the_profiles_code(profile: Profile) -> None:
     slave = Slave(profile, RegisterStoreDrive(profile))
-    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is X.ILLEGAL_VALUE  # simple PLC: simple_plc = false
+    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is None  # simple PLC: the shipped profiles run it
     assert exc(slave, WriteSingleRequest(1, 0x2006, 4)) is X.ILLEGAL_VALUE  # 2006H = 4: named by no sheet line
     other = dataclasses.replace(
-        profile, protocol=dataclasses.replace(profile.protocol, lacking_feature_exception=1, simple_plc=True)
+        profile, protocol=dataclasses.replace(profile.protocol, lacking_feature_exception=1, simple_plc=False)
     )
     slave = Slave(other, RegisterStoreDrive(other))
     assert exc(slave, WriteSingleRequest(1, 0x2006, 4)) is X.ILLEGAL_FUNCTION
-    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is None
+    assert exc(slave, WriteSingleRequest(1, 0x2007, 6)) is X.ILLEGAL_FUNCTION  # simple_plc = false: refused
 
 
 def test_04_function_code_write_while_200e_is_0(slave: Slave) -> None:

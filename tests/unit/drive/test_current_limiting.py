@@ -112,9 +112,15 @@ def test_stall_prevention_off_the_hard_stop_trips_ov2() -> None:
     assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERVOLTAGE_DECEL)
 
 
-def test_limiting_off_the_hard_stop_trips_oc2_as_before() -> None:
+def test_limiting_off_the_hard_stop_trips_oc2_only_without_stall_prevention() -> None:
+    """Stall prevention is a regulator on the braking current from the stop's first step (issue 42): with it
+    on, the stop brakes only as hard as the bus can take, so it stretches without tripping even with limiting
+    off; with both off the 0.1 s ramp asks far beyond the trip level in its first millisecond: OC2."""
     profile = load_profile("c20-400hr")
     drive, began, end = hard_stop(profile, stall=1, limiting=0)
+    assert end is not None and drive.read(Reg.STATUS1) == 6
+    assert end - began > 5.0
+    drive, began, end = hard_stop(profile, stall=0, limiting=0)
     assert end is not None and end - began <= 0.002
     assert drive.read(Reg.FAULT_CODE) == profile.fault_code(FaultCause.OVERCURRENT_DECEL)
 
