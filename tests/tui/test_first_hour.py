@@ -36,8 +36,7 @@ async def test_the_footer_offers_t_only_on_a_virtual_clock(clock: Clock, advance
                 "x": "Reset",
                 **({"t": "+1s"} if advance else {}),
                 "question_mark": "Help",
-                "q": "Quit",
-                "space": "Pause",  # the frame log's
+                "q": "Quit",  # the frame log's space (pause) is in its own header: at 80 columns it pushed Quit off
                 "ctrl+p": "palette",
             }
             t0 = served.sim.now()
