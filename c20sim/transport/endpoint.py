@@ -177,6 +177,10 @@ class RtuEndpoint:
             self._held = None
             if event is None:
                 break
+            if not self.line.has_room(self.peer, self):
+                self._held = event  # its peer's queue is full: held, and nothing more is read, until there is room
+                self.line.when_room(self.peer, self, self._schedule_collect)
+                break
             self._outstanding += 1
             if not self.line.submit(event, self._respond_now, self, peer=self.peer, wait_limit=self.wait_limit):
                 self._outstanding -= 1  # its peer's queue is full: dropped, as a device server drops it (counted)

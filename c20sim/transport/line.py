@@ -16,9 +16,10 @@ within a peer from the next master in turn, as a gateway serves its masters:
 a host with 500 connections gets the line as often as a host with one, a
 connection that pipelines as often as one that waits for each answer. Each
 peer's queue is bounded (:data:`PEER_QUEUE`, the MGate MB3000's request
-queue per master): a request beyond it is refused at once (the submitter
-answers as a gateway would: Modbus TCP exception 0x06, silence on RTU over
-TCP). A request that waited longer than its submitter's limit (the gateway's
+queue per master): a master whose peer's queue is full holds its next
+request and is not read (:meth:`Line.has_room`, :meth:`Line.when_room`)
+until the line has taken one of its peer's, so a flooding host costs the
+line a bounded queue and no work per request. A request that waited longer than its submitter's limit (the gateway's
 response timeout) is never put on the line: its submitter's ``expire``
 answers it (exception 0x0B on Modbus TCP) or it is dropped (RTU over TCP).
 Each endpoint also submits at most a few requests at a time and reads no
@@ -205,6 +206,8 @@ class Line:
         self._queues: dict[object, dict[object, deque[_Waiting]]] = {}
         self._peer_of: dict[object, object] = {}  #: each master with requests waiting -> its peer
         self._peer_waiting: dict[object, int] = {}  #: requests waiting per peer
+        #: per peer whose queue is full, the masters holding a request for it, in order
+        self._room_waiters: dict[object, dict[object, Callable[[], None]]] = {}
         self._count = 0
         self._deadlines: list[tuple[float, int, _Waiting]] = []  #: a heap of the waiting requests' deadlines
         self._seq = itertools.count()
@@ -284,7 +287,7 @@ class Line:
         if peer is None:
             peer = source
         if self._peer_waiting.get(peer, 0) >= self.peer_queue:
-            self.refused += 1
+            self.refused += 1  # its caller should have asked has_room() first
             return False
         deadline = None if wait_limit is None else event.t + wait_limit
         item = _Waiting(event, respond, source, peer, expire, deadline)
@@ -304,8 +307,23 @@ class Line:
             self._serve_waiting()
         return True
 
+    def has_room(self, peer: object, source: object) -> bool:
+        """May ``source`` of ``peer`` (None: its own) queue a request now? Else the caller waits: see
+        :meth:`when_room`."""
+        return self._peer_waiting.get(source if peer is None else peer, 0) < self.peer_queue
+
+    def when_room(self, peer: object, source: object, callback: Callable[[], None]) -> None:
+        """Call ``callback`` (soon, on the loop) when ``peer``'s queue has room, its masters woken in turn.
+
+        A master whose peer's queue is full holds its request and reads no more (backpressure), so a host that
+        floods costs the line a bounded queue and no work per request."""
+        key = source if peer is None else peer
+        self._room_waiters.setdefault(key, {})[source] = callback
+
     def cancel(self, source: object) -> int:
         """Drop the waiting requests of ``source`` (a connection that closed); returns how many."""
+        for waiters in self._room_waiters.values():
+            waiters.pop(source, None)
         peer = self._peer_of.pop(source, _NO_PEER)
         if peer is _NO_PEER:
             return 0
@@ -326,6 +344,13 @@ class Line:
             self._peer_waiting[peer] = left
         else:
             del self._peer_waiting[peer]
+        waiters = self._room_waiters.get(peer)
+        if waiters:
+            for _ in range(min(count, len(waiters))):
+                source = next(iter(waiters))
+                self._loop().call_soon(waiters.pop(source))
+            if not waiters:
+                del self._room_waiters[peer]
 
     def close(self) -> None:
         if self._timer is not None:
@@ -334,6 +359,7 @@ class Line:
         self._queues.clear()
         self._peer_of.clear()
         self._peer_waiting.clear()
+        self._room_waiters.clear()
         self._deadlines.clear()
         self._count = 0
         self._busy = False

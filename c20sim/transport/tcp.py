@@ -448,6 +448,7 @@ class _MbapConnection(_Connection):
         self._outstanding = 0  #: requests not yet answered (on the line, or waiting for the gateway's timeout)
         self._write_paused = False
         self._paused = False
+        self._room = True  #: False while its peer's queue on the line is full
 
     def data_received(self, data: bytes) -> None:
         self._buffer += data
@@ -462,7 +463,7 @@ class _MbapConnection(_Connection):
         self._parse()
 
     def _flow(self) -> None:
-        hold = self._outstanding >= MBAP_PIPELINE or self._write_paused
+        hold = self._outstanding >= MBAP_PIPELINE or self._write_paused or not self._room
         if hold and not self._paused:
             self._paused = True
             self.pause_reading()
@@ -478,9 +479,16 @@ class _MbapConnection(_Connection):
 
     def _parse(self) -> None:
         buf = self._buffer
+        line = self.owner.line
+        self._room = True
         while len(buf) >= 7 and self._outstanding < MBAP_PIPELINE and not self._write_paused:
             if self.transport is None:
                 return
+            if not line.has_room(self.peer, self):
+                # its address's queue is full: the request waits in our buffer and the socket is not read
+                self._room = False
+                line.when_room(self.peer, self, self._parse)
+                break
             transaction, protocol, length, unit = struct.unpack_from(">HHHB", buf)
             if protocol != 0 or not 2 <= length <= 254:
                 log.info("modbus tcp: bad MBAP header %s; closing the connection", bytes(buf[:7]).hex(" "))
