@@ -282,14 +282,16 @@ class Line:
     ) -> bool:
         """Serve ``event`` now if the line is free, else in ``source``'s turn; False (and nothing queued) when
         ``peer``'s queue is full. ``source`` names the master who asked (for cancel and turns), ``peer`` its
-        address (None: the source is its own peer). A request still waiting ``wait_limit`` seconds after its
-        arrival (``event.t``) is not served: ``expire()`` is called, or ``respond(None)`` without one."""
+        address (None: the source is its own peer). A request still waiting ``wait_limit`` seconds after this
+        call is not served: ``expire()`` is called, or ``respond(None)`` without one."""
         if peer is None:
             peer = source
         if self._peer_waiting.get(peer, 0) >= self.peer_queue:
             self.refused += 1  # its caller should have asked has_room() first
             return False
-        deadline = None if wait_limit is None else event.t + wait_limit
+        # counted from now: a request framed from bytes read earlier (held by backpressure) waits for the line
+        # only from here
+        deadline = None if wait_limit is None else time.perf_counter() + wait_limit
         item = _Waiting(event, respond, source, peer, expire, deadline)
         sources = self._queues.get(peer)
         if sources is None:

@@ -68,6 +68,10 @@ SPIN = 0.0003
 SPIN_REALTIME = 0.0001
 #: Inside a frame whose t1.5 is shorter than this, the reader polls the port without sleeping (seconds).
 SPIN_READ_BELOW = 0.001
+#: While nobody has a pty open, how often its reader looks for an opener (seconds): a hung-up pty reports
+#: itself readable at once, so the reader sleeps this long between looks; a request written meanwhile waits
+#: in the device and is read whole.
+HUNG_UP_POLL = 0.002
 #: Replies waiting for the writer at most; more means the master does not wait for answers: they are dropped.
 MAX_PENDING_REPLIES = 8
 #: The SCHED_FIFO priority the timing threads ask for (1-99): above every ordinary thread, below the
@@ -135,6 +139,7 @@ class TimedEndpoint:
         write: Callable[[bytes], int] | None = None,
         on_baud: Callable[[int], None] | None = None,
         may_reply: Callable[[], bool] | None = None,
+        on_hangup: Callable[[], None] | None = None,
     ) -> None:
         if not framer.strict:
             raise ValueError("a line-timed endpoint needs a strict framer")
@@ -146,6 +151,9 @@ class TimedEndpoint:
         self._write = write if write is not None else functools.partial(os.write, fd)
         self._on_baud = on_baud
         self._may_reply = may_reply
+        self._on_hangup = on_hangup
+        #: who asks the line: one token per generation, so a reset cancels the old master's requests only
+        self._source = object()
         self._loop = asyncio.get_running_loop()
         self._lock = threading.Lock()  # the framer: fed by the reader, its baud set from the loop
         self._stop = threading.Event()
@@ -182,18 +190,31 @@ class TimedEndpoint:
     def reset(self) -> None:
         """The master went away (on the loop): its half-received frame, its requests waiting on the line and the
         replies not yet sent are dropped. A reply's bytes written before are the caller's to flush, after this."""
-        self.line.cancel(self)
+        self.line.cancel(self._new_generation())
+
+    def _new_generation(self) -> object:
+        """Drop the half-received frame, start a new generation; returns the old one's line source (any thread)."""
         with self._lock:  # the reader's frames framed before this are of the old generation, even those in flight
             self.framer.flush()
             self.framer.events()
             with self._write_lock:
                 self._generation += 1
+                old, self._source = self._source, object()
+        return old
+
+    def _hung_up(self, old_source: object) -> None:
+        """On the loop: the master side reported a hang-up (nobody has the device open): the old master's
+        requests leave the line, and the caller drops what it left in the device."""
+        self.line.cancel(old_source)
+        if self._on_hangup is not None:
+            self._on_hangup()
 
     # --- the reader thread
 
     def _read_loop(self) -> None:
         realtime = _raise_thread_priority()
         fd, wake = self.fd, self._wake_r
+        hung_up = True  #: no program had the device open when last seen (a pty's EIO); a read ends it
         while not self._stop.is_set():
             with self._lock:
                 deadline = self.framer.deadline()
@@ -215,10 +236,22 @@ class TimedEndpoint:
                 except BlockingIOError:
                     pass
                 except OSError as exc:
-                    if exc.errno != errno.EIO:  # EIO: no one has the device open; nothing to read
+                    if exc.errno != errno.EIO:  # EIO: no one has the device open; all it wrote was read already
                         log.error("line-timed port %s: read failed (%s); it no longer reads", self.name, exc)
                         return
-                    self._stop.wait(0.05)
+                    if self._on_hangup is None:  # a serial port: as before, look again a little later
+                        self._stop.wait(0.05)
+                        continue
+                    if not hung_up:
+                        hung_up = True
+                        # here, before another byte is read: what the next master writes is of the new generation
+                        old = self._new_generation()
+                        with contextlib.suppress(RuntimeError):
+                            self._loop.call_soon_threadsafe(self._hung_up, old)
+                    self._stop.wait(HUNG_UP_POLL)  # a hung-up pty is always readable: look again for an opener
+                    continue
+            if data:
+                hung_up = False
             with self._lock:
                 if data:
                     self.framer.feed(data, now)
@@ -238,7 +271,7 @@ class TimedEndpoint:
             return
         for event in events:
             respond = functools.partial(self._respond, event.t, self.framer.t35, generation)
-            self.line.submit(event, SelfTimed(respond), self)
+            self.line.submit(event, SelfTimed(respond), self._source)
 
     def _respond(self, request_end: float, t35: float, generation: int, reply: Reply | None) -> None:
         if reply is None or self._stop.is_set() or generation != self._generation:
