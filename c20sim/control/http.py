@@ -170,16 +170,18 @@ class ControlApi:
         #: GET /metrics: the last answer per format (when made, body, Content-Type), and the one being made
         self._scraped: dict[str, tuple[float, bytes, str]] = {}
         self._scraping: dict[str, asyncio.Future[tuple[bytes, str]]] = {}
+        self._renderer: Any = None  #: the metrics process (a ProcessPoolExecutor of one), made at the first scrape
+        self._renderer_failed = False
 
     async def scrape(self, accept: str) -> tuple[bytes, str]:
-        """GET /metrics' body and Content-Type. The figures are read on the loop (a few microseconds a drive);
-        the families are built and written in a worker thread (tens of milliseconds at 247 drives, which on the
-        loop held the wire as long); scrapers within :data:`METRICS_CACHE` of each other, or asking while one is
+        """GET /metrics' body and Content-Type. The figures are read on the loop, 32 drives a turn (about 30 us
+        a drive); the families are built and written in a process of their own (tens of milliseconds of Python
+        at 247 drives: on the loop they held the wire as long, and in a thread they would hold the interpreter's
+        lock as long, in slices); scrapers within :data:`METRICS_CACHE` of each other, or asking while one is
         made, share one answer."""
         from prometheus_client.exposition import choose_encoder
 
-        from .metrics import render
-        from .metrics import snapshot as figures  # imports prometheus_client: only when scraped
+        from .metrics import render, snapshot_in_turns  # imports prometheus_client: only when scraped
 
         kind = choose_encoder(accept)[1]
         loop = asyncio.get_running_loop()
@@ -192,8 +194,8 @@ class ControlApi:
         future: asyncio.Future[tuple[bytes, str]] = loop.create_future()
         self._scraping[kind] = future
         try:
-            taken = figures(self.sim, self.line)
-            body, content_type = await asyncio.to_thread(render, taken, accept)
+            taken = await snapshot_in_turns(self.sim, self.line)
+            body, content_type = await self._render(render, taken, accept)
         except BaseException as exc:
             future.set_exception(exc)
             future.exception()  # retrieved: no "never retrieved" warning when nobody else waited
@@ -203,6 +205,31 @@ class ControlApi:
         self._scraped[kind] = (loop.time(), body, content_type)
         future.set_result((body, content_type))
         return body, content_type
+
+    async def _render(self, render: Callable[..., tuple[bytes, str]], *args: object) -> tuple[bytes, str]:
+        """``render(*args)`` in the metrics process (started at the first scrape, "spawn": nothing of this
+        process's threads is copied); in a worker thread where a process cannot be started."""
+        loop = asyncio.get_running_loop()
+        if self._renderer is None and not self._renderer_failed:
+            import concurrent.futures
+            import multiprocessing
+
+            try:
+                self._renderer = concurrent.futures.ProcessPoolExecutor(
+                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                )
+            except (OSError, ValueError, NotImplementedError) as exc:
+                log.info("GET /metrics: no process for the rendering (%s); a worker thread does it", exc)
+                self._renderer_failed = True
+        if self._renderer is not None:
+            try:
+                return await loop.run_in_executor(self._renderer, render, *args)
+            except (OSError, RuntimeError) as exc:  # BrokenProcessPool is a RuntimeError
+                log.info("GET /metrics: the rendering process failed (%s); a worker thread does it", exc)
+                self._renderer.shutdown(wait=False, cancel_futures=True)
+                self._renderer = None
+                self._renderer_failed = True
+        return await asyncio.to_thread(render, *args)
 
     def _count(self, record: FrameRecord) -> None:
         seq = self._seen
@@ -254,6 +281,9 @@ class ControlApi:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+        if self._renderer is not None:
+            self._renderer.shutdown(wait=False, cancel_futures=True)
+            self._renderer = None
 
 
 def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Application:

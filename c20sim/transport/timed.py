@@ -6,8 +6,11 @@ The event loop's timers are about 1 ms coarse, coarser than a character at
 line-timed stream does its timing off the loop:
 
 - a reader thread waits on the port with ``select`` (microsecond timeouts),
-  stamps every chunk with ``time.perf_counter`` as it arrives, feeds the
-  strict framer and ticks it at its t3.5 deadline; the framing events go to
+  stamps every chunk with ``time.perf_counter`` as it arrives (on a pty,
+  which hands the master's bytes over at once, with the time they would
+  have ended on the line: each takes a character after the last one's end
+  or its own arrival, whichever is later), feeds the strict framer and
+  ticks it at its t3.5 deadline; the framing events go to
   the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`.
   Without real-time scheduling (below), inside a frame at 19200 baud and
   above (t1.5 under 1 ms) it polls without sleeping until the frame ends,
@@ -215,6 +218,7 @@ class TimedEndpoint:
         realtime = _raise_thread_priority()
         fd, wake = self.fd, self._wake_r
         hung_up = True  #: no program had the device open when last seen (a pty's EIO); a read ends it
+        wire_end = 0.0  #: a pty: when the bytes read so far would have ended on the line
         while not self._stop.is_set():
             with self._lock:
                 deadline = self.framer.deadline()
@@ -250,11 +254,17 @@ class TimedEndpoint:
                             self._loop.call_soon_threadsafe(self._hung_up, old)
                     self._stop.wait(HUNG_UP_POLL)  # a hung-up pty is always readable: look again for an opener
                     continue
+            stamp = now
             if data:
                 hung_up = False
+                if self.pace:
+                    # A pty hands the master's bytes over at once; on the line they take a character each, and
+                    # the request's last byte ends that much later: its time on the wire counts before the reply
+                    # (t3.5 after it) may start, as on the drive's line.
+                    wire_end = stamp = max(now, wire_end) + len(data) * char_time(self.framer.baud, self.framer.bits)
             with self._lock:
                 if data:
-                    self.framer.feed(data, now)
+                    self.framer.feed(data, stamp)
                 self.framer.tick(now)
                 events = self.framer.events()
                 generation = self._generation
