@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable
 
 from ..core.bus import Reply
-from ..wire.protocol import FrameEvent, RtuFramer, char_time
+from ..wire.protocol import MAX_ADU, FrameEvent, RtuFramer, char_time
 from .line import Line, SelfTimed
 
 __all__ = ["TimedEndpoint"]
@@ -246,6 +246,7 @@ class TimedEndpoint:
                     if self._on_hangup is None:  # a serial port: as before, look again a little later
                         self._stop.wait(0.05)
                         continue
+                    wire_end = 0.0  # nobody has the device open: the line is quiet
                     if not hung_up:
                         hung_up = True
                         # here, before another byte is read: what the next master writes is of the new generation
@@ -261,7 +262,10 @@ class TimedEndpoint:
                     # A pty hands the master's bytes over at once; on the line they take a character each, and
                     # the request's last byte ends that much later: its time on the wire counts before the reply
                     # (t3.5 after it) may start, as on the drive's line.
-                    wire_end = stamp = max(now, wire_end) + len(data) * char_time(self.framer.baud, self.framer.bits)
+                    # A master that writes faster than the line (a flood) is held to one frame's backlog at
+                    # most (MAX_ADU characters), so its bytes never stamp a next master's far in the future.
+                    char = char_time(self.framer.baud, self.framer.bits)
+                    wire_end = stamp = min(max(now, wire_end) + len(data) * char, now + MAX_ADU * char)
             with self._lock:
                 if data:
                     self.framer.feed(data, stamp)
