@@ -19,7 +19,8 @@ line-timed stream does its timing off the loop:
   (about 6.5 ms for an 8-byte request at 19200 baud);
 - a writer thread puts each reply on the port starting t3.5 + the reply's
   turnaround after the request's last byte, and, where the port does not pace
-  bytes itself (a pty), one byte every character time: it sleeps to just
+  bytes itself (a pty), one byte every character time, each when its
+  character would end on the line (as a UART hands over a byte it received): it sleeps to just
   before each byte's time and spins the rest, so a byte leaves within a few
   microseconds of its time on an idle machine (bench/bench_line_timing.py).
 
@@ -345,7 +346,8 @@ class TimedEndpoint:
                 sent += written
             return
         for i in range(len(data)):
-            if not self._sleep_until(t0 + i * per_char):
+            # a byte is handed over when its character ends on the line, as a UART hands over a byte it received
+            if not self._sleep_until(t0 + (i + 1) * per_char):
                 return
             written = self._write_or_wait(data[i : i + 1], per_char, generation)
             if written == 0:
