@@ -9,15 +9,22 @@ time measured on this machine's own run (the polite master alone), so load slows
 from __future__ import annotations
 
 import asyncio
+import json
+import socket
 import struct
+import subprocess
+import sys
 import time
+import urllib.request
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
 from c20sim.core.bus import FrameRecord
 from c20sim.wire.protocol import with_crc
 from c20sim.wire.registers import Reg
+from tests.conftest import wait_for_ready_file
 from tests.integration.conftest import ServeFactory, mbap_read
 
 CROWD_HOST = "127.0.0.2"
@@ -265,5 +272,84 @@ async def test_a_request_that_waited_past_the_gateway_timeout_is_answered_0x0B_a
     requests = [r for r in seen if r.direction == "rx" and r.kind == "request"]
     assert len(requests) == 1  # B's never went on the line
     assert served.server.line.expired == 1
+    a.close()
+    b.close()
+
+
+def test_the_served_cli_drops_a_closed_connections_writes_too(tmp_path: Path) -> None:
+    """The same through ``c20sim serve`` (uvloop, bus timing as shipped), its replies held 0.3 s through the control
+    API: B's four writes queued behind A's read never reach the drive once B has closed."""
+    ready = tmp_path / "ready.json"
+    command = [sys.executable, "-m", "c20sim", "serve", "--modbus-tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]
+    proc = subprocess.Popen([*command, "--ready-file", str(ready)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        info = wait_for_ready_file(ready, proc)
+        control = info["control"].rstrip("/")
+        port = int(info["modbus_tcp"].rsplit(":", 1)[1])
+
+        def api(method: str, path: str, body: object) -> None:
+            request = urllib.request.Request(
+                control + path,
+                data=json.dumps(body).encode(),
+                method=method,
+                headers={"Content-Type": "application/json"},
+            )
+            urllib.request.urlopen(request, timeout=10).close()
+
+        def ask(sock: socket.socket, frame: bytes) -> bytes:
+            sock.sendall(frame)
+            header = recv(sock, 7)
+            return recv(sock, struct.unpack_from(">H", header, 4)[0] - 1)
+
+        def recv(sock: socket.socket, n: int) -> bytes:
+            data = b""
+            while len(data) < n:
+                chunk = sock.recv(n - len(data))
+                assert chunk, "the server closed the connection"
+                data += chunk
+            return data
+
+        a = socket.create_connection(("127.0.0.1", port), timeout=10)
+        assert ask(a, mbap_read(1, Reg.SPEED_SETPOINT))[:2] == bytes((3, 2))
+        before = ask(a, mbap_read(2, Reg.SPEED_SETPOINT))
+        api("PATCH", "/drives/1/link", {"delay": 0.3})
+        a.sendall(mbap_read(3, Reg.STATUS1))  # on the line before B connects, where it holds it 0.3 s
+        b = socket.create_connection(("127.0.0.1", port), timeout=10, source_address=(CROWD_HOST, 0))
+        b.sendall(b"".join(mbap_write(i, Reg.SPEED_SETPOINT, 1234) for i in range(4)))
+        b.close()
+        recv(a, 11)  # A's reply, 0.3 s late
+        api("DELETE", "/drives/1/link", {})
+        assert ask(a, mbap_read(4, Reg.SPEED_SETPOINT)) == before  # B's writes never reached the drive
+        a.close()
+    finally:
+        proc.kill()
+        proc.wait()
+        assert proc.stderr is not None
+        proc.stderr.close()
+
+
+async def test_over_rtu_over_tcp_a_request_past_the_gateway_timeout_is_dropped(serve: ServeFactory) -> None:
+    """RTU over TCP, --gateway-timeout 0.2, a reply held 0.5 s: B's read that waited behind it past 0.2 s gets no
+    answer and never goes on the line (a device server's master has given up); B's next read is answered."""
+    served = await serve(bus_timing=True, gateway_timeout=0.2)
+    served.sim.link_faults(1).delay = 0.5
+    seen: list[FrameRecord] = []
+    served.sim.bus.subscribe(seen.append)
+    read = with_crc(bytes((1,)) + struct.pack(">BHH", 3, Reg.STATUS1, 1))
+    ra, a = await connect(served.tcp_port)
+    rb, b = await connect(served.tcp_port)
+    a.write(read)
+    await a.drain()
+    await until(lambda: served.server.line.busy, "A's request on the line")
+    b.write(read)
+    await b.drain()
+    assert await asyncio.wait_for(ra.readexactly(7), timeout=10.0) == bytes.fromhex("0103020003f845")
+    await until(lambda: served.server.line.expired == 1, "B's request to expire")
+    served.sim.link_faults(1).delay = 0.0
+    b.write(read)
+    await b.drain()
+    assert await asyncio.wait_for(rb.readexactly(7), timeout=10.0) == bytes.fromhex("0103020003f845")
+    requests = [r for r in seen if r.direction == "rx" and r.kind == "request"]
+    assert len(requests) == 2  # A's, and B's second: B's first never went on the line, so had no reply
     a.close()
     b.close()
