@@ -25,6 +25,7 @@ import contextlib
 import errno
 import fcntl
 import os
+import select
 from pathlib import Path
 
 from ..wire.errors import C20SimError
@@ -86,7 +87,8 @@ class PtyPort:
         self._endpoint = RtuEndpoint(
             self.line, framer, self._send, name=f"pty {self.path}", pause=self._pause, resume=self._resume
         )
-        self._hangups = HangupWatch(self._master, self._flush_left, self._after_hangup, name=self.path)
+        if hasattr(select, "epoll"):  # Linux; elsewhere the hang-up is seen by the loop (a read's EIO, a reply)
+            self._hangups = HangupWatch(self._master, self._flush_left, self._after_hangup, name=self.path)
         self._opened = PtyOpened(self.path, self._maybe_opened)
         self._opened.start()
         self._maybe_opened()
