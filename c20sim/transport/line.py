@@ -324,8 +324,10 @@ class Line:
 
     def cancel(self, source: object) -> int:
         """Drop the waiting requests of ``source`` (a connection that closed); returns how many."""
-        for waiters in self._room_waiters.values():
-            waiters.pop(source, None)
+        for key in [key for key, waiters in self._room_waiters.items() if source in waiters]:
+            del self._room_waiters[key][source]
+            if not self._room_waiters[key]:
+                del self._room_waiters[key]
         peer = self._peer_of.pop(source, _NO_PEER)
         if peer is _NO_PEER:
             return 0
