@@ -92,6 +92,21 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         "on every transport, as behind a serial device server (default on; --no-bus-timing: only the turnaround)",
     )
     where.add_argument(
+        "--max-connections",
+        metavar="N",
+        type=int,
+        help="connections each TCP port takes at once; the next is closed with one log line (default: 4 on --tcp, "
+        "as a Moxa NPort's most; 32 on --modbus-tcp, as an MGate; docs/line-timing.md)",
+    )
+    where.add_argument(
+        "--gateway-timeout",
+        metavar="SECONDS",
+        type=float,
+        default=1.0,
+        help="a TCP request that waited this long for the line, or got no reply on it, is answered 0x0B on "
+        "--modbus-tcp and dropped on --tcp (default 1.0, an MGate's response timeout)",
+    )
+    where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
     where.add_argument(
@@ -165,6 +180,8 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         modbus_tcp=args.modbus_tcp,
         line_timing=args.line_timing,
         bus_timing=args.bus_timing,
+        max_connections=getattr(args, "max_connections", None),
+        gateway_timeout=getattr(args, "gateway_timeout", 1.0),
         log_frames=args.log_frames,
         log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,

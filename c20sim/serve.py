@@ -85,6 +85,10 @@ class ServeOptions:
     #: hold the shared line for each transaction's RS485 time at the drive's serial settings, whatever the
     #: transport (the command line's default is on: see docs/line-timing.md); off here for the building block
     bus_timing: bool = False
+    #: connections each TCP port takes at once (None: the port's default, transport.tcp.MAX_CONNECTIONS)
+    max_connections: int | None = None
+    #: seconds a TCP request may wait for the line, or for a reply on it (transport.tcp.GATEWAY_TIMEOUT)
+    gateway_timeout: float = 1.0
     log_frames: str | None = None
     #: rotate the frame log when it reaches this many MiB (None: no limit)
     log_frames_max_mb: float | None = None
@@ -195,13 +199,23 @@ class Server:
                     line_timing=opts.line_timing,
                 )
                 await self.endpoints.serial.start()
+            if (opts.tcp or opts.modbus_tcp) and not 0.01 <= opts.gateway_timeout <= 120.0:  # refuses nan
+                raise C20SimError(
+                    f"--gateway-timeout {opts.gateway_timeout:g}: give seconds from 0.01 to 120 (an MGate's range)"
+                )
+            if opts.max_connections is not None and not 1 <= opts.max_connections <= 10000:
+                raise C20SimError(f"--max-connections {opts.max_connections}: give 1 to 10000 connections per port")
             if opts.tcp:
                 host, port = parse_host_port(opts.tcp, "--tcp")
-                self.endpoints.tcp = RtuOverTcpServer(line, host, port)
+                self.endpoints.tcp = RtuOverTcpServer(
+                    line, host, port, max_connections=opts.max_connections, timeout=opts.gateway_timeout
+                )
                 await self.endpoints.tcp.start()
             if opts.modbus_tcp:
                 host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
-                self.endpoints.modbus_tcp = ModbusTcpServer(line, host, port)
+                self.endpoints.modbus_tcp = ModbusTcpServer(
+                    line, host, port, max_connections=opts.max_connections, timeout=opts.gateway_timeout
+                )
                 await self.endpoints.modbus_tcp.start()
             if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
                 self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)

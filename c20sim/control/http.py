@@ -63,6 +63,9 @@ STREAM_QUERY = ("hz", "frame_hz", "buffer", "frames", "token")
 #: most ``buffer`` frames a batch.
 FRAME_HZ = (0.1, 100.0)
 DEFAULT_FRAME_HZ = 20.0
+#: GET /metrics answers made within this many seconds of each other are one (a scrape every second or slower
+#: is always fresh; four scrapers at once cost one).
+METRICS_CACHE = 0.5
 #: Frames put in words per turn of the loop: a big batch is cut so that a request waits for no more than one chunk.
 CHUNK = 32
 
@@ -145,6 +148,7 @@ class ControlApi:
         self.sim = sim
         self.url = ""
         self.host = ""  #: the HOST the API is bound to, for the guard's Host check
+        self.any_host = False  #: answer any Host (the read-only --metrics listener)
         self.frame_log: Any = None  #: serve's --log-frames writer (transport.framelog.FrameLog), for its drop count
         self.line: Line | None = None  #: serve's line, for its latency and busy time in GET /metrics
         #: the token every request must carry, or None (loopback without --control-token)
@@ -163,6 +167,69 @@ class ControlApi:
         self.readers = 0
         #: telemetry snapshots made so far: numbers them, so a client can tell the newest
         self.snapshots = 0
+        #: GET /metrics: the last answer per format (when made, body, Content-Type), and the one being made
+        self._scraped: dict[str, tuple[float, bytes, str]] = {}
+        self._scraping: dict[str, asyncio.Future[tuple[bytes, str]]] = {}
+        self._renderer: Any = None  #: the metrics process (a ProcessPoolExecutor of one), made at the first scrape
+        self._renderer_failed = False
+
+    async def scrape(self, accept: str) -> tuple[bytes, str]:
+        """GET /metrics' body and Content-Type. The figures are read on the loop, 32 drives a turn (about 30 us
+        a drive); the families are built and written in a process of their own (tens of milliseconds of Python
+        at 247 drives: on the loop they held the wire as long, and in a thread they would hold the interpreter's
+        lock as long, in slices); scrapers within :data:`METRICS_CACHE` of each other, or asking while one is
+        made, share one answer."""
+        from prometheus_client.exposition import choose_encoder
+
+        from .metrics import render, snapshot_in_turns  # imports prometheus_client: only when scraped
+
+        kind = choose_encoder(accept)[1]
+        loop = asyncio.get_running_loop()
+        cached = self._scraped.get(kind)
+        if cached is not None and loop.time() - cached[0] < METRICS_CACHE:
+            return cached[1], cached[2]
+        making = self._scraping.get(kind)
+        if making is not None:
+            return await asyncio.shield(making)
+        future: asyncio.Future[tuple[bytes, str]] = loop.create_future()
+        self._scraping[kind] = future
+        try:
+            taken = await snapshot_in_turns(self.sim, self.line)
+            body, content_type = await self._render(render, taken, accept)
+        except BaseException as exc:
+            future.set_exception(exc)
+            future.exception()  # retrieved: no "never retrieved" warning when nobody else waited
+            raise
+        finally:
+            del self._scraping[kind]
+        self._scraped[kind] = (loop.time(), body, content_type)
+        future.set_result((body, content_type))
+        return body, content_type
+
+    async def _render(self, render: Callable[..., tuple[bytes, str]], *args: object) -> tuple[bytes, str]:
+        """``render(*args)`` in the metrics process (started at the first scrape, "spawn": nothing of this
+        process's threads is copied); in a worker thread where a process cannot be started."""
+        loop = asyncio.get_running_loop()
+        if self._renderer is None and not self._renderer_failed:
+            import concurrent.futures
+            import multiprocessing
+
+            try:
+                self._renderer = concurrent.futures.ProcessPoolExecutor(
+                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                )
+            except (OSError, ValueError, NotImplementedError) as exc:
+                log.info("GET /metrics: no process for the rendering (%s); a worker thread does it", exc)
+                self._renderer_failed = True
+        if self._renderer is not None:
+            try:
+                return await loop.run_in_executor(self._renderer, render, *args)
+            except (OSError, RuntimeError) as exc:  # BrokenProcessPool is a RuntimeError
+                log.info("GET /metrics: the rendering process failed (%s); a worker thread does it", exc)
+                self._renderer.shutdown(wait=False, cancel_futures=True)
+                self._renderer = None
+                self._renderer_failed = True
+        return await asyncio.to_thread(render, *args)
 
     def _count(self, record: FrameRecord) -> None:
         seq = self._seen
@@ -185,6 +252,9 @@ class ControlApi:
         """Listen on ``host``:``port``, serving ``table`` (the whole control surface by default; serve's
         ``--metrics`` listener serves its one row)."""
         self.host = host
+        # the --metrics listener is read-only and tokenless: a scrape by any Host name (a Kubernetes Service's DNS
+        # name) is answered; the control API keeps its Host check against DNS rebinding
+        self.any_host = option == "--metrics"
         if option == "--control" and (warning := httpguard.check_bind(host)) is not None:
             print(f"c20sim: {warning}", file=sys.stderr, flush=True)
         httpguard.quiet_logs()
@@ -211,6 +281,9 @@ class ControlApi:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+        if self._renderer is not None:
+            self._renderer.shutdown(wait=False, cancel_futures=True)
+            self._renderer = None
 
 
 def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Application:
@@ -394,16 +467,20 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         for key in query:
             if key not in ("last", "slave", "since"):
                 raise unknown("query parameter", key, ["last", "slave", "since"])
-        records = ops.frames(
-            sim,
-            last=arg("last", 1),
-            slave=arg("slave", 0),
-            since=arg("since", 0) or 0,
-            first_seq=api.first_seq,
-            wall_offset=WALL_OFFSET,
+        kept = ops.select_frames(
+            sim, last=arg("last", 1), slave=arg("slave", 0), since=arg("since", 0) or 0, first_seq=api.first_seq
         )
         dropped = api.frame_log.dropped if api.frame_log is not None else 0
-        return reply({"frames": records, "next": api._seen, "log_dropped": dropped})
+        seen = api._seen
+        if len(kept) <= CHUNK:
+            return reply({"frames": ops.frames_in_words(kept, WALL_OFFSET), "next": seen, "log_dropped": dropped})
+
+        def words() -> str:
+            # the records are frozen: put in words and JSON in a worker thread, so a large answer (up to the whole
+            # frame log) never holds the loop that answers the masters
+            return json.dumps({"frames": ops.frames_in_words(kept, WALL_OFFSET), "next": seen, "log_dropped": dropped})
+
+        return web.Response(text=await asyncio.to_thread(words), content_type="application/json")
 
     async def delete_frames(request: web.Request) -> web.Response:
         sim.bus.records.clear()
@@ -418,9 +495,7 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
         return reply(document(table))
 
     async def metrics(request: web.Request) -> web.Response:
-        from .metrics import exposition  # imports prometheus_client: only when scraped
-
-        body, content_type = exposition(sim, api.line, request.headers.get("Accept", ""))
+        body, content_type = await api.scrape(request.headers.get("Accept", ""))
         response = web.Response(body=body)
         response.headers["Content-Type"] = content_type
         return response
@@ -449,7 +524,7 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
 
         return handle
 
-    app = web.Application(middlewares=[*httpguard.middlewares(api.host), errors, token])
+    app = web.Application(middlewares=[*httpguard.middlewares(api.host, any_host=api.any_host), errors, token])
     for row in table.values():
         if row.call is None and row.name not in own:
             raise ValueError(f"route {row.key} ({row.name}): no operation and no handler of the API's own")

@@ -158,8 +158,9 @@ def _refuse(status: int, message: str) -> web.Response:
     return web.json_response({"error": message}, status=status)
 
 
-def middlewares(bound_host: str = "") -> list[Any]:
-    """The guard's aiohttp middlewares, outermost first; ``bound_host`` is the HOST of ``--control``."""
+def middlewares(bound_host: str = "", *, any_host: bool = False) -> list[Any]:
+    """The guard's aiohttp middlewares, outermost first; ``bound_host`` is the HOST of ``--control``;
+    ``any_host``: no Host check (a read-only listener, whose answers a rebinding page gains nothing from)."""
     from aiohttp import ClientPayloadError, web
     from aiohttp.http_exceptions import HttpProcessingError
 
@@ -179,7 +180,7 @@ def middlewares(bound_host: str = "") -> list[Any]:
         host = request.headers.get("Host", "")
         sockname = request.transport.get_extra_info("sockname") if request.transport is not None else None
         local = str(sockname[0]) if isinstance(sockname, tuple) and sockname else None
-        if host and not host_allowed(host, local, bound_host):
+        if host and not any_host and not host_allowed(host, local, bound_host):
             return _refuse(
                 403, f"{where}: Host {host!r} is not this API's; use a loopback address or the address it is bound to"
             )

@@ -17,7 +17,9 @@ seconds the line was held by delayed replies, the requests waiting for it.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.exposition import choose_encoder
@@ -25,10 +27,11 @@ from prometheus_client.registry import Collector, CollectorRegistry
 
 from ..core.simulator import Simulator
 from ..drive.statemachine import State
+from ..drive.telemetry import Telemetry
 from ..transport.line import LATENCY_BUCKETS, Line
 from . import ops
 
-__all__ = ["SimulatorCollector", "exposition"]
+__all__ = ["SimulatorCollector", "Snapshot", "exposition", "render", "snapshot", "snapshot_in_turns"]
 
 #: Counters of GET /drives/N/counters that are plain totals -> (metric name, help).
 _COUNTERS = {
@@ -51,16 +54,61 @@ _GAUGES = {
 }
 
 
-class SimulatorCollector(Collector):
-    """Collects the simulator's drives and the line's figures at each scrape."""
+@dataclass(frozen=True)
+class Snapshot:
+    """What a scrape reports, read on the serving loop (cheap: plain values); formatted later, off the loop."""
 
-    def __init__(self, sim: Simulator, line: Line | None = None) -> None:
+    #: per drive: its address, its counters (``GET /drives/N/counters``), its telemetry
+    drives: tuple[tuple[int, dict[str, object], Telemetry], ...]
+    model_time: float
+    #: the line's latency histogram (per bucket), its count and sum, busy seconds and requests waiting; or None
+    line: tuple[tuple[int, ...], int, float, float, int] | None
+
+
+#: Drives read per turn of the serving loop by :func:`snapshot_in_turns` (about 30 us each: a millisecond a turn).
+DRIVES_PER_TURN = 32
+
+
+def _line_figures(line: Line | None) -> tuple[tuple[int, ...], int, float, float, int] | None:
+    if line is None:
+        return None
+    latency = line.latency
+    return (tuple(latency.counts), latency.count, latency.sum, line.busy_seconds, line.waiting)
+
+
+def snapshot(sim: Simulator, line: Line | None = None) -> Snapshot:
+    """Read the figures now, all at once (about 30 us a drive)."""
+    sim.sync()
+    drives = tuple((address, ops.counters(sim, address), ops.telemetry(sim, address)) for address in sim.drives)
+    return Snapshot(drives, sim.now(), _line_figures(line))
+
+
+async def snapshot_in_turns(sim: Simulator, line: Line | None = None) -> Snapshot:
+    """The same, :data:`DRIVES_PER_TURN` drives a turn of the loop, so a master's reply due meanwhile waits for
+    one turn's reading at most (247 drives read at once held the loop about 10 ms)."""
+    sim.sync()
+    drives: list[tuple[int, dict[str, object], Telemetry]] = []
+    for i, address in enumerate(list(sim.drives)):
+        if i and i % DRIVES_PER_TURN == 0:
+            await asyncio.sleep(0)
+        if address in sim.drives:  # a drive removed meanwhile is left out
+            drives.append((address, ops.counters(sim, address), ops.telemetry(sim, address)))
+    return Snapshot(tuple(drives), sim.now(), _line_figures(line))
+
+
+class SimulatorCollector(Collector):
+    """Yields a snapshot's metric families (at each scrape: a fresh snapshot of ``sim``, or the one given)."""
+
+    def __init__(self, sim: Simulator | None = None, line: Line | None = None, *, taken: Snapshot | None = None):
         self.sim = sim
         self.line = line
+        self.taken = taken
 
     def collect(self) -> Iterator[Metric]:
-        sim = self.sim
-        sim.sync()
+        taken = self.taken
+        if taken is None:
+            assert self.sim is not None
+            taken = snapshot(self.sim, self.line)
         counters = {key: CounterMetricFamily(name, text, labels=["drive"]) for key, (name, text) in _COUNTERS.items()}
         exceptions = CounterMetricFamily(
             "c20sim_exceptions", "Exception replies the drive sent, by exception code", labels=["drive", "code"]
@@ -69,9 +117,8 @@ class SimulatorCollector(Collector):
         state = GaugeMetricFamily(
             "c20sim_state", "The drive's state: 1 for the state it is in", labels=["drive", "state"]
         )
-        for address in sim.drives:
+        for address, counted, telemetry in taken.drives:
             drive = str(address)
-            counted = ops.counters(sim, address)
             for key, counter in counters.items():
                 value = counted[key]
                 assert isinstance(value, int)
@@ -80,7 +127,6 @@ class SimulatorCollector(Collector):
             assert isinstance(by_code, dict)
             for code, value in sorted(by_code.items()):
                 exceptions.add_metric([drive, code], value)
-            telemetry = ops.telemetry(sim, address)
             for key, gauge in gauges.items():
                 gauge.add_metric([drive], float(getattr(telemetry, key)))
             for s in State:
@@ -89,34 +135,39 @@ class SimulatorCollector(Collector):
         yield exceptions
         yield from gauges.values()
         yield state
-        yield GaugeMetricFamily("c20sim_model_time_seconds", "The model's time", value=sim.now())
-        if self.line is None:
+        yield GaugeMetricFamily("c20sim_model_time_seconds", "The model's time", value=taken.model_time)
+        if taken.line is None:
             return
-        latency = self.line.latency
+        counts, count, total, busy, waiting = taken.line
         buckets: list[tuple[str, float]] = []
         cumulative = 0
-        for bound, count in zip(LATENCY_BUCKETS, latency.counts, strict=False):
-            cumulative += count
+        for bound, in_bucket in zip(LATENCY_BUCKETS, counts, strict=False):
+            cumulative += in_bucket
             buckets.append((repr(bound), cumulative))
-        buckets.append(("+Inf", latency.count))
+        buckets.append(("+Inf", count))
         yield HistogramMetricFamily(
             "c20sim_reply_latency_seconds",
             "From a request's last byte to its reply handed to the port",
             buckets=buckets,
-            sum_value=latency.sum,
+            sum_value=total,
         )
         yield CounterMetricFamily(
             "c20sim_line_busy_seconds",
             "Seconds the line was held (each transaction's RS485 time with bus timing; else delayed replies)",
-            value=self.line.busy_seconds,
+            value=busy,
         )
-        yield GaugeMetricFamily("c20sim_line_waiting", "Requests waiting for the line", value=self.line.waiting)
+        yield GaugeMetricFamily("c20sim_line_waiting", "Requests waiting for the line", value=waiting)
+
+
+def render(taken: Snapshot, accept: str = "") -> tuple[bytes, str]:
+    """A snapshot in the format the scraper's ``Accept`` header asks for (OpenMetrics, or the Prometheus text
+    format 0.0.4 by default), as the client library negotiates it: pure work, for a worker thread."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(SimulatorCollector(taken=taken))
+    encoder, content_type = choose_encoder(accept)
+    return encoder(registry), content_type
 
 
 def exposition(sim: Simulator, line: Line | None = None, accept: str = "") -> tuple[bytes, str]:
-    """The metrics now, and their Content-Type: the format the scraper's ``Accept`` header asks for
-    (OpenMetrics, or the Prometheus text format 0.0.4 by default), as the client library negotiates it."""
-    registry = CollectorRegistry(auto_describe=False)
-    registry.register(SimulatorCollector(sim, line))
-    encoder, content_type = choose_encoder(accept)
-    return encoder(registry), content_type
+    """The metrics now, and their Content-Type (both steps at once, on the caller's thread)."""
+    return render(snapshot(sim, line), accept)

@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ..core.bus import FrameRecord
 from ..core.clock import RealtimeClock
 from ..core.generators import GeneratorError, parse_generator
 from ..core.linkfaults import KNOBS, LinkFaults
@@ -729,6 +730,13 @@ def frames(
     only the records kept are put in words, which is what costs. ``wall_offset`` (from the I/O layer)
     adds each frame's wall-clock time.
     """
+    return frames_in_words(select_frames(sim, last=last, slave=slave, since=since, first_seq=first_seq), wall_offset)
+
+
+def select_frames(
+    sim: Simulator, *, last: int | None = None, slave: int | None = None, since: int = 0, first_seq: int = 0
+) -> list[tuple[int, FrameRecord]]:
+    """The records :func:`frames` keeps, with their sequence numbers (cheap: the records are not copied)."""
     if last is not None and (isinstance(last, bool) or last < 1):
         raise ControlError(f"last={last} must be at least 1")
     records = sim.bus.records
@@ -740,6 +748,12 @@ def frames(
     ]
     if last is not None:
         kept = kept[-last:]
+    return kept
+
+
+def frames_in_words(kept: list[tuple[int, FrameRecord]], wall_offset: float | None = None) -> list[dict[str, Any]]:
+    """Selected records in words: what costs, and touches no simulator state (records are frozen), so a worker
+    thread may do it."""
     return [{"seq": seq, **record.as_dict(wall_offset)} for seq, record in kept]
 
 

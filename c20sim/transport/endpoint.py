@@ -71,6 +71,8 @@ class RtuEndpoint:
         pause: Callable[[], None] | None = None,
         resume: Callable[[], None] | None = None,
         limit: int = 1,
+        peer: object = None,
+        wait_limit: float | None = None,
     ) -> None:
         self.line = line
         self.framer = framer
@@ -80,6 +82,8 @@ class RtuEndpoint:
         self._pause = pause
         self._resume = resume
         self.limit = limit
+        self.peer = peer  #: the line's turns: the address the stream comes from (None: it is its own peer)
+        self.wait_limit = wait_limit  #: a request that waited this long for the line is dropped (None: never)
         self._loop = asyncio.get_running_loop()
         self._tick: asyncio.TimerHandle | None = None
         self._closed = False
@@ -173,8 +177,13 @@ class RtuEndpoint:
             self._held = None
             if event is None:
                 break
+            if not self.line.has_room(self.peer, self):
+                self._held = event  # its peer's queue is full: held, and nothing more is read, until there is room
+                self.line.when_room(self.peer, self, self._schedule_collect)
+                break
             self._outstanding += 1
-            self.line.submit(event, self._respond_now, self)
+            if not self.line.submit(event, self._respond_now, self, peer=self.peer, wait_limit=self.wait_limit):
+                self._outstanding -= 1  # its peer's queue is full: dropped, as a device server drops it (counted)
         if self._held is None and (self._outstanding >= self.limit or self._write_blocked):
             self._held = self._next_event()
         self._flow()

@@ -8,10 +8,26 @@ events that arrive meanwhile wait their turn, as on a real RS485 line or
 behind a serial gateway. No task and no lock per request: callbacks on the
 event loop, which is what keeps a request cheap.
 
-The queue is bounded by its callers, not here: each endpoint submits at most
-a few requests at a time and reads no more until they are answered
-(backpressure), and a closed endpoint's waiting requests are dropped with
-:meth:`Line.cancel`, as a gateway forgets a connection that went away.
+Many masters, in turn. Requests wait in one queue per master (the source that
+submitted them: a connection, a pty, a serial port), and masters in one queue
+per peer (the address a TCP connection comes from; a local port is its own
+peer). The line takes the next request from the next peer in turn, and
+within a peer from the next master in turn, as a gateway serves its masters:
+a host with 500 connections gets the line as often as a host with one, a
+connection that pipelines as often as one that waits for each answer. Each
+peer's queue is bounded (:data:`PEER_QUEUE`, the MGate MB3000's request
+queue per master): a master whose peer's queue is full holds its next
+request and is not read (:meth:`Line.has_room`, :meth:`Line.when_room`)
+until the line has taken one of its peer's, so a flooding host costs the
+line a bounded queue and no work per request. A request that waited longer than its submitter's limit (the gateway's
+response timeout) is never put on the line: its submitter's ``expire``
+answers it (exception 0x0B on Modbus TCP) or it is dropped (RTU over TCP).
+Each endpoint also submits at most a few requests at a time and reads no
+more until they are answered (backpressure), and a closed endpoint's waiting
+requests are dropped with :meth:`Line.cancel`, as a gateway forgets a
+connection that went away. Before each request it takes from the queue the
+line runs its ``sweeps`` (the TCP ports' watch for peers that closed), so a
+request whose connection is known to be gone is never served.
 
 Bus timing (``serve --bus-timing``, on by default in every front end): each
 transaction holds the line for the time it would take on RS485 at the drive's
@@ -37,6 +53,8 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import heapq
+import itertools
 import logging
 import time
 from bisect import bisect_left
@@ -47,7 +65,7 @@ from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
-__all__ = ["EARLY", "LATENCY_BUCKETS", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
+__all__ = ["EARLY", "LATENCY_BUCKETS", "PEER_QUEUE", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +166,35 @@ def _nothing(reply: Reply | None) -> None:
     """The respond of a delay whose reply was handed over already."""
 
 
+#: Requests one peer (a master's address; a local port) may have waiting for the line. The MGate MB3000's user
+#: manual: "The request queue is full, and 32 request queue is for each master" (its Modbus TCP Exception
+#: setting, Request dropped: exception 0x06). That a master there is one IP address is assumed.
+PEER_QUEUE = 32
+
+
+class _Waiting:
+    """A request waiting for the line."""
+
+    __slots__ = ("deadline", "event", "expire", "peer", "respond", "source", "waiting")
+
+    def __init__(
+        self,
+        event: FrameEvent,
+        respond: Respond,
+        source: object,
+        peer: object,
+        expire: Callable[[], None] | None,
+        deadline: float | None,
+    ) -> None:
+        self.event = event
+        self.respond = respond
+        self.source = source
+        self.peer = peer
+        self.expire = expire
+        self.deadline = deadline
+        self.waiting = True  #: False once served, expired or cancelled (the deadline heap forgets it lazily)
+
+
 class Line:
     """Serves framing events from every endpoint of one simulator, in order."""
 
@@ -155,13 +202,30 @@ class Line:
         self.sim = sim
         #: hold the line for each transaction's time on RS485 (else only for a reply's turnaround)
         self.bus_timing = bus_timing
-        self._waiting: deque[tuple[FrameEvent, Respond, object]] = deque()
+        #: per peer, per master (source), its requests in order; both levels in turn (dicts keep the order)
+        self._queues: dict[object, dict[object, deque[_Waiting]]] = {}
+        self._peer_of: dict[object, object] = {}  #: each master with requests waiting -> its peer
+        self._peer_waiting: dict[object, int] = {}  #: requests waiting per peer
+        #: per peer whose queue is full, the masters holding a request for it, in order
+        self._room_waiters: dict[object, dict[object, Callable[[], None]]] = {}
+        self._count = 0
+        self._deadlines: list[tuple[float, int, _Waiting]] = []  #: a heap of the waiting requests' deadlines
+        self._seq = itertools.count()
+        #: called before the line takes a request from its queue (the TCP ports' watch for peers that closed)
+        self.sweeps: list[Callable[[], None]] = []
+        #: requests per peer that may wait (:data:`PEER_QUEUE`)
+        self.peer_queue = PEER_QUEUE
+        #: requests refused (a peer's queue full), expired (waited past their limit), cancelled (their master went)
+        self.refused = 0
+        self.expired = 0
+        self.cancelled = 0
         self._busy = False
         self._timer: DueTimer | None = None
         #: when the last held transaction ends (``time.perf_counter``): its reply may be handed over up to
         #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
         self._held_until = 0.0
         self._last_source: object = None  #: who asked for the last transaction served
+        self._last_peer: object = None  #: and its peer
         self._last_on_line = 0.0  #: its request's time in the frame log
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._baud = sim.bus.line_baud
@@ -200,31 +264,174 @@ class Line:
     @property
     def waiting(self) -> int:
         """Requests queued behind the one being served."""
-        return len(self._waiting)
+        return self._count
 
-    def submit(self, event: FrameEvent, respond: Respond, source: object = None) -> None:
-        """Serve ``event`` now if the line is free, else when it is; ``source`` names who asked, for cancel."""
-        self._waiting.append((event, respond, source))
+    def waiting_of(self, peer: object) -> int:
+        """Requests of ``peer`` waiting for the line."""
+        return self._peer_waiting.get(peer, 0)
+
+    def submit(
+        self,
+        event: FrameEvent,
+        respond: Respond,
+        source: object = None,
+        *,
+        peer: object = None,
+        expire: Callable[[], None] | None = None,
+        wait_limit: float | None = None,
+    ) -> bool:
+        """Serve ``event`` now if the line is free, else in ``source``'s turn; False (and nothing queued) when
+        ``peer``'s queue is full. ``source`` names the master who asked (for cancel and turns), ``peer`` its
+        address (None: the source is its own peer). A request still waiting ``wait_limit`` seconds after this
+        call is not served: ``expire()`` is called, or ``respond(None)`` without one."""
+        if peer is None:
+            peer = source
+        if self._peer_waiting.get(peer, 0) >= self.peer_queue:
+            self.refused += 1  # its caller should have asked has_room() first
+            return False
+        # counted from now: a request framed from bytes read earlier (held by backpressure) waits for the line
+        # only from here
+        deadline = None if wait_limit is None else time.perf_counter() + wait_limit
+        item = _Waiting(event, respond, source, peer, expire, deadline)
+        sources = self._queues.get(peer)
+        if sources is None:
+            sources = self._queues[peer] = {}
+        queue = sources.get(source)
+        if queue is None:
+            queue = sources[source] = deque()
+            self._peer_of[source] = peer
+        queue.append(item)
+        self._peer_waiting[peer] = self._peer_waiting.get(peer, 0) + 1
+        self._count += 1
+        if deadline is not None:
+            heapq.heappush(self._deadlines, (deadline, next(self._seq), item))
         if not self._busy:
             self._serve_waiting()
+        return True
+
+    def has_room(self, peer: object, source: object) -> bool:
+        """May ``source`` of ``peer`` (None: its own) queue a request now? Else the caller waits: see
+        :meth:`when_room`."""
+        return self._peer_waiting.get(source if peer is None else peer, 0) < self.peer_queue
+
+    def when_room(self, peer: object, source: object, callback: Callable[[], None]) -> None:
+        """Call ``callback`` (soon, on the loop) when ``peer``'s queue has room, its masters woken in turn.
+
+        A master whose peer's queue is full holds its request and reads no more (backpressure), so a host that
+        floods costs the line a bounded queue and no work per request."""
+        key = source if peer is None else peer
+        self._room_waiters.setdefault(key, {})[source] = callback
 
     def cancel(self, source: object) -> int:
         """Drop the waiting requests of ``source`` (a connection that closed); returns how many."""
-        before = len(self._waiting)
-        if before:
-            self._waiting = deque(item for item in self._waiting if item[2] is not source)
-        return before - len(self._waiting)
+        for key in [key for key, waiters in self._room_waiters.items() if source in waiters]:
+            del self._room_waiters[key][source]
+            if not self._room_waiters[key]:
+                del self._room_waiters[key]
+        peer = self._peer_of.pop(source, _NO_PEER)
+        if peer is _NO_PEER:
+            return 0
+        sources = self._queues[peer]
+        queue = sources.pop(source)
+        if not sources:
+            del self._queues[peer]
+        for item in queue:
+            item.waiting = False
+        self._forget(peer, len(queue))
+        self.cancelled += len(queue)
+        return len(queue)
+
+    def _forget(self, peer: object, count: int) -> None:
+        self._count -= count
+        left = self._peer_waiting[peer] - count
+        if left:
+            self._peer_waiting[peer] = left
+        else:
+            del self._peer_waiting[peer]
+        waiters = self._room_waiters.get(peer)
+        if waiters:
+            for _ in range(min(count, len(waiters))):
+                source = next(iter(waiters))
+                self._loop().call_soon(waiters.pop(source))
+            if not waiters:
+                del self._room_waiters[peer]
 
     def close(self) -> None:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        self._waiting.clear()
+        self._queues.clear()
+        self._peer_of.clear()
+        self._peer_waiting.clear()
+        self._room_waiters.clear()
+        self._deadlines.clear()
+        self._count = 0
         self._busy = False
 
+    def _next(self) -> _Waiting:
+        """The next request in turn: the first peer's first master's first; both go to the back of their turns.
+        The peer and the master served last go behind the others first (their queue may have been empty then)."""
+        queues = self._queues
+        peer, sources = next(iter(queues.items()))
+        if peer is self._last_peer and len(queues) > 1:
+            del queues[peer]
+            queues[peer] = sources
+            peer, sources = next(iter(queues.items()))
+        source, queue = next(iter(sources.items()))
+        if source is self._last_source and len(sources) > 1:
+            del sources[source]
+            sources[source] = queue
+            source, queue = next(iter(sources.items()))
+        self._last_peer = peer
+        item = queue.popleft()
+        del sources[source]
+        if queue:
+            sources[source] = queue  # to the back of its peer's masters
+        else:
+            del self._peer_of[source]
+        del self._queues[peer]
+        if sources:
+            self._queues[peer] = sources  # to the back of the peers
+        item.waiting = False
+        self._forget(peer, 1)
+        return item
+
+    def _expire_due(self, now: float) -> None:
+        """Take out every waiting request past its deadline, and let its submitter answer it."""
+        heap = self._deadlines
+        while heap and heap[0][0] <= now:
+            item = heapq.heappop(heap)[2]
+            if not item.waiting:
+                continue
+            sources = self._queues[item.peer]
+            queue = sources[item.source]
+            queue.remove(item)
+            if not queue:
+                del sources[item.source]
+                del self._peer_of[item.source]
+                if not sources:
+                    del self._queues[item.peer]
+            item.waiting = False
+            self._forget(item.peer, 1)
+            self.expired += 1
+            if item.expire is not None:
+                try:
+                    item.expire()
+                except Exception:
+                    log.exception("bug while answering an expired request; the simulator keeps serving")
+            else:
+                _deliver(item.respond, None)
+
     def _serve_waiting(self) -> None:
-        while self._waiting and not self._busy:
-            event, respond, source = self._waiting.popleft()
+        while self._count and not self._busy:
+            for sweep in self.sweeps:
+                sweep()  # may cancel the requests of masters that went
+            if self._deadlines:
+                self._expire_due(time.perf_counter())
+            if not self._count:
+                return
+            item = self._next()
+            event, respond, source = item.event, item.respond, item.source
             asked = on_line = event.t
             if asked < self._held_until and self._queued_for_the_line(event, respond, source):
                 on_line = self._held_until
@@ -292,6 +499,9 @@ class Line:
                 listener(baud)
             except Exception:
                 log.exception("bug while changing a port to %d baud; the simulator keeps serving", baud)
+
+
+_NO_PEER = object()
 
 
 def _deliver(respond: Respond, reply: Reply | None) -> None:

@@ -11,7 +11,19 @@ Backpressure, as a real gateway's server loop: a connection is not read while
 its requests are on the line (one for RTU over TCP, :data:`MBAP_PIPELINE` for
 Modbus TCP) or while replies it has not taken fill its write buffer; the
 kernel's socket buffer and TCP flow control hold the rest. Requests a closed
-connection left waiting are dropped.
+connection left waiting are dropped at once: a connection that is not being
+read would not see its peer's close, so every connection's socket is also
+watched for the peer's end (:class:`PeerWatch`, epoll's EPOLLRDHUP), and the
+line asks the watch before it takes each waiting request.
+
+Many masters: the line serves peers (client addresses) in turn and each
+peer's connections in turn (:mod:`.line`); each port takes at most
+``max_connections`` connections (:data:`MAX_CONNECTIONS`, a gateway's
+figures) and closes the next one at once, with one log line (then one a
+minute while it goes on). A Modbus TCP request that waited for the line
+longer than the gateway's timeout is answered exception 0x0B, and one
+refused because its peer's queue is full exception 0x06, as an MGate
+answers them; RTU over TCP drops both, as a serial device server would.
 
 Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
@@ -33,9 +45,11 @@ RTU over TCP is served.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import errno
 import logging
+import select
 import socket
 import struct
 import time
@@ -48,7 +62,7 @@ from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, expected_l
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
-__all__ = ["ModbusTcpServer", "RtuOverTcpServer", "host_port", "parse_host_port"]
+__all__ = ["MAX_CONNECTIONS", "ModbusTcpServer", "PeerWatch", "RtuOverTcpServer", "host_port", "parse_host_port"]
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +72,84 @@ GATEWAY_NO_RESPONSE = 0x0B
 #: Requests a Modbus TCP client may have outstanding at once (pipelining); an RTU-over-TCP client has one.
 MBAP_PIPELINE = 4
 
+#: Modbus TCP exception 0x06 (slave device busy): the MGate's answer when a master's request queue is full.
+GATEWAY_BUSY = 0x06
+
 #: Bytes of replies a client has not read, above which its connection is no longer read.
 WRITE_HIGH_WATER = 16 * 1024
+
+#: Connections each wire port takes at once (``--max-connections``). RTU over TCP: a Moxa NPort 5400 in TCP
+#: Server mode takes "Max Connection 1, 2, 3, 4" (factory default 1; its user manual, TCP Server Mode); we take
+#: its most, 4, so that several masters may share the line as the bus-timing tests do. Modbus TCP: 32, assumed
+#: (the MGate MB3280/MB3480's figure for Modbus TCP client connections as we recall it; not found in a manual).
+MAX_CONNECTIONS = {"--tcp": 4, "--modbus-tcp": 32}
+
+#: The gateway's response timeout (``--gateway-timeout``): the MGate's "Response timeout", 10-120000 ms,
+#: default 1000 ms (Moxa MGate W5X08 user manual, Mode settings; the MGate MB3000 manual names the field, its
+#: default there assumed the same).
+GATEWAY_TIMEOUT = 1.0
+
+#: While connections are refused, one log line at most this often (seconds).
+REFUSAL_LOG_INTERVAL = 60.0
+
+
+class PeerWatch:
+    """Notices a peer's close on connections the loop is not reading (paused by backpressure).
+
+    One epoll instance watches every connection's socket for EPOLLRDHUP (the peer ended its sending half or
+    closed), EPOLLHUP and EPOLLERR (a reset), never for data; its own descriptor is on the loop, and
+    :meth:`poll` is also called by the line before it takes a waiting request. A peer that ended is gone: its
+    waiting requests leave the line (``gone()``), as asyncio's own EOF handling would close it once read.
+    """
+
+    def __init__(self) -> None:
+        self._epoll: select.epoll | None = None
+        self._watched: dict[int, Callable[[], None]] = {}
+        with contextlib.suppress(AttributeError, OSError):  # epoll: Linux only; elsewhere closes are seen when read
+            self._epoll = select.epoll()
+            asyncio.get_running_loop().add_reader(self._epoll.fileno(), self.poll)
+
+    def watch(self, sock: object, gone: Callable[[], None]) -> int:
+        """Watch ``sock``; ``gone()`` once when its peer has ended. Returns its descriptor (-1: not watched)."""
+        if self._epoll is None:
+            return -1
+        try:
+            fd = int(cast(Any, sock).fileno())
+            self._epoll.register(fd, select.EPOLLRDHUP | select.EPOLLHUP | select.EPOLLERR)
+        except (AttributeError, OSError, ValueError):
+            return -1
+        self._watched[fd] = gone
+        return fd
+
+    def forget(self, fd: int, gone: Callable[[], None]) -> None:
+        """Stop watching ``fd`` if ``gone`` is still its callback (a closed descriptor may be reused)."""
+        if fd < 0 or self._epoll is None or self._watched.get(fd) != gone:
+            return
+        del self._watched[fd]
+        with contextlib.suppress(OSError, ValueError):
+            self._epoll.unregister(fd)
+
+    def poll(self) -> None:
+        if self._epoll is None or not self._watched:
+            return
+        try:
+            events = self._epoll.poll(0)
+        except OSError:
+            return
+        for fd, _mask in events:
+            gone = self._watched.pop(fd, None)
+            with contextlib.suppress(OSError, ValueError):
+                self._epoll.unregister(fd)
+            if gone is not None:
+                gone()
+
+    def close(self) -> None:
+        if self._epoll is not None:
+            with contextlib.suppress(RuntimeError, ValueError):
+                asyncio.get_running_loop().remove_reader(self._epoll.fileno())
+            self._epoll.close()
+            self._epoll = None
+        self._watched.clear()
 
 
 #: The port an option's example names, where it is not a wire port's (the README's ports).
@@ -121,15 +211,42 @@ class _Connection(asyncio.Protocol):
     def __init__(self, owner: _TcpServer) -> None:
         self.owner = owner
         self.transport: asyncio.Transport | None = None
+        self.refused = False  #: closed at once: the port had its connections already
+        self.peer: object = None  #: the client's address, for the line's turns
+        self._fd = -1
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = cast(asyncio.Transport, transport)  # uvloop's transports do not subclass asyncio's
         self.loop = asyncio.get_running_loop()  # once: each get_running_loop() costs a getpid() system call
+        peername = transport.get_extra_info("peername")
+        self.peer = peername[0] if isinstance(peername, tuple) and peername else peername
+        if len(self.owner.connections) >= self.owner.max_connections:
+            self.refused = True
+            self.owner.refuse(peername)
+            self.transport.abort()
+            self.transport = None
+            return
         self.transport.set_write_buffer_limits(high=WRITE_HIGH_WATER)
         self.owner.connections.add(self)
+        if self.owner.watch is not None:
+            self._fd = self.owner.watch.watch(transport.get_extra_info("socket"), self.peer_gone)
+
+    def peer_gone(self) -> None:
+        """The peer ended the connection (seen even while it is not read): its waiting requests leave at once."""
+        self._fd = -1
+        self.drop_waiting()
+        if self.transport is not None:
+            self.transport.abort()  # nothing more is read or sent; connection_lost follows
+
+    def drop_waiting(self) -> None:
+        """Take this connection's requests off the line (subclasses)."""
 
     def connection_lost(self, exc: Exception | None) -> None:
         # The client left, perhaps mid-frame: that costs the others nothing.
+        if self.refused:
+            return
+        if self.owner.watch is not None:
+            self.owner.watch.forget(self._fd, self.peer_gone)
         self.owner.connections.discard(self)
         self.transport = None
 
@@ -153,12 +270,38 @@ class _Connection(asyncio.Protocol):
 class _TcpServer:
     option = ""
 
-    def __init__(self, line: Line, host: str, port: int) -> None:
+    def __init__(self, line: Line, host: str, port: int, *, max_connections: int | None = None) -> None:
         self.line = line
         self.host = host
         self.port = port
         self._server: asyncio.Server | None = None
         self.connections: set[_Connection] = set()
+        #: connections taken at once; the next is closed at once (:data:`MAX_CONNECTIONS`)
+        self.max_connections = MAX_CONNECTIONS[self.option] if max_connections is None else max_connections
+        self.refused = 0  #: connections closed at once, the port being full
+        self._refusal_logged = -REFUSAL_LOG_INTERVAL
+        self._refused_unlogged = 0
+        self.watch: PeerWatch | None = None  #: made in start(), on the loop
+
+    def refuse(self, peername: object) -> None:
+        """A connection over the cap: counted, and logged once (then once a minute while refusals go on)."""
+        self.refused += 1
+        self._refused_unlogged += 1
+        now = time.monotonic()
+        if now - self._refusal_logged < REFUSAL_LOG_INTERVAL:
+            return
+        more = f" ({self._refused_unlogged - 1} more since the last word)" if self._refused_unlogged > 1 else ""
+        log.warning(
+            "c20sim: %s %s: refused a connection from %s: %d connections are open, the most it takes "
+            "(--max-connections)%s",
+            self.option,
+            self.name,
+            peername,
+            self.max_connections,
+            more,
+        )
+        self._refusal_logged = now
+        self._refused_unlogged = 0
 
     @property
     def name(self) -> str:
@@ -178,6 +321,10 @@ class _TcpServer:
                 f"{self.option} {host_port(self.host, self.port)}: cannot resolve the host: {exc}"
             ) from None
         address = self.host if "%" in self.host else str(infos[0][4][0])  # keep an IPv6 zone: fe80::1%eth0
+        if self.max_connections < 1:
+            raise C20SimError(f"--max-connections {self.max_connections}: give 1 or more connections per port")
+        self.watch = PeerWatch()
+        self.line.sweeps.append(self.watch.poll)
         self._server = await _listen(self._connection, address, self.port, self.option)
         # typeshed says a tuple, uvloop's Server gives a list, and compiled code (mypyc) checks the type
         sockets: Any = cast(Any, self._server).sockets
@@ -192,11 +339,19 @@ class _TcpServer:
             self._server.close()
         for connection in list(self.connections):
             connection.close()
+        if self.watch is not None:
+            if self.watch.poll in self.line.sweeps:
+                self.line.sweeps.remove(self.watch.poll)
+            self.watch.close()
 
 
 class _RtuConnection(_Connection):
+    endpoint: RtuEndpoint | None = None
+
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         super().connection_made(transport)
+        if self.refused:
+            return
         line = self.owner.line
         framer = stream_framer(line.sim.bus.line_baud)  # TCP carries no line timing
         self.endpoint = RtuEndpoint(
@@ -206,9 +361,17 @@ class _RtuConnection(_Connection):
             name=f"tcp {transport.get_extra_info('peername')}",
             pause=self.pause_reading,
             resume=self.resume_reading,
+            peer=self.peer,
+            wait_limit=cast(RtuOverTcpServer, self.owner).timeout,
         )
 
+    def drop_waiting(self) -> None:
+        if self.endpoint is not None:
+            self.endpoint.close()
+
     def data_received(self, data: bytes) -> None:
+        if self.endpoint is None:
+            return
         if self.endpoint.between_frames:
             headers = mbap_adus(data)
             if headers is not None:  # a Modbus TCP master at the RTU port: no drive answers that
@@ -217,13 +380,16 @@ class _RtuConnection(_Connection):
         self.endpoint.feed(data)
 
     def pause_writing(self) -> None:
-        self.endpoint.write_blocked(True)
+        if self.endpoint is not None:
+            self.endpoint.write_blocked(True)
 
     def resume_writing(self) -> None:
-        self.endpoint.write_blocked(False)
+        if self.endpoint is not None:
+            self.endpoint.write_blocked(False)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.endpoint.close()
+        if self.endpoint is not None:
+            self.endpoint.close()
         super().connection_lost(exc)
 
 
@@ -232,8 +398,18 @@ class RtuOverTcpServer(_TcpServer):
 
     option = "--tcp"
 
-    def __init__(self, line: Line, host: str, port: int) -> None:
-        super().__init__(line, host, port)
+    def __init__(
+        self,
+        line: Line,
+        host: str,
+        port: int,
+        *,
+        max_connections: int | None = None,
+        timeout: float = GATEWAY_TIMEOUT,
+    ) -> None:
+        super().__init__(line, host, port, max_connections=max_connections)
+        #: a request that waited this long for the line is dropped, as a device server's master has given up
+        self.timeout = timeout
         #: where Modbus TCP is served (HOST:PORT), or None: for the word to a Modbus TCP master that came here
         self.modbus_tcp: Callable[[], str | None] = lambda: None
 
@@ -275,6 +451,7 @@ class _MbapConnection(_Connection):
         self._outstanding = 0  #: requests not yet answered (on the line, or waiting for the gateway's timeout)
         self._write_paused = False
         self._paused = False
+        self._room = True  #: False while its peer's queue on the line is full
 
     def data_received(self, data: bytes) -> None:
         self._buffer += data
@@ -289,7 +466,7 @@ class _MbapConnection(_Connection):
         self._parse()
 
     def _flow(self) -> None:
-        hold = self._outstanding >= MBAP_PIPELINE or self._write_paused
+        hold = self._outstanding >= MBAP_PIPELINE or self._write_paused or not self._room
         if hold and not self._paused:
             self._paused = True
             self.pause_reading()
@@ -305,9 +482,16 @@ class _MbapConnection(_Connection):
 
     def _parse(self) -> None:
         buf = self._buffer
+        line = self.owner.line
+        self._room = True
         while len(buf) >= 7 and self._outstanding < MBAP_PIPELINE and not self._write_paused:
             if self.transport is None:
                 return
+            if not line.has_room(self.peer, self):
+                # its address's queue is full: the request waits in our buffer and the socket is not read
+                self._room = False
+                line.when_room(self.peer, self, self._parse)
+                break
             transaction, protocol, length, unit = struct.unpack_from(">HHHB", buf)
             if protocol != 0 or not 2 <= length <= 254:
                 log.info("modbus tcp: bad MBAP header %s; closing the connection", bytes(buf[:7]).hex(" "))
@@ -353,16 +537,42 @@ class _MbapConnection(_Connection):
             else:
                 self._done()
 
+        def expired(busy: bool = False) -> None:
+            # waited longer than the gateway's timeout for the line (0x0B), or refused: its peer's queue is full
+            # (0x06): the gateway answers at once, the request never goes on the line
+            code = GATEWAY_BUSY if busy else GATEWAY_NO_RESPONSE
+            answer = bytes((pdu[0] | 0x80, code))
+            if unit != BROADCAST and self.transport is not None:
+                self._log_gateway_answer(header, answer)
+                self._answer(transaction, unit, answer)
+            self._done()
+
         for event in framer.events():
             self._outstanding += 1
-            line.submit(dataclasses.replace(event, mbap=header), respond, self)
+            if not line.submit(
+                dataclasses.replace(event, mbap=header),
+                respond,
+                self,
+                peer=self.peer,
+                expire=expired,
+                wait_limit=self._gateway.timeout,
+            ):
+                expired(busy=True)
+
+    def drop_waiting(self) -> None:
+        self.owner.line.cancel(self)
 
     def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
         self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
 
     def _log_gateway_answer(self, header: MbapHeader, answer: bytes) -> None:
-        """The frame log's record of the gateway's own exception 0x0B: on the TCP connection, never on the line."""
+        """The frame log's record of the gateway's own exception (0x0B, 0x06): on the TCP connection, never on the
+        line."""
         sim = self.owner.line.sim
+        if answer[1] == GATEWAY_BUSY:
+            why = f"gateway busy: {self.owner.line.peer_queue} requests of this master wait for the line already"
+        else:
+            why = f"gateway target device failed to respond (no good reply on the line within {self._gateway.timeout:g} s)"
         sim.bus.record(
             FrameRecord(
                 asyncio.get_running_loop().time(),
@@ -370,8 +580,7 @@ class _MbapConnection(_Connection):
                 with_crc(bytes((header.unit,)) + answer),
                 RecordKind.EXCEPTION,
                 header.unit,
-                f"gateway: exception 0x{GATEWAY_NO_RESPONSE:02X} to function 0x{answer[0] & 0x7F:02X}: "
-                f"gateway target device failed to respond (no good reply on the line within {self._gateway.timeout:g} s)",
+                f"gateway: exception 0x{answer[1]:02X} to function 0x{answer[0] & 0x7F:02X}: {why}",
                 model_t=sim.now(),
                 mbap=header,
                 from_gateway=True,
@@ -379,6 +588,8 @@ class _MbapConnection(_Connection):
         )
 
     def connection_lost(self, exc: Exception | None) -> None:
+        if self.refused:
+            return
         for timer in self._timers:
             timer.cancel()
         self.owner.line.cancel(self)
@@ -391,8 +602,16 @@ class ModbusTcpServer(_TcpServer):
 
     option = "--modbus-tcp"
 
-    def __init__(self, line: Line, host: str, port: int, *, timeout: float = 0.5) -> None:
-        super().__init__(line, host, port)
+    def __init__(
+        self,
+        line: Line,
+        host: str,
+        port: int,
+        *,
+        timeout: float = GATEWAY_TIMEOUT,
+        max_connections: int | None = None,
+    ) -> None:
+        super().__init__(line, host, port, max_connections=max_connections)
         self.timeout = timeout
         #: where RTU over TCP is served (HOST:PORT), or None: for the word to an RTU master that came here
         self.rtu_tcp: Callable[[], str | None] = lambda: None

@@ -6,8 +6,11 @@ The event loop's timers are about 1 ms coarse, coarser than a character at
 line-timed stream does its timing off the loop:
 
 - a reader thread waits on the port with ``select`` (microsecond timeouts),
-  stamps every chunk with ``time.perf_counter`` as it arrives, feeds the
-  strict framer and ticks it at its t3.5 deadline; the framing events go to
+  stamps every chunk with ``time.perf_counter`` as it arrives (on a pty,
+  which hands the master's bytes over at once, with the time they would
+  have ended on the line: each takes a character after the last one's end
+  or its own arrival, whichever is later), feeds the strict framer and
+  ticks it at its t3.5 deadline; the framing events go to
   the loop, which serves them on the shared :class:`~c20sim.transport.line.Line`.
   Without real-time scheduling (below), inside a frame at 19200 baud and
   above (t1.5 under 1 ms) it polls without sleeping until the frame ends,
@@ -16,7 +19,8 @@ line-timed stream does its timing off the loop:
   (about 6.5 ms for an 8-byte request at 19200 baud);
 - a writer thread puts each reply on the port starting t3.5 + the reply's
   turnaround after the request's last byte, and, where the port does not pace
-  bytes itself (a pty), one byte every character time: it sleeps to just
+  bytes itself (a pty), one byte every character time, each when its
+  character would end on the line (as a UART hands over a byte it received): it sleeps to just
   before each byte's time and spins the rest, so a byte leaves within a few
   microseconds of its time on an idle machine (bench/bench_line_timing.py).
 
@@ -53,7 +57,7 @@ import time
 from collections.abc import Callable
 
 from ..core.bus import Reply
-from ..wire.protocol import FrameEvent, RtuFramer, char_time
+from ..wire.protocol import MAX_ADU, FrameEvent, RtuFramer, char_time
 from .line import Line, SelfTimed
 
 __all__ = ["TimedEndpoint"]
@@ -68,6 +72,10 @@ SPIN = 0.0003
 SPIN_REALTIME = 0.0001
 #: Inside a frame whose t1.5 is shorter than this, the reader polls the port without sleeping (seconds).
 SPIN_READ_BELOW = 0.001
+#: While nobody has a pty open, how often its reader looks for an opener (seconds): a hung-up pty reports
+#: itself readable at once, so the reader sleeps this long between looks; a request written meanwhile waits
+#: in the device and is read whole.
+HUNG_UP_POLL = 0.002
 #: Replies waiting for the writer at most; more means the master does not wait for answers: they are dropped.
 MAX_PENDING_REPLIES = 8
 #: The SCHED_FIFO priority the timing threads ask for (1-99): above every ordinary thread, below the
@@ -135,6 +143,7 @@ class TimedEndpoint:
         write: Callable[[bytes], int] | None = None,
         on_baud: Callable[[int], None] | None = None,
         may_reply: Callable[[], bool] | None = None,
+        on_hangup: Callable[[], None] | None = None,
     ) -> None:
         if not framer.strict:
             raise ValueError("a line-timed endpoint needs a strict framer")
@@ -146,6 +155,9 @@ class TimedEndpoint:
         self._write = write if write is not None else functools.partial(os.write, fd)
         self._on_baud = on_baud
         self._may_reply = may_reply
+        self._on_hangup = on_hangup
+        #: who asks the line: one token per generation, so a reset cancels the old master's requests only
+        self._source = object()
         self._loop = asyncio.get_running_loop()
         self._lock = threading.Lock()  # the framer: fed by the reader, its baud set from the loop
         self._stop = threading.Event()
@@ -182,18 +194,32 @@ class TimedEndpoint:
     def reset(self) -> None:
         """The master went away (on the loop): its half-received frame, its requests waiting on the line and the
         replies not yet sent are dropped. A reply's bytes written before are the caller's to flush, after this."""
-        self.line.cancel(self)
+        self.line.cancel(self._new_generation())
+
+    def _new_generation(self) -> object:
+        """Drop the half-received frame, start a new generation; returns the old one's line source (any thread)."""
         with self._lock:  # the reader's frames framed before this are of the old generation, even those in flight
             self.framer.flush()
             self.framer.events()
             with self._write_lock:
                 self._generation += 1
+                old, self._source = self._source, object()
+        return old
+
+    def _hung_up(self, old_source: object) -> None:
+        """On the loop: the master side reported a hang-up (nobody has the device open): the old master's
+        requests leave the line, and the caller drops what it left in the device."""
+        self.line.cancel(old_source)
+        if self._on_hangup is not None:
+            self._on_hangup()
 
     # --- the reader thread
 
     def _read_loop(self) -> None:
         realtime = _raise_thread_priority()
         fd, wake = self.fd, self._wake_r
+        hung_up = True  #: no program had the device open when last seen (a pty's EIO); a read ends it
+        wire_end = 0.0  #: a pty: when the bytes read so far would have ended on the line
         while not self._stop.is_set():
             with self._lock:
                 deadline = self.framer.deadline()
@@ -215,13 +241,35 @@ class TimedEndpoint:
                 except BlockingIOError:
                     pass
                 except OSError as exc:
-                    if exc.errno != errno.EIO:  # EIO: no one has the device open; nothing to read
+                    if exc.errno != errno.EIO:  # EIO: no one has the device open; all it wrote was read already
                         log.error("line-timed port %s: read failed (%s); it no longer reads", self.name, exc)
                         return
-                    self._stop.wait(0.05)
+                    if self._on_hangup is None:  # a serial port: as before, look again a little later
+                        self._stop.wait(0.05)
+                        continue
+                    wire_end = 0.0  # nobody has the device open: the line is quiet
+                    if not hung_up:
+                        hung_up = True
+                        # here, before another byte is read: what the next master writes is of the new generation
+                        old = self._new_generation()
+                        with contextlib.suppress(RuntimeError):
+                            self._loop.call_soon_threadsafe(self._hung_up, old)
+                    self._stop.wait(HUNG_UP_POLL)  # a hung-up pty is always readable: look again for an opener
+                    continue
+            stamp = now
+            if data:
+                hung_up = False
+                if self.pace:
+                    # A pty hands the master's bytes over at once; on the line they take a character each, and
+                    # the request's last byte ends that much later: its time on the wire counts before the reply
+                    # (t3.5 after it) may start, as on the drive's line.
+                    # A master that writes faster than the line (a flood) is held to one frame's backlog at
+                    # most (MAX_ADU characters), so its bytes never stamp a next master's far in the future.
+                    char = char_time(self.framer.baud, self.framer.bits)
+                    wire_end = stamp = min(max(now, wire_end) + len(data) * char, now + MAX_ADU * char)
             with self._lock:
                 if data:
-                    self.framer.feed(data, now)
+                    self.framer.feed(data, stamp)
                 self.framer.tick(now)
                 events = self.framer.events()
                 generation = self._generation
@@ -238,7 +286,7 @@ class TimedEndpoint:
             return
         for event in events:
             respond = functools.partial(self._respond, event.t, self.framer.t35, generation)
-            self.line.submit(event, SelfTimed(respond), self)
+            self.line.submit(event, SelfTimed(respond), self._source)
 
     def _respond(self, request_end: float, t35: float, generation: int, reply: Reply | None) -> None:
         if reply is None or self._stop.is_set() or generation != self._generation:
@@ -298,7 +346,8 @@ class TimedEndpoint:
                 sent += written
             return
         for i in range(len(data)):
-            if not self._sleep_until(t0 + i * per_char):
+            # a byte is handed over when its character ends on the line, as a UART hands over a byte it received
+            if not self._sleep_until(t0 + (i + 1) * per_char):
                 return
             written = self._write_or_wait(data[i : i + 1], per_char, generation)
             if written == 0:

@@ -95,6 +95,11 @@ def test_serve_metrics_listener_answers_metrics_alone(tmp_path: Path) -> None:
         with urllib.request.urlopen(url, timeout=10) as response:
             families = {f.name for f in text_string_to_metric_families(response.read().decode())}
         assert {"c20sim_requests", "c20sim_state", "c20sim_reply_latency_seconds"} <= families
+        # Prometheus reaches a pod through a Service: its DNS name in Host is answered (the listener is read-only)
+        by_name = urllib.request.Request(url, headers={"Host": "c20sim-bus-1.plant.svc.cluster.local:9120"})
+        with urllib.request.urlopen(by_name, timeout=10) as response:
+            assert response.status == 200
+            assert "c20sim_requests_total" in response.read().decode()
         for other in ("/", "/drives/1", "/telemetry"):
             with pytest.raises(urllib.error.HTTPError) as refused:
                 urllib.request.urlopen(url.removesuffix("/metrics") + other, timeout=10)
@@ -108,3 +113,12 @@ def test_serve_metrics_listener_answers_metrics_alone(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_the_control_api_still_refuses_a_foreign_host_name() -> None:
+    """The Host check stays on the control API (it changes state): a DNS-rebinding name is refused 403."""
+    with serving() as served:
+        request = urllib.request.Request(f"{served.url}/metrics", headers={"Host": "attacker.example:8020"})
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(request, timeout=10)
+    assert refused.value.code == 403

@@ -81,3 +81,48 @@ async def test_a_bug_while_serving_is_silence_for_the_asker_and_the_line_goes_on
     line.submit(frame(encode(ReadRequest(1, 0x2103, 1))), after.set_result)
     reply = await asyncio.wait_for(after, 5)
     assert reply is not None and reply.data == bytes.fromhex("01 03 02 00 20 B9 9C")
+
+
+async def test_peers_and_their_masters_are_served_in_turn_and_a_full_peer_waits_for_room() -> None:
+    """Peer P has masters p1 (three requests) and p2 (one), peer Q has q1 (two), all queued behind a held reply:
+    the line takes P, Q, P, Q, ... and within P p1, p2, p1. A peer at its bound (peer_queue) is refused until the
+    line takes one of its requests; the master waiting for room is woken then, and a cancelled one is not."""
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    sim.link_faults(1).delay = 0.05
+    line = Line(sim)
+    order: list[str] = []
+    done = asyncio.Event()
+
+    def to(name: str) -> object:
+        def respond(reply: Reply | None) -> None:
+            order.append(name)
+            if len(order) == 7:
+                done.set()
+
+        return respond
+
+    read = frame(encode(ReadRequest(1, 0x2100, 1)))
+    line.submit(read, to("first"), "first")  # type: ignore[arg-type]
+    assert line.busy
+    for name, source, peer in [
+        ("p1a", "p1", "P"),
+        ("p1b", "p1", "P"),
+        ("p1c", "p1", "P"),
+        ("p2a", "p2", "P"),
+        ("q1a", "q1", "Q"),
+        ("q1b", "q1", "Q"),
+    ]:
+        assert line.submit(read, to(name), source, peer=peer)  # type: ignore[arg-type]
+    assert (line.waiting, line.waiting_of("P"), line.waiting_of("Q")) == (6, 4, 2)
+    line.peer_queue = 4
+    assert not line.has_room("P", "p3")
+    assert not line.submit(read, to("refused"), "p3", peer="P")  # type: ignore[arg-type]
+    woken: list[str] = []
+    line.when_room("P", "p3", lambda: woken.append("p3"))
+    line.when_room("P", "p4", lambda: woken.append("p4"))
+    line.cancel("p4")  # gone before there was room: never woken
+    await asyncio.wait_for(done.wait(), 5)
+    assert order == ["first", "p1a", "q1a", "p2a", "q1b", "p1b", "p1c"]
+    assert woken == ["p3"]
+    assert line.refused == 1
+    assert (line.waiting, line.waiting_of("P"), line.waiting_of("Q")) == (0, 0, 0)
