@@ -262,13 +262,17 @@ def _fault(sim: Simulator, address: int, request: Mapping[str, object]) -> dict[
 
 
 def _clear_fault(sim: Simulator, address: int, reset: object = True, cause: object = None) -> dict[str, Any]:
-    note = ""
-    if cause is not None:
-        note = causes.release(sim, address, cause)
-        cleared = ops.clear_fault(sim, address, reset) if ops.flag("reset", reset) else False
-    else:
-        cleared = ops.clear_fault(sim, address, reset)
-    return {"reset": cleared, "note": note, **ops.drive_state(sim, address)}
+    """End ``cause`` (by default every cause present now, and no other condition) and press reset."""
+    ending = [cause] if cause is not None else [name for name, on in causes.active(sim, address).items() if on]
+    notes = [causes.release(sim, address, name) for name in ending]
+    press = ops.flag("reset", reset)
+    cleared = ops.clear_fault(sim, address, reset) if press else False
+    state = ops.drive_state(sim, address)
+    if press and not cleared and state["fault_code"]:
+        notes.append(
+            f"drive {address} kept its fault: reset again once the cause has gone (the bus recovers as time runs)"
+        )
+    return {"reset": cleared, "note": "; ".join(notes), **state}
 
 
 def _causes(sim: Simulator, address: int) -> dict[str, Any]:

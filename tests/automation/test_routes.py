@@ -181,3 +181,33 @@ def test_a_new_fault_cause_is_one_row() -> None:
         "released": "drive 1: brownout gone: supply_v 48 (reset to clear the fault)",
         "after": False,
     }
+
+
+def test_clear_fault_without_a_cause_ends_every_cause_present_and_no_other_condition() -> None:
+    """``ctl clear`` and the browser page's "end it and reset": the supply sag that tripped the drive ends, the
+    load a user set stays, and a reset once the bus is back clears the fault (before, only an injected code was
+    released: the drive stayed tripped, and the page said there was no fault to reset)."""
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    table = routes.table()
+
+    def call(name: str, data: dict[str, Any]) -> Any:
+        return routes.invoke(sim, table.named(name), {"address": 1}, data)
+
+    ops.set_conditions(sim, 1, {"load_torque_nm": 0.2})
+    routes.invoke(sim, table.named("write_register"), {"address": 1, "register": "2001H"}, {"value": 1500})
+    routes.invoke(sim, table.named("write_register"), {"address": 1, "register": "2000H"}, {"value": 1})
+    sim.advance(1.0)
+    call("fault", {"cause": "undervoltage"})
+    sim.advance(2.0)
+    assert (ops.drive_state(sim, 1)["status"], ops.drive_state(sim, 1)["fault_code"]) == (4, 0x0A)  # tripped
+    answer = call("clear_fault", {})
+    assert (answer["reset"], answer["note"]) == (
+        False,
+        "drive 1: undervoltage gone: supply_v 48 (reset to clear the fault); drive 1 kept its fault: reset again "
+        "once the cause has gone (the bus recovers as time runs)",
+    )
+    assert ops.conditions(sim, 1)["supply_v"] == 48.0
+    assert ops.conditions(sim, 1)["load_torque_nm"] == 0.2  # not a cause that is present: left as set
+    sim.advance(1.0)
+    answer = call("clear_fault", {})
+    assert (answer["reset"], answer["note"], answer["fault_code"]) == (True, "", 0)
