@@ -31,8 +31,10 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import re
 import signal
+import stat
 import sys
 from collections.abc import AsyncIterator, Iterable, Mapping
 from io import TextIOWrapper
@@ -306,10 +308,16 @@ class _Lines:
 
 @contextlib.asynccontextmanager
 async def _stdin() -> AsyncIterator[_Lines | None]:
-    """stdin as :class:`_Lines` where it is a pipe (as an assistant starts the server); None (the SDK's reader)
-    where the event loop cannot watch it (a regular file)."""
+    """stdin as :class:`_Lines` where it is a pipe, a socket or a terminal (as an assistant starts the server);
+    None (the SDK's reader) where the event loop cannot watch it: a regular file, or a device such as /dev/null
+    (asyncio takes any character device, then epoll refuses it in a callback and the input never ends)."""
     loop = asyncio.get_running_loop()
     reader = asyncio.StreamReader(limit=MAX_MESSAGE)
+    fd = sys.stdin.fileno()
+    mode = os.fstat(fd).st_mode
+    if not (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode) or os.isatty(fd)):
+        yield None
+        return
     try:
         transport, _ = await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
     except (ValueError, OSError):

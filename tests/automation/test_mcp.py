@@ -288,6 +288,21 @@ def test_a_signal_stops_the_serve_it_started(tmp_path: Path, when: str, number: 
             proc.wait()
 
 
+def test_input_from_dev_null_is_a_session_that_ends_at_once(tmp_path: Path) -> None:
+    """``c20sim mcp < /dev/null``: no messages, so the session ends, exit 0, its serve stopped (it hung, with a
+    traceback, where the event loop was handed the device)."""
+    ready = tmp_path / "ready.json"
+    with open(os.devnull, "rb") as nothing:
+        done = subprocess.run(
+            [sys.executable, "-m", "c20sim", "mcp", "--tcp", "127.0.0.1:0", "--ready-file", str(ready)],
+            stdin=nothing,
+            capture_output=True,
+            timeout=60,
+        )
+    assert (done.returncode, done.stdout, b"Traceback" in done.stderr) == (0, b"", False), done.stderr.decode()
+    assert not ready.exists()
+
+
 def test_a_message_over_the_bound_ends_the_session(tmp_path: Path) -> None:
     ready = tmp_path / "ready.json"
     proc = subprocess.Popen(
