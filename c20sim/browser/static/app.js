@@ -117,7 +117,9 @@ function fillControls() {
   for (const [name, c] of Object.entries(info.conditions)) {
     if (c.low === null) continue; // hall_fault: a word, set from the fault list
     const label = document.createElement("label");
-    label.textContent = `${name.replaceAll("_", " ")}${c.unit ? ` (${c.unit})` : ""}`;
+    // the condition's name less its unit suffix (supply_v, load_torque_nm), then the unit as the profile says it
+    const words = c.unit ? name.replace(/_(v|nm|kg_m2|c)$/, "") : name;
+    label.textContent = `${words.replaceAll("_", " ")}${c.unit ? ` (${c.unit})` : ""}`;
     const input = document.createElement("input");
     input.type = "number";
     input.step = "any";
