@@ -27,6 +27,8 @@ from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
 from tests.integration.conftest import ServeFactory, mbap_read
 
+pytestmark = pytest.mark.serial  # a polite master's reply times beside crowds, in real time: .ci/run runs it alone
+
 CROWD_HOST = "127.0.0.2"
 
 
