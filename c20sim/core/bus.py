@@ -137,7 +137,12 @@ class FrameRecord:
         forwarded = (
             self.direction is Direction.RX
             or self.from_gateway
-            or (self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION) and len(self.data) >= 4 and crc_ok(self.data))
+            or (
+                self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION)
+                and len(self.data) >= 4
+                and crc_ok(self.data)
+                and self.data[0] == self.mbap.unit
+            )
         )
         return self.mbap.adu(self.data[1:-2]) if forwarded and len(self.data) >= 3 else b""
 
@@ -486,7 +491,7 @@ class Bus:
         mbap: MbapHeader | None,
     ) -> None:
         note = "; ".join(notes)
-        if mbap is not None and data and kind is not RecordKind.DROPPED and not crc_ok(data):
+        if mbap is not None and data and kind is not RecordKind.DROPPED and (not crc_ok(data) or data[0] != mbap.unit):
             note = "; ".join([*notes, "the gateway forwards no broken reply: it answers 0x0B after its timeout"])
         self.record(
             FrameRecord(

@@ -16,8 +16,8 @@ connection left waiting are dropped.
 Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
 request's transaction id. Where the line stays silent (absent drive, dropped
-or corrupt reply) the gateway answers exception 0x0B after its timeout, as
-gateways do; a broadcast (unit 0) gets no answer. The frame log keeps what the
+or corrupt reply, or a reply from another address than the unit asked) the
+gateway answers exception 0x0B after its timeout, as gateways do; a broadcast (unit 0) gets no answer. The frame log keeps what the
 TCP connection carried (the MBAP frames, their transaction id and unit) with
 the RTU frame on the line beside it.
 
@@ -328,7 +328,7 @@ class _MbapConnection(_Connection):
         header = MbapHeader(transaction, unit)
 
         def respond(reply: Reply | None) -> None:
-            if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
+            if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data) and reply.data[0] == unit:
                 self._answer(transaction, unit, reply.data[1:-2])
                 self._done()
             elif unit != BROADCAST and self.transport is not None:
