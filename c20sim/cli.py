@@ -20,7 +20,7 @@ from typing import NoReturn, cast
 from .control.client import TOKEN_ENV
 from .control.ctl import add_ctl_command
 from .core.simulator import Simulator, make_clock
-from .drillrun import add_drill_command
+from .drillcli import add_drill_command
 from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .plant import add_plant_commands, drive_addresses

@@ -15,7 +15,6 @@ stopped.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -23,32 +22,35 @@ import os
 import shlex
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 import tomllib
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol, TypeVar
 
 from .control import causes, ops
 from .core.bus import FrameRecord
 from .core.simulator import Simulator
-from .drill import INCIDENTS, Drill, Judgement, Learned, Mark, Plan, judge, learn, read_plan, standard_plan
+from .drill import Drill, Judgement, Learned, Mark, Plan, judge, learn, read_plan, standard_plan
 from .drill.judge import marks_of, watch_seconds
-from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
-from .testing import C20Sim
+from .drive.profile import DEFAULT_PROFILE, Profile
 from .traffic.auditlog import read_frames
 from .wire.errors import C20SimError
 
 __all__ = [
     "MAX_RECORDS",
+    "Handle",
     "RunOptions",
-    "add_drill_command",
+    "json_report",
     "judge_log",
     "junit_xml",
+    "load_plan",
     "markdown",
-    "run_drill",
+    "marks_in",
+    "play",
+    "plot_timeline",
     "text_report",
 ]
 
@@ -59,7 +61,19 @@ MAX_PLAN = 256 * 1024
 #: The biggest frame log --judge reads (the capture bound of c20sim audit).
 MAX_LOG = 64 << 20
 _POLL = 0.005
-TRANSPORTS = ("tcp", "pty", "modbus-tcp")
+
+
+T = TypeVar("T")
+
+
+class Handle(Protocol):
+    """What the runner needs of a running simulator: its :class:`Simulator`, its profile, and a way to run a
+    function on its thread between frames (:class:`c20sim.testing.C20Sim` is one)."""
+
+    sim: Simulator
+    profile: Profile
+
+    def call(self, fn: Callable[..., T], *args: object) -> T: ...
 
 
 @dataclass(frozen=True)
@@ -150,26 +164,18 @@ class _Strict(dict[str, str]):
         raise KeyError(key)
 
 
-def _endpoints(sim: C20Sim) -> dict[str, str]:
-    out: dict[str, str] = {}
-    if sim.port is not None:
-        out.update(tcp=f"{sim.host}:{sim.port}", host=str(sim.host), port=str(sim.port))
-    if sim.modbus_tcp_port is not None:
-        out.update(modbus_tcp=f"127.0.0.1:{sim.modbus_tcp_port}", modbus_tcp_port=str(sim.modbus_tcp_port))
-        out.setdefault("host", "127.0.0.1")
-    if sim.pty is not None:
-        out["pty"] = sim.pty
-    return out
-
-
 class _Run:
-    def __init__(self, options: RunOptions) -> None:
+    """One drill run on a running simulator (``handle``), against the master at ``endpoints`` (started from
+    ``options.master``, or already running)."""
+
+    def __init__(self, options: RunOptions, handle: Handle, endpoints: Mapping[str, str]) -> None:
         self.options = options
         self.plan = options.plan
         self.marks: list[Mark] = []
         self.recorder = _Recorder()
         self.master: _Master | None = None
-        self.sim: C20Sim | None = None
+        self.sim: Handle | None = handle
+        self.endpoints = endpoints
         self.stopped_early = ""
 
     # -- on the simulator's thread
@@ -287,28 +293,26 @@ class _Run:
     def run(self) -> Judgement:
         """Play the plan; the judgement over every frame of the run (the frame log's, when one is written)."""
         options = self.options
-        self.sim = C20Sim.start(
-            options.profile, transport=options.transport, clock="realtime", seed=self.plan.seed, bus_timing=True
-        )
+        assert self.sim is not None
+        bus = self.sim.sim.bus
+        unsubscribe = self.sim.call(lambda: bus.subscribe(self.recorder))
         try:
-            bus = self.sim.sim.bus
-            self.sim.call(lambda: bus.subscribe(self.recorder))
-            endpoints = _endpoints(self.sim)
-            where = ", ".join(f"{k} {v}" for k, v in endpoints.items() if k in ("tcp", "modbus_tcp", "pty"))
+            where = ", ".join(f"{k} {v}" for k, v in self.endpoints.items() if k in ("tcp", "modbus_tcp", "pty"))
             if options.master is not None:
-                self.master = _Master(options.master, endpoints)
+                self.master = _Master(options.master, self.endpoints)
                 options.echo(f"drill: master started: {self.master.command}")
             else:
-                options.echo(f"drill: waiting for a master on {where}")
-            self._first_request(where)
+                options.echo(f"drill: waiting for a master on {where or 'the served ports'}")
+            self._first_request(where or "the served ports")
             self._drills()
         finally:
             if self.master is not None:
                 self.master.stop()
+            self.sim.call(unsubscribe)
+            self.sim.call(lambda: self._restore(self.sim.sim) if self.sim else None)
             lines = self._lines()
-            self.sim.close()
         if options.log is not None:
-            _write(options.log, "".join(line + "\n" for line in lines).encode(), "--log")
+            write_file(options.log, "".join(line + "\n" for line in lines).encode(), "--log")
         return _judge_lines(lines, self.plan, self.sim.profile)
 
     def _lines(self) -> list[str]:
@@ -363,9 +367,12 @@ class _Run:
             self.options.echo(f"drill: {drill.label} played")
 
 
-def run_drill(options: RunOptions) -> tuple[Judgement, str]:
-    """Play ``options.plan``; (the judgement, why the run ended early or "")."""
-    run = _Run(options)
+def play(handle: Handle, options: RunOptions, endpoints: Mapping[str, str] | None = None) -> tuple[Judgement, str]:
+    """Play ``options.plan`` on the running simulator ``handle`` (the clock realtime); (the judgement, why the run
+    ended early or "")."""
+    if handle.sim.virtual:
+        raise C20SimError("a drill needs the realtime clock: the master keeps its own time (clock='realtime')")
+    run = _Run(options, handle, endpoints or {})
     judgement = run.run()
     return judgement, run.stopped_early
 
@@ -384,18 +391,28 @@ def _judge_lines(lines: Sequence[str], plan: Plan, profile: Profile, where: str 
     return judge(frames, plan, marks, turnaround=profile.protocol.turnaround_ms / 1000.0)
 
 
-def judge_log(path: str, plan: Plan, profile: Profile) -> Judgement:
-    """The judgement of a drill's frame log at ``path`` against ``plan``, offline."""
+def marks_in(path: str) -> tuple[list[tuple[float, str, bytes]], list[Mark]]:
+    """The frames and the marks of the drill's frame log at ``path``."""
+    lines = _read_log(path)
+    frames = list(read_frames(io.StringIO("".join(line + "\n" for line in lines)), path))
+    return frames, marks_of(json.loads(line) for line in lines if line.startswith('{"kind": "drill"'))
+
+
+def _read_log(path: str) -> list[str]:
     try:
         if not os.path.isfile(path):
             raise C20SimError(f"--judge {path}: not a regular file")
         if os.path.getsize(path) > MAX_LOG:
             raise C20SimError(f"--judge {path}: bigger than {MAX_LOG >> 20} MiB")
         with open(path, encoding="utf-8", errors="replace") as stream:
-            lines = stream.read().splitlines()
+            return stream.read().splitlines()
     except OSError as exc:
         raise C20SimError(f"--judge {path}: cannot read: {exc.strerror}") from None
-    return _judge_lines(lines, plan, profile, path)
+
+
+def judge_log(path: str, plan: Plan, profile: Profile) -> Judgement:
+    """The judgement of a drill's frame log at ``path`` against ``plan``, offline."""
+    return _judge_lines(_read_log(path), plan, profile, path)
 
 
 # -- reports
@@ -529,9 +546,6 @@ def plot_timeline(frames: Sequence[tuple[float, str, bytes]], marks: Sequence[Ma
     return True
 
 
-# -- the command
-
-
 def load_plan(path: str | None, seed: int | None, transport: str | None) -> Plan:
     """The plan at ``path`` (a TOML file), or the standard plan for ``transport``; one-line errors."""
     if path is None:
@@ -560,98 +574,9 @@ def load_plan(path: str | None, seed: int | None, transport: str | None) -> Plan
     return plan
 
 
-def _write(path: str, data: bytes, option: str) -> None:
+def write_file(path: str, data: bytes, option: str) -> None:
     try:
         with open(path, "wb") as out:
             out.write(data)
     except OSError as exc:
         raise C20SimError(f"{option} {path}: cannot write: {exc.strerror}") from None
-
-
-def cmd_drill(args: argparse.Namespace) -> int:
-    if args.list:
-        for incident in INCIDENTS.values():
-            print(f"{incident.name:<17} {incident.group:<6} {incident.does}")
-        return 0
-    profile = load_profile(args.profile)
-    if args.wait is not None and not 0.1 <= args.wait <= 3600:
-        raise C20SimError(f"--wait {args.wait:g}: expected 0.1 to 3600 seconds")
-    early = ""
-    if args.judge:
-        if args.plan is None and args.master is not None:
-            raise C20SimError("--judge takes a frame log and --plan, not --master")
-        plan = load_plan(args.plan, args.seed, None)
-        judgement = judge_log(args.judge, plan, profile)
-        log_path = args.judge
-    else:
-        plan = load_plan(args.plan, args.seed, args.transport)
-        log_path = args.log or os.path.join(tempfile.gettempdir(), f"c20sim-drill-{os.getpid()}.jsonl")
-        options = RunOptions(
-            plan,
-            transport=args.transport,
-            master=args.master,
-            profile=profile,
-            wait=args.wait if args.wait is not None else (10.0 if args.master else 60.0),
-            log=log_path,
-            echo=(lambda line: print(line, file=sys.stderr)) if not args.quiet else (lambda line: None),
-        )
-        judgement, early = run_drill(options)
-    if args.junit:
-        _write(args.junit, junit_xml(judgement), "--junit")
-    if args.report:
-        plot = None
-        if args.plot is not False:
-            png = os.path.splitext(args.report)[0] + ".png"
-            with open(log_path, encoding="utf-8", errors="replace") as stream:
-                frames = list(read_frames(stream, log_path))
-                stream.seek(0)
-                marks = marks_of(json.loads(line) for line in stream if line.startswith('{"kind": "drill"'))
-            if plot_timeline(frames, marks, png):
-                plot = os.path.basename(png)
-        _write(args.report, markdown(judgement, plan, plot, early).encode(), "--report")
-    sys.stdout.write(json_report(judgement, early) if args.format == "json" else text_report(judgement, early))
-    if not args.judge and not args.quiet:
-        print(f"drill: frame log {log_path} (c20sim drill --judge {log_path} --plan PLAN)", file=sys.stderr)
-    return 0 if judgement.passed and not early else 1
-
-
-def add_drill_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = sub.add_parser(
-        "drill",
-        help="play incidents on a running master and judge how it survives them, from the wire",
-        description="Play a plan of incidents (docs/drill.md) on a master: reply faults, the line and the "
-        "adapter, the drive's trips and power cycle; judge each from the frames. Exit 0 if every drill passed, "
-        "1 if one failed, 2 on bad input.",
-    )
-    parser.add_argument("--plan", metavar="PLAN", help="a TOML plan (default: the built-in standard plan)")
-    parser.add_argument(
-        "--master",
-        metavar="CMD",
-        help="the master to start, with placeholders {tcp} {host} {port} {modbus_tcp} {modbus_tcp_port} {pty}; "
-        "without it, wait for a master already running",
-    )
-    parser.add_argument(
-        "--transport", choices=TRANSPORTS, default="tcp", help="where the drive is served (default tcp: RTU over TCP)"
-    )
-    parser.add_argument("--profile", default=DEFAULT_PROFILE, help="the drive's profile")
-    parser.add_argument("--seed", type=int, help="the faults' randomness (default: the plan's)")
-    parser.add_argument(
-        "--wait", type=float, help="seconds to wait for the master's first request (10 with --master, else 60)"
-    )
-    parser.add_argument(
-        "--log", metavar="PATH", help="write the run's frame log here (default: a file in the temp directory)"
-    )
-    parser.add_argument(
-        "--judge", metavar="LOG", help="judge a drill's frame log offline instead of running (with --plan)"
-    )
-    parser.add_argument("--format", choices=("text", "json"), default="text", help="the report's format")
-    parser.add_argument("--junit", metavar="FILE", help="write a JUnit XML report: one test case per drill")
-    parser.add_argument(
-        "--report",
-        metavar="FILE.md",
-        help="write a Markdown report (and FILE.png, a timeline, where matplotlib is installed)",
-    )
-    parser.add_argument("--no-plot", dest="plot", action="store_false", default=None, help="no timeline plot")
-    parser.add_argument("--list", action="store_true", help="list the incidents and exit")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
-    parser.set_defaults(func=cmd_drill)

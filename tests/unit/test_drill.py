@@ -10,6 +10,7 @@ import pytest
 from c20sim.core.bus import Bus
 from c20sim.drill import INCIDENTS, Mark, judge, learn, read_plan, standard_plan
 from c20sim.drill.incidents import CHECKS
+from c20sim.drill.judge import _CHECKERS
 from c20sim.drive.profile import Profile
 from c20sim.wire.errors import C20SimError
 from c20sim.wire.protocol import ReadRequest, ReadResponse, crc16, encode
@@ -120,6 +121,7 @@ def test_the_standard_plan_plays_every_incident_and_only_what_a_transport_carrie
 
 
 def test_every_incident_names_known_checks_and_a_source() -> None:
+    assert set(CHECKS) == set(_CHECKERS)
     for incident in INCIDENTS.values():
         assert set(incident.checks) <= set(CHECKS), incident.name
         assert incident.does and incident.robust and incident.watch
