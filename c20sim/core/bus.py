@@ -218,6 +218,9 @@ class Reply:
     delay: float
     slave: int
     baud: int  #: the line speed it goes out at (the old one, after a 2009H write)
+    split: float = 0.0  #: seconds between its two pieces (a link fault; 0: in one piece)
+    #: Modbus TCP: seconds the right reply waits behind a copy under another transaction id (a link fault)
+    wrong_transaction: float = 0.0
 
 
 class Bus:
@@ -453,6 +456,7 @@ class Bus:
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
         delay = slave.profile.protocol.turnaround_ms / 1000.0
         notes: list[str] = []
+        split = wrong_transaction = 0.0
         for link in self._links(slave):
             if not link.active_reply_faults:
                 continue
@@ -460,6 +464,8 @@ class Bus:
             mangled = link.mangle(data, delay, self.rng, raw, t)
             link.spend()
             data, delay = mangled.data, mangled.delay
+            split = max(split, mangled.split)
+            wrong_transaction = max(wrong_transaction, mangled.wrong_transaction)
             notes += mangled.notes
             if data is None:
                 counters = self.counters_of(response.slave)
@@ -476,7 +482,7 @@ class Bus:
         else:
             counters.replies += 1
         self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
-        return Reply(data, delay, response.slave, baud)
+        return Reply(data, delay, response.slave, baud, split, wrong_transaction)
 
     def _tx(
         self,

@@ -34,6 +34,10 @@ class Mangled:
     data: bytes | None
     delay: float
     notes: tuple[str, ...] = ()
+    #: seconds between the reply's two pieces (0: in one piece); the transport splits it
+    split: float = 0.0
+    #: Modbus TCP: seconds the right reply is held back behind a copy under another transaction id (0: none)
+    wrong_transaction: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +95,12 @@ class LinkFaults:
     burst: float = _knob(0.0, "seconds", "l", "16 ms bursts", "replies in 16 ms bursts (USB adapter latency)", 0.016)
     #: one bit flipped in this percent of the frames, either way (a request hit is a CRC error at the drive)
     noise_percent: float = _knob(0.0, "percent", "v", "noise", "a bit error in 5 % of the frames, both ways", 5.0)
+    #: the reply in two pieces this many seconds apart (two TCP segments; on a serial line a gap inside the frame)
+    split: float = _knob(0.0, "seconds", "G", "split reply", "the reply in two pieces 20 ms apart", 0.02)
+    #: Modbus TCP: a copy of the reply under another transaction id first, the right one this many seconds later
+    wrong_transaction: float = _knob(
+        0.0, "seconds", "W", "wrong transaction id", "Modbus TCP: a reply under another id first, 100 ms ahead", 0.1
+    )
     #: the reply faults above act on the next N replies only, then switch off (0: on every reply until cleared)
     replies: int = _knob(
         0, "count", "N", "next N only", "the reply faults act on the next 3 replies only", 3, on_reply=False
@@ -179,7 +189,13 @@ class LinkFaults:
             held = math.ceil(due / self.burst - 1e-9) * self.burst - due
             delay += held
             notes.append(f"held {held * 1000:.1f} ms to the next {self.burst * 1000:g} ms burst (injected)")
-        return Mangled(data, delay, tuple(notes))
+        if self.split > 0:
+            notes.append(f"in two pieces {self.split * 1000:.0f} ms apart (injected)")
+        if self.wrong_transaction > 0:
+            notes.append(
+                f"Modbus TCP: first under another transaction id, {self.wrong_transaction * 1000:.0f} ms ahead (injected)"
+            )
+        return Mangled(data, delay, tuple(notes), self.split, self.wrong_transaction)
 
 
 #: Every link fault: field name -> its knob, in the order of the fields.

@@ -36,6 +36,8 @@ CHECKS: Mapping[str, tuple[str, str]] = {
     "retries": ("asks a failed request again before moving on (a reply not its own is discarded)", "guide"),
     "no-storm": ("no retry sooner than the line could answer; no more than 3x its usual request rate", "guide"),
     "bounded": ("at most 3 retries of one request in a row", "assumed"),
+    "takes-replies": ("asks no request again whose reply was good (a split or late reply is taken)", "guide"),
+    "waits-own-id": ("sends nothing new before its own transaction id's reply comes (Modbus TCP)", "tcp"),
     "keeps-polling": ("keeps at least half its usual request rate while the incident lasts", "assumed"),
     "backs-off": ("asks no faster than its usual rate while the drive is silent", "assumed"),
     "recovers": ("a good reply again within its timeout plus 5 poll periods after the incident", "assumed"),
@@ -149,6 +151,15 @@ def _late(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, .
     return (Step(0.0, "link", {"delay": delay, "replies": _n(values, "replies")}),), None
 
 
+def _split(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
+    return (Step(0.0, "link", {"split": _f(values, "gap"), "replies": _n(values, "replies")}),), None
+
+
+def _wrong_id(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
+    hold = round(_f(values, "fraction") * learned.timeout, 4)
+    return (Step(0.0, "link", {"wrong_transaction": hold, "replies": _n(values, "replies")}),), None
+
+
 def _for(seconds: str, **faults: object) -> Plan:
     def plan(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
         length = _f(values, seconds)
@@ -260,6 +271,30 @@ INCIDENTS: Mapping[str, Incident] = {
             {"replies": _REPLIES},
         ),
         Incident(
+            "split",
+            "reply",
+            "sends the next N replies in two pieces a gap apart (two TCP segments; on the pty a gap in the frame)",
+            "until the N replies are spent, then its timeout plus 5 poll periods",
+            "assembles the pieces into its reply: asks nothing again",
+            ("takes-replies", "no-storm", "bounded", "recovers"),
+            "tcp",
+            _split,
+            {"replies": _REPLIES, "gap": Param(0.02, 0.001, 1.0, "seconds between the pieces")},
+        ),
+        Incident(
+            "wrong-transaction",
+            "reply",
+            "Modbus TCP: sends each of the next N replies under another transaction id first, the right one a "
+            "fraction of the master's timeout later",
+            "until the N replies are spent, then its timeout plus 5 poll periods",
+            "discards the reply under another id and waits for its own: sends nothing new before it",
+            ("waits-own-id", "no-storm", "recovers"),
+            "tcp",
+            _wrong_id,
+            {"replies": _REPLIES, "fraction": Param(0.5, 0.05, 0.95, "fraction of the master's timeout")},
+            ("modbus-tcp",),
+        ),
+        Incident(
             "exception-06",
             "reply",
             "answers the next N requests with exception 0x06 (the sheet's frame error), without acting on them",
@@ -275,8 +310,8 @@ INCIDENTS: Mapping[str, Incident] = {
             "reply",
             "sends the next N replies late by a fraction of the master's own timeout",
             "until the N replies are spent, then its timeout plus 5 poll periods",
-            "waits for a reply within its timeout, asks no storm, is back at its rhythm after",
-            ("no-storm", "bounded", "recovers"),
+            "waits for a reply within its timeout: asks nothing again, is back at its rhythm after",
+            ("takes-replies", "no-storm", "bounded", "recovers"),
             "guide",
             _late,
             {"replies": _REPLIES, "fraction": Param(0.5, 0.05, 0.95, "fraction of the master's timeout")},
@@ -287,7 +322,7 @@ INCIDENTS: Mapping[str, Incident] = {
             "echoes each request before its reply (a two-wire RS485 adapter without echo suppression)",
             "the incident's seconds, then its timeout plus 5 poll periods",
             "skips its own echo and takes the reply behind it: polls on at its rhythm, no retries",
-            ("keeps-polling", "no-storm", "recovers"),
+            ("takes-replies", "keeps-polling", "no-storm", "recovers"),
             "assumed",
             _for("seconds", echo=True),
             {"seconds": _SECONDS},
@@ -299,7 +334,7 @@ INCIDENTS: Mapping[str, Incident] = {
             "hands replies over only at 16 ms boundaries (a USB adapter's latency timer)",
             "the incident's seconds, then its timeout plus 5 poll periods",
             "a timeout with room for 16 ms more: polls on, no retries",
-            ("keeps-polling", "no-storm", "recovers"),
+            ("takes-replies", "keeps-polling", "no-storm", "recovers"),
             "assumed",
             _for("seconds", burst="burst"),
             {"seconds": _SECONDS, "burst": Param(0.016, 0.001, 0.1, "seconds between bursts")},
@@ -310,7 +345,7 @@ INCIDENTS: Mapping[str, Incident] = {
             "answers every request later by a fixed delay (a slower drive or gateway)",
             "the incident's seconds, then its timeout plus 5 poll periods",
             "waits for the slower reply within its timeout and keeps polling",
-            ("keeps-polling", "no-storm", "recovers"),
+            ("takes-replies", "keeps-polling", "no-storm", "recovers"),
             "assumed",
             _for("seconds", delay="delay"),
             {"seconds": _SECONDS, "delay": Param(0.05, 0.001, 5.0, "seconds of extra delay")},

@@ -281,6 +281,8 @@ class _Drill:
             line,
         )
         self.all = txns
+        #: the master asked a request again after its good reply in the warm-up (it polls one request)
+        self.repeats_when_warm = False
         self.during = [x for x in txns if start - _EPSILON <= x.t <= end + _EPSILON]
         self.span = [x for x in txns if start - _EPSILON <= x.t <= watched + _EPSILON]
 
@@ -365,6 +367,51 @@ class _Drill:
         passed = longest <= MAX_RETRIES
         figure = f"at most {longest} retries of one request in a row (limit {MAX_RETRIES})"
         return _check("bounded", passed, figure, longest, [where.ref] if where else [])
+
+    def takes_replies(self) -> CheckResult:
+        # a master whose warm-up already asks a request again after its good reply (one request polled) cannot be
+        # told taking a reply from not taking it
+        if self.repeats_when_warm:
+            return _check(
+                "takes-replies", True, "cannot tell: the master asks the same request in a row when all is well", 0
+            )
+        limit = self.end + self.learned.timeout
+        again = [
+            (a, b)
+            for a, b in itertools.pairwise(self.span)
+            if a.status == "good" and b.request == a.request and b.t <= limit + _EPSILON
+        ]
+        if again:
+            a, b = again[0]
+            return _check(
+                "takes-replies",
+                False,
+                f"{len(again)} requests asked again after a good reply; frame {b.seq} {1000 * (b.t - a.reply_t):.0f} ms "
+                "after the reply to the same request",
+                len(again),
+                [a.ref, b.ref],
+            )
+        return _check("takes-replies", True, "took every reply: asked nothing again", 0)
+
+    def waits_own_id(self) -> CheckResult:
+        fraction = self.drill.values.get("fraction", 0.5)
+        hold = float(fraction) * self.learned.timeout if isinstance(fraction, (int, float)) else 0.0
+        early = []
+        for a in self.during:
+            n = self._next(a)
+            if a.status == "good" and n is not None and n.request != a.request and n.t < a.reply_t + hold - _EPSILON:
+                early.append((a, n))
+        if early:
+            a, n = early[0]
+            return _check(
+                "waits-own-id",
+                False,
+                f"{len(early)} of {len(self.during)} took the reply under another id: frame {n.seq}, a new request "
+                f"{1000 * (n.t - a.reply_t):.0f} ms after it, before its own came ({1000 * hold:.0f} ms)",
+                len(early),
+                [a.ref, n.ref],
+            )
+        return _check("waits-own-id", True, f"waited for its own id each time ({1000 * hold:.0f} ms)", 0)
 
     def keeps_polling(self) -> CheckResult:
         length = self.end - self.start
@@ -491,6 +538,8 @@ _CHECKERS = {
     "retries": _Drill.retries,
     "no-storm": _Drill.no_storm,
     "bounded": _Drill.bounded,
+    "takes-replies": _Drill.takes_replies,
+    "waits-own-id": _Drill.waits_own_id,
     "keeps-polling": _Drill.keeps_polling,
     "backs-off": _Drill.backs_off,
     "recovers": _Drill.recovers,
@@ -518,6 +567,9 @@ def judge(
     except ValueError as exc:
         return Judgement(None, (), len(txns), str(exc))
     line = _Line(baud, bits, turnaround)
+    times = {m.event: m.t for m in marks if m.event in ("warmup", "probe")}
+    warm = [x for x in txns if times.get("warmup", 0.0) <= x.t < times.get("probe", 0.0)]
+    repeats_when_warm = any(a.status == "good" and b.request == a.request for a, b in itertools.pairwise(warm))
     by: dict[tuple[int, str], float] = {(m.index, m.event): m.t for m in marks if m.index}
     verdicts = []
     for drill in plan.drills:
@@ -529,6 +581,7 @@ def judge(
             continue
         watched = by.get((drill.index, "watched"), end + watch_seconds(drill, learned))
         played = _Drill(drill, txns, start, end, watched, learned, line)
+        played.repeats_when_warm = repeats_when_warm
         checks = tuple(_CHECKERS[name](played) for name in drill.incident.checks)
         verdicts.append(Verdict(drill.index, drill.name, all(c.passed for c in checks), checks, start, end, source))
     return Judgement(learned, tuple(verdicts), len(txns))

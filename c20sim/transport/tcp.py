@@ -329,7 +329,20 @@ class _MbapConnection(_Connection):
 
         def respond(reply: Reply | None) -> None:
             if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data) and reply.data[0] == unit:
-                self._answer(transaction, unit, reply.data[1:-2])
+                if reply.wrong_transaction > 0:  # a link fault: a copy under another id first, the right one later
+                    self._answer(transaction ^ 0x5A5A, unit, reply.data[1:-2])
+                    right = reply
+
+                    def late() -> None:
+                        self._timers.discard(held)
+                        if self.transport is not None:
+                            self._answer(transaction, unit, right.data[1:-2], right.split)
+                        self._done()
+
+                    held = loop.call_later(reply.wrong_transaction, late)
+                    self._timers.add(held)
+                    return
+                self._answer(transaction, unit, reply.data[1:-2], reply.split)
                 self._done()
             elif unit != BROADCAST and self.transport is not None:
                 # The line stayed silent (or answered garbage): the gateway says so after its timeout.
@@ -351,8 +364,13 @@ class _MbapConnection(_Connection):
             self._outstanding += 1
             line.submit(dataclasses.replace(event, mbap=header), respond, self)
 
-    def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
-        self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
+    def _answer(self, transaction: int, unit: int, pdu: bytes, split: float = 0.0) -> None:
+        adu = struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu
+        if split > 0:  # a link fault: two TCP segments (asyncio's sockets send with TCP_NODELAY)
+            self.send(adu[:7])
+            self.loop.call_later(split, self.send, adu[7:])
+            return
+        self.send(adu)
 
     def _log_gateway_answer(self, header: MbapHeader, answer: bytes) -> None:
         """The frame log's record of the gateway's own exception 0x0B: on the TCP connection, never on the line."""

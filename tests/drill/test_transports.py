@@ -78,3 +78,25 @@ def test_mbpoll_in_a_shell_loop(tmp_path: Path, transport: str) -> None:
     where = "tcp 127.0.0.1 {modbus_tcp_port}" if transport == "modbus-tcp" else "rtu {pty}"
     failed = drill(tmp_path, f"{MBPOLL} {where}", "--transport", transport, plan=plan).failed()
     assert failed == _expect(MBPOLL_LOOP, transport)
+
+
+WIRE_PLAN = """\
+warmup = 2.0
+[[drill]]
+incident = "wrong-transaction"
+[[drill]]
+incident = "split"
+[[drill]]
+incident = "late"
+"""
+
+
+@pytest.mark.parametrize(("style", "expected"), [("careful", []), ("naive", ["waits-own-id"])])
+def test_a_wrong_transaction_id_and_a_split_reply_over_modbus_tcp(
+    tmp_path: Path, style: str, expected: list[str]
+) -> None:
+    master = f"{sys.executable} {RAW} {style} --modbus-tcp {{modbus_tcp}}"
+    drilled = drill(tmp_path, master, "--transport", "modbus-tcp", plan=WIRE_PLAN)
+    assert drilled.failed() == {"1 wrong-transaction": expected, "2 split": [], "3 late": []}
+    if style == "naive":
+        assert "took the reply under another id" in drilled.figure("1 wrong-transaction", "waits-own-id")

@@ -10,7 +10,7 @@ Every style polls drive 1 every 100 ms with a 250 ms timeout and, at start, writ
   3 times, backs off (200 ms, 400 ms) while the drive is silent; on a fault reads 2102H, sends no run command,
   resets once (then not again for 3 s); a drive found stopped gets 2001H again, then the run command.
 - naive: polls 3006H and writes 2000H = 1 every cycle (a run command kept asserted), takes whatever bytes come
-  as the reply (no check at all), never retries, never reads the status or fault code, never writes 2001H again.
+  as the reply (no check at all, over Modbus TCP any transaction id), never retries, never reads the status or fault code, never writes 2001H again.
 - stormy: polls like careful and checks replies, but retries a failed request at once (on a broken reply
   without waiting for its timeout) and without end, its retries waiting only 5 ms for an answer.
 """
@@ -98,14 +98,15 @@ class Link:
             if not os.read(self.fd, 512):
                 return
 
-    def unwrap(self, buffer: bytes) -> tuple[bytes | None, bytes]:
-        """Modbus TCP: the RTU-like frame of the first whole MBAP frame with its own id (others dropped)."""
+    def unwrap(self, buffer: bytes, any_id: bool = False) -> tuple[bytes | None, bytes]:
+        """Modbus TCP: the RTU-like frame of the first whole MBAP frame with its own id (others dropped), or of
+        any id (``any_id``: the naive master)."""
         while len(buffer) >= 7:
             tid, _, length, unit = struct.unpack_from(">HHHB", buffer)
             if len(buffer) < 6 + length:
                 return None, buffer
             pdu, buffer = buffer[7 : 6 + length], buffer[6 + length :]
-            if tid == self.tid:
+            if tid == self.tid or any_id:
                 return with_crc(bytes((unit,)) + pdu), buffer
         return None, buffer
 
@@ -131,7 +132,7 @@ class Master:
                 return None if self.style != "naive" or len(buffer) < 5 else buffer
             buffer += data
             if link.mbap:
-                frame, buffer = link.unwrap(buffer)
+                frame, buffer = link.unwrap(buffer, self.style == "naive")
                 if frame is None:
                     continue
                 if self.style == "naive" or (frame[0] == SLAVE and frame[1] & 0x7F == request[1]):
