@@ -15,6 +15,7 @@ stopped.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import io
 import json
@@ -23,12 +24,13 @@ import shlex
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 import tomllib
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from .control import causes, ops
 from .core.bus import FrameRecord
@@ -86,6 +88,8 @@ class RunOptions:
     wait: float = 10.0
     log: str | None = None
     echo: Callable[[str], None] = lambda line: None
+    #: set from another thread to stop the run (the drills played so far are judged)
+    stop: threading.Event | None = None
 
 
 class _Recorder:
@@ -201,6 +205,9 @@ class _Run:
         return self.sim.call(lambda: self.recorder.requests)
 
     def _alive(self) -> bool:
+        if self.options.stop is not None and self.options.stop.is_set():
+            self.stopped_early = self.stopped_early or "stopped"
+            return False
         if self.master is None:
             return True
         code = self.master.exited()
@@ -327,7 +334,7 @@ class _Run:
 
     def _first_request(self, where: str) -> None:
         limit = time.monotonic() + self.options.wait
-        while self._requests() == 0:
+        while self._requests() == 0 and self._alive():
             if self.master is not None and self.master.exited() is not None:
                 raise C20SimError(
                     f"--master: exited at once (code {self.master.exited()}) before sending anything: "
@@ -375,6 +382,48 @@ def play(handle: Handle, options: RunOptions, endpoints: Mapping[str, str] | Non
     run = _Run(options, handle, endpoints or {})
     judgement = run.run()
     return judgement, run.stopped_early
+
+
+class _LoopHandle:
+    """A served simulator seen from a worker thread: each call runs on the serving loop, between frames."""
+
+    def __init__(self, sim: Simulator, loop: asyncio.AbstractEventLoop) -> None:
+        self.sim, self.profile, self.loop = sim, sim.profile, loop
+
+    def call(self, fn: Callable[..., T], *args: object) -> T:
+        async def run() -> T:
+            return fn(*args)
+
+        return asyncio.run_coroutine_threadsafe(run(), self.loop).result(30.0)
+
+
+def serve_runner(
+    sim: Simulator, loop: asyncio.AbstractEventLoop
+) -> Callable[[Mapping[str, Any], Callable[[str], None], threading.Event], dict[str, Any]]:
+    """The drill runner ``serve`` gives its simulator (:mod:`c20sim.control.drills`): a request's plan played on
+    the master that polls the serve, in the calling (worker) thread; the report as JSON."""
+
+    def run(fields: Mapping[str, Any], progress: Callable[[str], None], stop: threading.Event) -> dict[str, Any]:
+        seed = int(fields.get("seed") or 1)
+        items = fields.get("plan")
+        if items is None:
+            plan = standard_plan(seed, None)
+        else:
+            drills = [{"incident": item} if isinstance(item, str) else dict(item) for item in items]
+            doc: dict[str, object] = {"seed": seed, "drill": drills}
+            for key in ("warmup", "poll_period", "timeout"):
+                if fields.get(key) is not None:
+                    doc[key] = fields[key]
+            plan = read_plan(doc, "POST /drill")
+        options = RunOptions(
+            plan, profile=sim.profile, wait=float(fields.get("wait") or 60.0), echo=progress, stop=stop
+        )
+        judgement, early = play(_LoopHandle(sim, loop), options)
+        report: dict[str, Any] = json.loads(json_report(judgement, early))
+        report["text"] = text_report(judgement, early)
+        return report
+
+    return run
 
 
 def _judge_lines(lines: Sequence[str], plan: Plan, profile: Profile, where: str = "the run") -> Judgement:

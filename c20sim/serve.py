@@ -171,6 +171,10 @@ class Server:
                 from .control import liveaudit
 
                 self._unsubscribe.append(liveaudit.start(sim).close)
+            from .control import drills
+            from .drillrun import serve_runner
+
+            drills.attach(sim, serve_runner(sim, asyncio.get_running_loop()))
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:
