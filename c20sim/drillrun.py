@@ -398,16 +398,18 @@ class _LoopHandle:
 
 
 def serve_runner(
-    sim: Simulator, loop: asyncio.AbstractEventLoop
+    sim: Simulator, loop: asyncio.AbstractEventLoop, transport: str = "tcp"
 ) -> Callable[[Mapping[str, Any], Callable[[str], None], threading.Event], dict[str, Any]]:
     """The drill runner ``serve`` gives its simulator (:mod:`c20sim.control.drills`): a request's plan played on
-    the master that polls the serve, in the calling (worker) thread; the report as JSON."""
+    the master that polls the serve, in the calling (worker) thread; the report as JSON. ``transport``: ``tcp``
+    where RTU frames are served (a pty, a serial port, RTU over TCP), ``modbus-tcp`` where only Modbus TCP is:
+    the standard plan keeps what it carries, and a drill it cannot carry is refused."""
 
     def run(fields: Mapping[str, Any], progress: Callable[[str], None], stop: threading.Event) -> dict[str, Any]:
         seed = int(fields.get("seed") or 1)
         items = fields.get("plan")
         if items is None:
-            plan = standard_plan(seed, None)
+            plan = standard_plan(seed, transport)
         else:
             drills = [{"incident": item} if isinstance(item, str) else dict(item) for item in items]
             doc: dict[str, object] = {"seed": seed, "drill": drills}
@@ -415,6 +417,12 @@ def serve_runner(
                 if fields.get(key) is not None:
                     doc[key] = fields[key]
             plan = read_plan(doc, "POST /drill")
+            for d in plan.drills:
+                if transport not in d.incident.transports:
+                    served = "Modbus TCP" if transport == "modbus-tcp" else "RTU frames"
+                    raise C20SimError(
+                        f"POST /drill: drill {d.index}: {d.name} cannot be played where {served} are served"
+                    )
         options = RunOptions(
             plan, profile=sim.profile, wait=float(fields.get("wait") or 60.0), echo=progress, stop=stop
         )
