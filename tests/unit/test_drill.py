@@ -277,3 +277,13 @@ def test_the_same_frames_and_marks_give_the_same_verdicts() -> None:
 
 def test_a_request_frame_is_read_by_register() -> None:
     assert encode(ReadRequest(1, 0x2100, 1)) == STATUS
+
+
+def test_the_same_seed_gives_the_same_noise(profile: Profile) -> None:
+    def replies(seed: int) -> list[bytes | None]:
+        line = Line(Bus([make_slave(profile, 1)], seed=seed))
+        line.bus.link.noise_percent = 30.0
+        return [line.send(read(1, 0x2001)) for _ in range(100)]
+
+    assert replies(5) == replies(5)
+    assert replies(5) != replies(6)
