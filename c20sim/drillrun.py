@@ -334,7 +334,10 @@ class _Run:
 
     def _first_request(self, where: str) -> None:
         limit = time.monotonic() + self.options.wait
-        while self._requests() == 0 and self._alive():
+        while self._requests() == 0:
+            if self.options.stop is not None and self.options.stop.is_set():
+                self.stopped_early = "stopped"
+                return
             if self.master is not None and self.master.exited() is not None:
                 raise C20SimError(
                     f"--master: exited at once (code {self.master.exited()}) before sending anything: "
