@@ -69,7 +69,7 @@ def cmd_drill(args: argparse.Namespace) -> int:
     if args.judge:
         if args.plan is None and args.master is not None:
             raise C20SimError("--judge takes a frame log and --plan, not --master")
-        plan = load_plan(args.plan, args.seed, None)
+        plan = load_plan(args.plan, args.seed, args.transport if args.plan is None else None)
         judgement = judge_log(args.judge, plan, profile)
         log_path = args.judge
     else:
@@ -128,7 +128,10 @@ def add_drill_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
         "--log", metavar="PATH", help="write the run's frame log here (default: a file in the temp directory)"
     )
     parser.add_argument(
-        "--judge", metavar="LOG", help="judge a drill's frame log offline instead of running (with --plan)"
+        "--judge",
+        metavar="LOG",
+        help="judge a drill's frame log offline instead of running, against --plan (default: the standard plan "
+        "for --transport)",
     )
     parser.add_argument("--format", choices=("text", "json"), default="text", help="the report's format")
     parser.add_argument("--junit", metavar="FILE", help="write a JUnit XML report: one test case per drill")

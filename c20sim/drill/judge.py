@@ -467,14 +467,15 @@ class _Drill:
             ),
             None,
         )
+        since = "the link came back" if self.drill.incident.silent else "the trip"
         if read is None:
-            return _check("notices", False, "never read 2100H or 2102H after the trip", -1)
+            return _check("notices", False, f"never read 2100H or 2102H after {since}", -1)
         after = read.reply_t - at
         which = "2102H" if read.reads(Reg.FAULT_CODE) else "2100H"
         return _check(
             "notices",
             after <= limit + _EPSILON,
-            f"read {which} {after:.2f} s after the trip (limit {limit:.2f} s)",
+            f"read {which} {after:.2f} s after {since} (limit {limit:.2f} s)",
             after,
             [read.ref],
         )
@@ -490,7 +491,7 @@ class _Drill:
                 "no-run-into-fault",
                 False,
                 f"{len(refused)} run commands sent into the fault (refused 0x{refused[0].code:02X}), the first "
-                f"{refused[0].t - self.start:.2f} s after the trip",
+                f"{refused[0].t - self.start:.2f} s after the incident began",
                 len(refused),
                 [x.ref for x in refused],
             )

@@ -44,7 +44,7 @@ def test_the_naive_master_fails_the_retries_the_trip_and_the_power_cycle(tmp_pat
     )
     assert drilled.figure("3 trip", "notices") == "never read 2100H or 2102H after the trip"
     assert re.fullmatch(
-        r"\d+ run commands sent into the fault \(refused 0x01\), the first 0\.\d\d s after the trip",
+        r"\d+ run commands sent into the fault \(refused 0x01\), the first 0\.\d\d s after the incident began",
         drilled.figure("3 trip", "no-run-into-fault"),
     )
     assert re.fullmatch(
