@@ -284,6 +284,10 @@ class _Drill:
         #: the master asked a request again after its good reply in the warm-up (it polls one request)
         self.repeats_when_warm = False
         self.during = [x for x in txns if start - _EPSILON <= x.t <= end + _EPSILON]
+        replies = drill.values.get("replies")
+        if drill.incident.group == "reply" and isinstance(replies, int):
+            # a reply fault acts on the next N replies: exactly the first N requests from its start
+            self.during = [x for x in txns if x.t >= start - _EPSILON][:replies]
         self.span = [x for x in txns if start - _EPSILON <= x.t <= watched + _EPSILON]
 
     def _next(self, txn: _Txn) -> _Txn | None:

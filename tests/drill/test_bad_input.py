@@ -107,3 +107,10 @@ def test_judge_needs_a_drill_log(tmp_path: Path) -> None:
     done = _run("--judge", str(log), "--plan", str(_plan(tmp_path)))
     assert done.returncode == 2
     assert _one_line(done) == f"c20sim: {log}: no drill marks; give the frame log a c20sim drill run wrote (--log)"
+
+
+def test_no_master_at_all_is_one_line_after_the_wait(tmp_path: Path) -> None:
+    done = _run("--plan", str(_plan(tmp_path)), "--wait", "1")
+    assert done.returncode == 2
+    assert _one_line(done).startswith("c20sim: the master sent nothing in 1 s on tcp 127.0.0.1:")
+    assert "drill: waiting for a master on tcp 127.0.0.1:" in done.stderr

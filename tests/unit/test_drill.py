@@ -287,3 +287,92 @@ def test_the_same_seed_gives_the_same_noise(profile: Profile) -> None:
 
     assert replies(5) == replies(5)
     assert replies(5) != replies(6)
+
+
+# -- the drive's checks, on streams made here
+
+RUN = _with_crc(b"\x01\x06\x20\x00\x00\x01")
+RUN_REFUSED = _with_crc(b"\x01\x86\x01")
+RESET = _with_crc(b"\x01\x06\x20\x00\x00\x07")
+SETPOINT = _with_crc(b"\x01\x06\x20\x01\x05\xdc")
+
+
+def test_a_run_command_before_2001h_after_power_up_fails_restores_ram() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "power-cycle")
+    s.t += 1.0
+    s.mark("end", 1, "power-cycle")
+    s.t += 0.01
+    s.ask(RUN, RUN)
+    s.ask(SETPOINT, SETPOINT)
+    s.cycle(10)
+    plan = read_plan({"drill": [{"incident": "power-cycle"}]}, "p.toml")
+    (verdict,) = judge(s.frames, plan, s.marks).verdicts
+    ram = next(c for c in verdict.checks if c.check == "restores-ram")
+    assert not ram.passed
+    assert ram.figure == "a run command 0.01 s after power-up, before any write of 2001H (its RAM value was lost)"
+    backs = next(c for c in verdict.checks if c.check == "backs-off")
+    assert backs.passed and backs.figure == "0.0 requests/s while the drive was silent, 0 % of its usual 20.0/s"
+
+
+def test_two_resets_while_the_cause_is_present_and_a_run_into_the_fault() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "trip")
+    s.ask(STATUS, _with_crc(b"\x01\x03\x02\x00\x04"))
+    s.ask(RESET, RESET)
+    s.ask(RUN, RUN_REFUSED)
+    s.ask(RESET, RESET)
+    s.t += 1.0
+    s.mark("end", 1, "trip")
+    s.cycle(10)
+    plan = read_plan({"drill": [{"incident": "trip"}]}, "p.toml")
+    (verdict,) = judge(s.frames, plan, s.marks).verdicts
+    figures = {c.check: (c.passed, c.figure) for c in verdict.checks}
+    assert figures["notices"] == (True, "read 2100H 0.02 s after the trip (limit 0.55 s)")
+    assert figures["resets-once"] == (False, "2 fault resets while the cause was present (1.1 s)")
+    assert figures["no-run-into-fault"] == (
+        False,
+        "1 run commands sent into the fault (refused 0x01), the first 0.03 s after the incident began",
+    )
+
+
+def test_a_new_request_before_its_own_transaction_id_fails_waits_own_id() -> None:
+    s = Stream()
+    s.warm()  # learned timeout 0.25 s: the right reply comes 125 ms after the wrong-id one
+    s.mark("start", 1, "wrong-transaction")
+    s.ask(STATUS, STATUS_OK)  # the reply under another id (the line's frame is good)
+    s.mark("end", 1, "wrong-transaction")
+    s.ask(SPEED, SPEED_OK)  # 1 ms later: moved on before its own id came
+    s.cycle(10)
+    plan = read_plan({"drill": [{"incident": "wrong-transaction", "replies": 1}]}, "p.toml")
+    (verdict,) = judge(s.frames, plan, s.marks).verdicts
+    own = verdict.checks[0]
+    assert (own.check, own.passed) == ("waits-own-id", False)
+    assert own.figure == (
+        "1 of 1 took the reply under another id: frame 87, a new request 1 ms after it, before its own came (125 ms)"
+    )
+
+
+def test_takes_replies_says_when_it_cannot_tell() -> None:
+    s = Stream()
+    s.mark("warmup")
+    for _ in range(20):  # one request polled: asked again after each good reply
+        start = s.t
+        s.ask(STATUS, STATUS_OK)
+        s.t = start + 0.1
+    s.mark("probe")
+    start = s.t
+    s.ask(STATUS, None, 0.002)
+    s.t = start + 0.25
+    s.ask(STATUS, STATUS_OK)
+    s.mark("learned")
+    s.mark("start", 1, "late")
+    s.ask(STATUS, STATUS_OK, 0.125)
+    s.mark("end", 1, "late")
+    s.ask(STATUS, STATUS_OK)
+    plan = read_plan({"drill": [{"incident": "late"}]}, "p.toml")
+    (verdict,) = judge(s.frames, plan, s.marks).verdicts
+    takes = verdict.checks[0]
+    assert takes.passed and takes.figure == "cannot tell: the master asks the same request in a row when all is well"
