@@ -22,7 +22,10 @@ def test_the_careful_master_passes_every_drill_and_the_judge_agrees_offline(tmp_
     learned = drilled.report["learned"]
     assert abs(learned["poll_period_s"] - 0.1) < 0.01 and abs(learned["timeout_s"] - 0.25) < 0.02
     assert drilled.figure("1 crc", "retries") == "asked each of 3 failed requests again"
-    assert drilled.figure("3 trip", "resets-once") == "1 fault resets while the cause was present (2.0 s)"
+    # the hold is the marks' own (2 s asked; a loaded machine applies the release a little later)
+    assert re.fullmatch(
+        r"1 fault resets while the cause was present \(2\.\d s\)", drilled.figure("3 trip", "resets-once")
+    )
     code, again = judge_again(drilled)
     assert code == 0 and json.loads(again) == drilled.report
 
