@@ -22,6 +22,7 @@ from .browser.site import add_site_command
 from .control.client import TOKEN_ENV
 from .control.ctl import add_ctl_command
 from .core.simulator import Simulator, make_clock
+from .drillcli import add_drill_command
 from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .plant import add_plant_commands, drive_addresses
@@ -405,6 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_decode_command(sub)
     add_audit_command(sub)
+    add_drill_command(sub)
 
     profiles = sub.add_parser("profiles", help="list the shipped profiles, or show one")
     profiles.add_argument("action", nargs="?", choices=["list", "show"], default="list")

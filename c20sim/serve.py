@@ -175,6 +175,11 @@ class Server:
                 from .control import liveaudit
 
                 self._unsubscribe.append(liveaudit.start(sim).close)
+            from .control import drills
+            from .drillrun import serve_runner
+
+            rtu = opts.pty or opts.link or opts.serial or opts.tcp
+            drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), "tcp" if rtu else "modbus-tcp"))
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:

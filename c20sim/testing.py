@@ -35,6 +35,7 @@ from .audit import RULES, Finding, Severity
 from .control import liveaudit, ops
 from .core.bus import Direction, FrameRecord, RecordKind
 from .core.simulator import Simulator, check_addresses, make_clock
+from .drill import Judgement
 from .drive.model import Telemetry
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .drivehandle import DriveHandle
@@ -323,6 +324,45 @@ class C20Sim:
 
     def clear_frames(self) -> None:
         self.call(self.sim.bus.records.clear)
+
+    # --- The drill.
+
+    def drill(
+        self,
+        plan: str | os.PathLike[str] | Sequence[str | Mapping[str, object]] | None = None,
+        *,
+        poll_period: float | None = None,
+        timeout: float | None = None,
+        warmup: float = 3.0,
+        seed: int = 1,
+        wait: float = 10.0,
+        log: str | os.PathLike[str] | None = None,
+    ) -> Judgement:
+        """Play a drill (docs/drill.md) on this simulator against the master the test runs, and judge it from the
+        wire; needs ``clock="realtime"``. ``plan``: an incident's name (``"crc"``), a list of names or tables
+        (``[{"incident": "trip", "cause": "overheat"}]``), a TOML plan file, or None for the standard plan (what the
+        first transport carries). Waits up to ``wait`` s for the master's first request, then warms up for
+        ``warmup`` s (or takes ``poll_period`` and ``timeout`` as given). Returns the judgement: ``passed``, and a
+        verdict per drill with its checks and figures (``c20sim.drillrun.text_report(judgement)``: the report in
+        words). The plant is left healthy (no link fault, no cause, no fault held)."""
+        from .drill import read_plan, standard_plan
+        from .drillrun import RunOptions, load_plan, play
+
+        served = "modbus-tcp" if self.port is None and self.pty is None else "tcp"
+        if plan is None:
+            chosen = standard_plan(seed, served)
+        elif isinstance(plan, (str, os.PathLike)) and os.path.isfile(plan):
+            chosen = load_plan(os.fspath(plan), seed, served)
+        else:
+            items = [plan] if isinstance(plan, str) else list(plan)  # type: ignore[arg-type]
+            drills = [{"incident": item} if isinstance(item, str) else dict(item) for item in items]
+            doc: dict[str, object] = {"seed": seed, "warmup": warmup, "drill": drills}
+            if poll_period is not None or timeout is not None:
+                doc.update(poll_period=poll_period, timeout=timeout)
+            chosen = read_plan({k: v for k, v in doc.items() if v is not None}, "drill(...)")
+        options = RunOptions(chosen, profile=self.profile, wait=wait, log=None if log is None else os.fspath(log))
+        judgement, _ = play(self, options)
+        return judgement
 
     # --- Assertions.
 

@@ -29,6 +29,7 @@ and the line scheduler holds the line for it under bus timing.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import functools
 import logging
@@ -136,7 +137,12 @@ class FrameRecord:
         forwarded = (
             self.direction is Direction.RX
             or self.from_gateway
-            or (self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION) and len(self.data) >= 4 and crc_ok(self.data))
+            or (
+                self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION)
+                and len(self.data) >= 4
+                and crc_ok(self.data)
+                and self.data[0] == self.mbap.unit
+            )
         )
         return self.mbap.adu(self.data[1:-2]) if forwarded and len(self.data) >= 3 else b""
 
@@ -212,6 +218,9 @@ class Reply:
     delay: float
     slave: int
     baud: int  #: the line speed it goes out at (the old one, after a 2009H write)
+    split: float = 0.0  #: seconds between its two pieces (a link fault; 0: in one piece)
+    #: Modbus TCP: seconds the right reply waits behind a copy under another transaction id (a link fault)
+    wrong_transaction: float = 0.0
 
 
 class Bus:
@@ -326,6 +335,8 @@ class Bus:
 
     def _handle(self, event: FrameEvent, now: float | None) -> Reply | None:
         t = event.t if now is None else now
+        if event.kind is FrameKind.FRAME and self.link.noise_percent > 0 and self.link.noisy(self.rng):
+            event = self._hit(event)
         if event.kind is FrameKind.FRAME:
             return self._handle_frame(event, t)
         slave_address = event.data[0] if event.data else None
@@ -358,6 +369,15 @@ class Bus:
         return self._reply(
             slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud, event.mbap
         )
+
+    def _hit(self, event: FrameEvent) -> FrameEvent:
+        """A request that noise on the line hit: one bit flipped, so the drive sees a CRC error (the address byte
+        is spared, so that the frame still names its drive)."""
+        data = event.data
+        bit = 8 + self.rng.randrange((len(data) - 1) * 8)
+        hit = data[: bit // 8] + bytes((data[bit // 8] ^ (1 << (bit % 8)),)) + data[bit // 8 + 1 :]
+        kind = FrameKind.FRAME if crc_ok(hit) else FrameKind.CRC_ERROR
+        return dataclasses.replace(event, data=hit, kind=kind, note=f"bit {bit} flipped by noise (injected)")
 
     def _handle_frame(self, event: FrameEvent, t: float) -> Reply | None:
         request = decode_request(event.data, check_crc=False)  # the framer checked it
@@ -408,11 +428,13 @@ class Bus:
         if forced is not None:
             counters.injected += 1
             response: Response = ExceptionResponse(address, request.function, forced)
+            own = self._link_of[slave]
+            (own if own.forced_exception is not None else self.link).spend()
         else:
             response = slave.handle(request, t)
         baud = self.line_baud
         self._follow_baud(slave)
-        return self._reply(slave, response, event.t, t, request, baud, event.mbap)
+        return self._reply(slave, response, event.t, t, request, baud, event.mbap, event.data)
 
     def _follow_baud(self, slave: Slave) -> None:
         """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
@@ -428,17 +450,22 @@ class Bus:
         request: Request | None,
         baud: int,
         mbap: MbapHeader | None = None,
+        raw: bytes = b"",
     ) -> Reply | None:
         data: bytes | None = encode(response)
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
         delay = slave.answer_delay
         notes: list[str] = []
+        split = wrong_transaction = 0.0
         for link in self._links(slave):
             if not link.active_reply_faults:
                 continue
             assert data is not None
-            mangled = link.mangle(data, delay, self.rng)
+            mangled = link.mangle(data, delay, self.rng, raw, t)
+            link.spend()
             data, delay = mangled.data, mangled.delay
+            split = max(split, mangled.split)
+            wrong_transaction = max(wrong_transaction, mangled.wrong_transaction)
             notes += mangled.notes
             if data is None:
                 counters = self.counters_of(response.slave)
@@ -455,7 +482,7 @@ class Bus:
         else:
             counters.replies += 1
         self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
-        return Reply(data, delay, response.slave, baud)
+        return Reply(data, delay, response.slave, baud, split, wrong_transaction)
 
     def _tx(
         self,
@@ -470,7 +497,7 @@ class Bus:
         mbap: MbapHeader | None,
     ) -> None:
         note = "; ".join(notes)
-        if mbap is not None and data and kind is not RecordKind.DROPPED and not crc_ok(data):
+        if mbap is not None and data and kind is not RecordKind.DROPPED and (not crc_ok(data) or data[0] != mbap.unit):
             note = "; ".join([*notes, "the gateway forwards no broken reply: it answers 0x0B after its timeout"])
         self.record(
             FrameRecord(

@@ -11,6 +11,7 @@ wrong address) act on the reply the drive produced. Randomness comes from a
 
 from __future__ import annotations
 
+import math
 import random
 from dataclasses import dataclass, field, fields
 from typing import Any, TypeAlias
@@ -33,6 +34,10 @@ class Mangled:
     data: bytes | None
     delay: float
     notes: tuple[str, ...] = ()
+    #: seconds between the reply's two pieces (0: in one piece); the transport splits it
+    split: float = 0.0
+    #: Modbus TCP: seconds the right reply is held back behind a copy under another transaction id (0: none)
+    wrong_transaction: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +87,24 @@ class LinkFaults:
     forced_exception: ExceptionCode | None = _knob(  # noqa: RUF009 (a dataclasses.field, as the others)
         None, "exception", "e", "exception", "cycles: force exception 0x01 .. 0x08, off", None, on_reply=False
     )
+    #: answer with another function code (0x03 -> 0x04, 0x06 -> 0x01, 0x10 -> 0x17: the code XOR 7), CRC good
+    wrong_function: bool = _knob(False, "flag", "k", "wrong function", "answer with another function code", True)
+    #: the master's own request before the reply: a two-wire RS485 adapter without echo suppression
+    echo: bool = _knob(False, "flag", "h", "echo", "the request echoed before the reply (RS485 adapter)", True)
+    #: replies handed over only at multiples of this many seconds (an FTDI adapter's latency timer, 16 ms)
+    burst: float = _knob(0.0, "seconds", "l", "16 ms bursts", "replies in 16 ms bursts (USB adapter latency)", 0.016)
+    #: one bit flipped in this percent of the frames, either way (a request hit is a CRC error at the drive)
+    noise_percent: float = _knob(0.0, "percent", "v", "noise", "a bit error in 5 % of the frames, both ways", 5.0)
+    #: the reply in two pieces this many seconds apart (two TCP segments; on a serial line a gap inside the frame)
+    split: float = _knob(0.0, "seconds", "G", "split reply", "the reply in two pieces 20 ms apart", 0.02)
+    #: Modbus TCP: a copy of the reply under another transaction id first, the right one this many seconds later
+    wrong_transaction: float = _knob(
+        0.0, "seconds", "W", "wrong transaction id", "Modbus TCP: a reply under another id first, 100 ms ahead", 0.1
+    )
+    #: the reply faults above act on the next N replies only, then switch off (0: on every reply until cleared)
+    replies: int = _knob(
+        0, "count", "N", "next N only", "the reply faults act on the next 3 replies only", 3, on_reply=False
+    )
 
     def clear(self) -> None:
         """Switch every fault off."""
@@ -109,8 +132,24 @@ class LinkFaults:
             object.__setattr__(self, "_reply_armed", armed)
         return armed
 
-    def mangle(self, data: bytes, delay: float, rng: random.Random) -> Mangled:
-        """Apply the reply faults to ``data`` sent after ``delay`` seconds."""
+    def spend(self) -> None:
+        """One reply went through these faults: with :attr:`replies` set, count it, and at the last one switch the
+        reply faults (and a forced exception) off."""
+        if self.replies <= 0:
+            return
+        self.replies -= 1
+        if self.replies == 0:
+            for name, knob in KNOBS.items():
+                if knob.on_reply or name == "forced_exception":
+                    setattr(self, name, _DEFAULTS[name])
+
+    def noisy(self, rng: random.Random) -> bool:
+        """Whether noise hits the next frame (one draw of ``rng``, only while noise is on)."""
+        return self.noise_percent > 0 and rng.random() * 100 < self.noise_percent
+
+    def mangle(self, data: bytes, delay: float, rng: random.Random, request: bytes = b"", t: float = 0.0) -> Mangled:
+        """Apply the reply faults to ``data`` sent after ``delay`` seconds, the answer to ``request`` that came at
+        ``t`` on the line's clock (for the echo and the bursts)."""
         notes: list[str] = []
         if self.drop_next > 0:
             self.drop_next -= 1
@@ -121,6 +160,10 @@ class LinkFaults:
             extra = self.delay + (rng.random() * self.delay_jitter if self.delay_jitter else 0.0)
             delay += extra
             notes.append(f"delayed {extra * 1000:.0f} ms (injected)")
+        if self.wrong_function and len(data) >= 4:
+            body = data[:1] + bytes((data[1] ^ 0x07,)) + data[2:-2]
+            data = body + crc16(body).to_bytes(2, "little")
+            notes.append(f"function 0x{body[1]:02X} instead of 0x{body[1] ^ 0x07:02X} (injected)")
         if self.wrong_address is not None:
             body = bytes((self.wrong_address & 0xFF,)) + data[1:-2]
             data = body + crc16(body).to_bytes(2, "little")
@@ -134,7 +177,25 @@ class LinkFaults:
         if self.garbage_before or self.garbage_after:
             data = self.garbage_before + data + self.garbage_after
             notes.append("garbage added (injected)")
-        return Mangled(data, delay, tuple(notes))
+        if self.noisy(rng) and data:
+            bit = rng.randrange(len(data) * 8)
+            data = data[: bit // 8] + bytes((data[bit // 8] ^ (1 << (bit % 8)),)) + data[bit // 8 + 1 :]
+            notes.append(f"bit {bit} flipped by noise (injected)")
+        if self.echo and request:
+            data = request + data
+            notes.append("request echoed before the reply (injected)")
+        if self.burst > 0:
+            due = t + delay
+            held = math.ceil(due / self.burst - 1e-9) * self.burst - due
+            delay += held
+            notes.append(f"held {held * 1000:.1f} ms to the next {self.burst * 1000:g} ms burst (injected)")
+        if self.split > 0:
+            notes.append(f"in two pieces {self.split * 1000:.0f} ms apart (injected)")
+        if self.wrong_transaction > 0:
+            notes.append(
+                f"Modbus TCP: first under another transaction id, {self.wrong_transaction * 1000:.0f} ms ahead (injected)"
+            )
+        return Mangled(data, delay, tuple(notes), self.split, self.wrong_transaction)
 
 
 #: Every link fault: field name -> its knob, in the order of the fields.

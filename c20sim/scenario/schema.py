@@ -25,6 +25,7 @@ from typing import Any
 from ..audit import RULES
 from ..control import causes, ops
 from ..control.schemas import conditions_schema, link_schema
+from ..drill import INCIDENTS
 from ..drive.profile import (
     _FAULT_KEYS,
     _PARAM_KEYS,
@@ -229,6 +230,28 @@ def scenario_schema() -> dict[str, Any]:
                 "items": {"enum": ["any", *RULES]},
                 "uniqueItems": True,
                 "description": 'rules that must have found nothing by this step; "any": no finding at all',
+            },
+            "drill": {
+                "description": "a drill on the master polling the served drive (docs/drill.md): an incident, or a "
+                'list of incidents by name or as tables ({ incident = "trip", hold = 1.0 })',
+                "oneOf": [
+                    {"enum": list(INCIDENTS)},
+                    {"type": "object", "required": ["incident"], "properties": {"incident": {"enum": list(INCIDENTS)}}},
+                    {
+                        "type": "array",
+                        "minItems": 1,
+                        "items": {
+                            "oneOf": [
+                                {"enum": list(INCIDENTS)},
+                                {
+                                    "type": "object",
+                                    "required": ["incident"],
+                                    "properties": {"incident": {"enum": list(INCIDENTS)}},
+                                },
+                            ]
+                        },
+                    },
+                ],
             },
             "within": {
                 "type": "number",

@@ -26,6 +26,10 @@ A step may expect the audit (docs/audit.md) to have found something by then
 frames the scenario's writes and every master sent are judged as a real line
 would take them.
 
+A step may play a drill (``drill = ["crc", { incident = "trip", hold = 1.0 }]``, docs/drill.md) on the
+master polling a served drive (``serve --scenario FILE``, realtime clock); the step waits for it, and its
+verdicts are the step's outcome. ``run-scenario`` (virtual time, no master) refuses such a scenario.
+
 A step may expect its writes to be refused (``expect_exception = 8``: each
 write answered with exception 0x08) or unanswered (``expect_silence = true``:
 no reply, as from a drive that is offline; with no write in the step, a read
@@ -57,8 +61,9 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
 from ..audit import RULES
-from ..control import causes, liveaudit, ops
+from ..control import causes, drills, liveaudit, ops
 from ..core.simulator import Simulator
+from ..drill import read_plan
 from ..drive.files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
@@ -138,6 +143,8 @@ class Step:
     within: float | None = None  #: poll ``expect`` in model time for up to this long
     expect_findings: tuple[str, ...] = ()  #: the audit's rules that must have found something by now
     forbid_findings: tuple[str, ...] = ()  #: rules that must have found nothing ("any": no finding at all)
+    #: a drill (docs/drill.md) on the master polling the served drive: its incidents, as a plan's [[drill]] tables
+    drill: tuple[Mapping[str, object], ...] = ()
 
     @property
     def audited(self) -> bool:
@@ -182,6 +189,7 @@ STEP_KEYS = (
     "within",
     "expect_findings",
     "forbid_findings",
+    "drill",
 )
 
 #: Model seconds between two reads of a ``within`` step's registers.
@@ -383,6 +391,18 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
     if both:
         raise fail("forbid_findings", f"{sorted(both)[0]} is expected and forbidden at once; give one of the two")
 
+    drill: tuple[Mapping[str, object], ...] = ()
+    if "drill" in raw:
+        given = raw["drill"]
+        items = [given] if isinstance(given, (str, dict)) else given
+        if not isinstance(items, list) or not items:
+            raise fail("drill", 'expected an incident or a list of them, such as ["crc", { incident = "trip" }]')
+        drill = tuple({"incident": x} if isinstance(x, str) else dict(x) for x in items)
+        try:
+            read_plan({"drill": list(drill)}, "drill")
+        except C20SimError as exc:
+            raise fail("drill", str(exc).removeprefix("drill: ")) from None
+
     return Step(
         index=index,
         at=float(at),
@@ -403,6 +423,7 @@ def _parse_step(raw: object, index: int, path: str) -> Step:
         within=within,
         expect_findings=findings["expect_findings"],
         forbid_findings=findings["forbid_findings"],
+        drill=drill,
     )
 
 
@@ -678,10 +699,44 @@ def _audit_for(scenario: Scenario, sim: Simulator) -> None:
         liveaudit.start(sim)
 
 
+def _no_drill_here(scenario: Scenario) -> None:
+    for step in scenario.steps:
+        if step.drill:
+            raise ScenarioError(
+                scenario.path,
+                step.label,
+                "drill: a drill plays on a real master: serve --scenario FILE with the realtime clock, and a master "
+                "polling the serve (docs/drill.md)",
+            )
+
+
+async def _drill_step(step: Step, sim: Simulator) -> Outcome:
+    """Play the step's drill on the master polling the served drive; the outcome is its verdicts."""
+    t = sim.now()
+    service = drills.of(sim)
+    service.start({"plan": [dict(item) for item in step.drill]})
+    while (state := service.status())["state"] == "running":
+        await asyncio.sleep(0.2)
+    if state["state"] == "failed":
+        return Outcome(step, t, False, f"drill: {state['error']}")
+    report = state["report"]
+    verdicts = report["verdicts"]
+    failed = [v for v in verdicts if not v["passed"]]
+    text = f"drill: {len(verdicts) - len(failed)} of {len(verdicts)} drills passed"
+    if failed:
+        first = failed[0]
+        figures = "; ".join(c["figure"] for c in first["checks"] if not c["passed"])
+        text += f"; {first['index']} {first['incident']}: {figures}"
+    if report.get("problem"):
+        text += f"; {report['problem']}"
+    return Outcome(step, t, bool(report["passed"]) and not report.get("ended_early"), text)
+
+
 def run(scenario: Scenario, sim: Simulator) -> Report:
     """Play ``scenario`` on a simulator with a virtual clock, instantly."""
     if not sim.virtual:
         raise ScenarioError(scenario.path, "", "run needs a virtual clock; use play() to follow a realtime one")
+    _no_drill_here(scenario)
     check(scenario, sim)
     _audit_for(scenario, sim)
     outcomes: list[Outcome] = []
@@ -709,6 +764,8 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
     ports' (without, they go to the bus directly); each outcome is printed to ``out``."""
     check(scenario, sim)
     _audit_for(scenario, sim)
+    if sim.virtual:
+        _no_drill_here(scenario)
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:
@@ -716,6 +773,8 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
             await asyncio.sleep(min(0.5, wait))
         try:
             results = apply_step(step, sim) if line is None else await apply_step_on_line(step, sim, line)
+            if step.drill:
+                results.append(await _drill_step(step, sim))
         except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
         if not _settled(step, results):

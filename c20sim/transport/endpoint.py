@@ -253,8 +253,18 @@ class RtuEndpoint:
             self._schedule_collect()  # else nothing waits: the next read frames and submits by itself
         if reply is None:
             return
+        if reply.split > 0 and len(reply.data) > 1:  # a link fault: the reply in two pieces, a gap between
+            half = len(reply.data) // 2
+            self._write(reply.data[:half], reply.baud)
+            self._loop.call_later(reply.split, self._write, reply.data[half:], reply.baud)
+            return
+        self._write(reply.data, reply.baud)
+
+    def _write(self, data: bytes, baud: int) -> None:
+        if self._closed:
+            return
         try:
-            self._send(reply.data, reply.baud)
+            self._send(data, baud)
         except OSError as exc:
             log.info("reply on %s not sent: %s", self.name, exc)
 

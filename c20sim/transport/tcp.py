@@ -28,8 +28,8 @@ answers them; RTU over TCP drops both, as a serial device server would.
 Modbus TCP: the MBAP header is taken off, the request goes to the bus as the
 RTU frame a gateway would put on the line, and the reply comes back under the
 request's transaction id. Where the line stays silent (absent drive, dropped
-or corrupt reply) the gateway answers exception 0x0B after its timeout, as
-gateways do; a broadcast (unit 0) gets no answer. The frame log keeps what the
+or corrupt reply, or a reply from another address than the unit asked) the
+gateway answers exception 0x0B after its timeout, as gateways do; a broadcast (unit 0) gets no answer. The frame log keeps what the
 TCP connection carried (the MBAP frames, their transaction id and unit) with
 the RTU frame on the line beside it.
 
@@ -518,8 +518,21 @@ class _MbapConnection(_Connection):
         header = MbapHeader(transaction, unit)
 
         def respond(reply: Reply | None) -> None:
-            if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data):
-                self._answer(transaction, unit, reply.data[1:-2])
+            if reply is not None and len(reply.data) >= 4 and crc_ok(reply.data) and reply.data[0] == unit:
+                if reply.wrong_transaction > 0:  # a link fault: a copy under another id first, the right one later
+                    self._answer(transaction ^ 0x5A5A, unit, reply.data[1:-2])
+                    right = reply
+
+                    def late() -> None:
+                        self._timers.discard(held)
+                        if self.transport is not None:
+                            self._answer(transaction, unit, right.data[1:-2], right.split)
+                        self._done()
+
+                    held = loop.call_later(reply.wrong_transaction, late)
+                    self._timers.add(held)
+                    return
+                self._answer(transaction, unit, reply.data[1:-2], reply.split)
                 self._done()
             elif unit != BROADCAST and self.transport is not None:
                 # The line stayed silent (or answered garbage): the gateway says so after its timeout.
@@ -562,8 +575,13 @@ class _MbapConnection(_Connection):
     def drop_waiting(self) -> None:
         self.owner.line.cancel(self)
 
-    def _answer(self, transaction: int, unit: int, pdu: bytes) -> None:
-        self.send(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
+    def _answer(self, transaction: int, unit: int, pdu: bytes, split: float = 0.0) -> None:
+        adu = struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu
+        if split > 0:  # a link fault: two TCP segments (asyncio's sockets send with TCP_NODELAY)
+            self.send(adu[:7])
+            self.loop.call_later(split, self.send, adu[7:])
+            return
+        self.send(adu)
 
     def _log_gateway_answer(self, header: MbapHeader, answer: bytes) -> None:
         """The frame log's record of the gateway's own exception (0x0B, 0x06): on the TCP connection, never on the

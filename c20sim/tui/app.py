@@ -40,6 +40,7 @@ from ..control.ops import ControlError
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS
 from .audit import AuditPanel
+from .drill import DrillPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
 from .status import STATUS_STYLES, DriveStatus, TrendPlot
@@ -62,7 +63,15 @@ T = TypeVar("T")
 STREAM_BUFFER = 40
 FRAME_HZ = 5
 
-TABS = {"frames": "f2", "conditions": "f3", "faults": "f4", "link": "f5", "registers": "f6", "audit": "f7"}
+TABS = {
+    "frames": "f2",
+    "conditions": "f3",
+    "faults": "f4",
+    "link": "f5",
+    "registers": "f6",
+    "audit": "f7",
+    "drill": "f8",
+}
 
 HELP = """\
 # c20sim dashboard
@@ -94,6 +103,7 @@ endpoints in the top line; the drive answers there while you watch it here.
 | `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
 | `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code); `/` finds one by any name (speed, motor speed, 3006H, 12294, F00.10) |
 | `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
+| `F8` | drill: the incidents and their last verdicts; `g` plays the selected one on the master polling the serve, `A` the standard plan, `C` stops (docs/drill.md) |
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |
 | `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
@@ -173,6 +183,8 @@ class MainScreen(Screen[None]):
                 yield RegistersPanel(bench, id="registers-panel")
             with TabPane("Audit F7", id="audit"):
                 yield AuditPanel(bench, id="audit-panel")
+            with TabPane("Drill F8", id="drill"):
+                yield DrillPanel(bench, id="drill-panel")
         yield Footer()
 
     def on_mount(self) -> None:
@@ -428,6 +440,8 @@ class Dashboard(App[int]):
             screen.query_one(RegistersPanel).show()
         elif active == "audit":
             screen.query_one(AuditPanel).show()
+        elif active == "drill":
+            screen.query_one(DrillPanel).show()
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -546,6 +560,7 @@ class Dashboard(App[int]):
             "link": LinkFaultsPanel,
             "registers": "#reg-table",
             "audit": "#audit-table",
+            "drill": "#drill-table",
         }[tab]
         screen.query_one(target).focus()  # type: ignore[call-overload]
 

@@ -366,6 +366,22 @@ class Workbench:
                 return None
             raise
 
+    def drill(self) -> dict[str, Any] | None:
+        """The drill's state and report (``GET /drill``); None where the server has no drill (409)."""
+        try:
+            return dict(self.ops.call("drill"))
+        except ops.ControlError as exc:
+            if exc.status == 409:
+                return None
+            raise
+
+    def start_drill(self, plan: list[str] | None) -> dict[str, Any]:
+        """Start a drill of ``plan`` (incidents by name; None: the standard plan) on the master polling the serve."""
+        return dict(self.ops.call("start_drill", plan=plan))
+
+    def stop_drill(self) -> dict[str, Any]:
+        return dict(self.ops.call("stop_drill"))
+
     def counters(self, address: int) -> dict[str, object]:
         """The drive's traffic: requests, replies, exceptions by code, CRC errors, silences, injected."""
         return dict(self.ops.call("counters", address=address))

@@ -116,7 +116,7 @@ def test_a_refused_keypad_press_fails() -> None:
             {"at": 1, "expct": {}},
             "s.toml: step 1 (at 1 s), key 'expct': unknown key 'expct'; did you mean 'expect'? (known: at, drive, "
             "note, set, link, clear_link, fault, clear_fault, power_cycle, write, keypad, expect, expect_exception, "
-            "expect_silence, within, expect_findings, forbid_findings)",
+            "expect_silence, within, expect_findings, forbid_findings, drill)",
         ),
         (
             {"at": 1, "set": {"supply": 3}},
