@@ -125,7 +125,7 @@ def test_python_dash_m_runs_the_cli() -> None:
         ),
         (
             ["serv", "--pty"],
-            "c20sim: argument COMMAND: invalid choice: 'serv' (choose from 'decode', 'audit', 'profiles', 'serve', "
+            "c20sim: argument COMMAND: invalid choice: 'serv' (choose from 'decode', 'audit', 'drill', 'profiles', 'serve', "
             "'dashboard', 'web', 'mcp', 'ctl', 'run-scenario', 'schema', 'plant', 'plant-check', 'record', "
             "'replay', 'exercise', 'fit', 'site'); "
             "did you mean serve? (see: c20sim --help)",
