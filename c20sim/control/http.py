@@ -226,7 +226,7 @@ class ControlApi:
                 return await loop.run_in_executor(self._renderer, render, *args)
             except (OSError, RuntimeError) as exc:  # BrokenProcessPool is a RuntimeError
                 log.info("GET /metrics: the rendering process failed (%s); a worker thread does it", exc)
-                self._renderer.shutdown(wait=False, cancel_futures=True)
+                _stop_renderer(self._renderer)
                 self._renderer = None
                 self._renderer_failed = True
         return await asyncio.to_thread(render, *args)
@@ -282,8 +282,20 @@ class ControlApi:
             await self._runner.cleanup()
             self._runner = None
         if self._renderer is not None:
-            self._renderer.shutdown(wait=False, cancel_futures=True)
+            _stop_renderer(self._renderer)
             self._renderer = None
+
+
+def _stop_renderer(pool: Any) -> None:
+    """End the metrics process now: a serve stopping waits for no scrape. ``shutdown(wait=False)`` alone leaves
+    the interpreter's exit joining the process, which may still be starting (a new interpreter importing c20sim:
+    seconds on a loaded machine), so the process is killed too (the pool keeps its processes in ``_processes``
+    on every Python from 3.8 to 3.13)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            process.kill()
 
 
 def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Application:
