@@ -22,7 +22,8 @@ an unknown argument is named with the known ones. Any error (a bad argument, a r
 reach) is the tool's error result (``isError``) with one sentence naming the field, never a crash.
 
 **Resources.** ``c20sim://telemetry`` (every drive's state), ``c20sim://frames`` (the newest
-:data:`FRAMES_SHOWN` frames; ``c20sim://frames?last=N&slave=S`` for others), ``c20sim://audit``.
+:data:`FRAMES_SHOWN` frames; ``c20sim://frames?last=N&slave=S`` for others), ``c20sim://audit``,
+``c20sim://drill`` (the drill's state and report).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ __all__ = ["FRAMES_SHOWN", "RESOURCES", "Bench", "build_server", "input_schema",
 #: The frames ``c20sim://frames`` shows: the newest this many (the log holds 2000).
 FRAMES_SHOWN = 100
 #: The routes that are resources too, as ``c20sim://NAME``: what the stream carries, and the audit.
-RESOURCES = ("telemetry", "frames", "audit")
+RESOURCES = ("telemetry", "frames", "audit", "drill")
 #: The query parameters ``c20sim://frames`` takes (passed on to ``GET /frames``, which checks them).
 FRAMES_QUERY = ("last", "slave")
 #: Seconds a call to the control API may take (a long virtual advance, a reset from a state file).

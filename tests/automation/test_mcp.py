@@ -219,7 +219,9 @@ async def test_the_tools_are_the_route_table_and_the_run_key_runs_the_drive(tmp_
 
         # the resources: what the stream carries, and the audit
         uris = [str(r.uri) for r in (await session.list_resources()).resources]
-        assert uris == ["c20sim://telemetry", "c20sim://frames", "c20sim://audit"]
+        assert uris == ["c20sim://telemetry", "c20sim://frames", "c20sim://audit", "c20sim://drill"]
+        drill = json.loads((await session.read_resource(AnyUrl("c20sim://drill"))).contents[0].text)  # type: ignore[union-attr]
+        assert drill["state"] == "idle", drill
         telemetry = json.loads((await session.read_resource(AnyUrl("c20sim://telemetry"))).contents[0].text)  # type: ignore[union-attr]
         assert telemetry["drives"][0]["status"] == 1
         frames = json.loads((await session.read_resource(AnyUrl("c20sim://frames"))).contents[0].text)  # type: ignore[union-attr]
