@@ -12,6 +12,8 @@ import pytest
 from c20sim.scenario.timeline import ScenarioError, load_scenario
 from tests.drill.conftest import RAW
 
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
+
 SCENARIO = """\
 name = "drill step"
 [[step]]

@@ -8,7 +8,11 @@ import re
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.drill.conftest import RAW, drill, judge_again
+
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
 
 
 def _master(style: str, where: str = "--tcp {tcp}") -> str:

@@ -8,8 +8,12 @@ import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import pytest
+
 from c20sim.drill import INCIDENTS
 from tests.drill.conftest import RAW
+
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
 
 
 def test_the_careful_master_passes_the_standard_plan(tmp_path: Path) -> None:

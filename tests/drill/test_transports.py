@@ -11,6 +11,8 @@ import pytest
 
 from tests.drill.conftest import MBPOLL, PYMODBUS, RAW, SMALL_PLAN, drill
 
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
+
 #: Over Modbus TCP a gateway forwards no broken reply: a reply from another address stands in for the CRC fault.
 MBAP_PLAN = SMALL_PLAN.replace('incident = "crc"', 'incident = "wrong-address"')
 

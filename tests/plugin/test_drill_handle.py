@@ -14,6 +14,8 @@ from c20sim.testing import C20Sim
 from c20sim.wire.errors import C20SimError
 from tests.drill.conftest import RAW
 
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
+
 
 @pytest.fixture
 def master(c20sim: C20Sim) -> Iterator[Callable[[str], None]]:

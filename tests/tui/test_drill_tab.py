@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from textual.widgets import DataTable
 
 from c20sim.core.clock import RealtimeClock
@@ -13,6 +14,8 @@ from c20sim.drill import INCIDENTS
 from c20sim.tui.drill import DrillPanel
 from tests.drill.conftest import RAW
 from tests.tui.conftest import attached, serving, until
+
+pytestmark = pytest.mark.serial  # the drill judges a master's real rhythm: .ci/run runs it alone
 
 
 def _rows(panel: DrillPanel) -> list[list[str]]:

@@ -13,7 +13,7 @@ from c20sim.drill.incidents import CHECKS
 from c20sim.drill.judge import _CHECKERS
 from c20sim.drive.profile import Profile
 from c20sim.wire.errors import C20SimError
-from c20sim.wire.protocol import ReadRequest, ReadResponse, crc16, encode
+from c20sim.wire.protocol import ExceptionCode, ReadRequest, ReadResponse, crc16, encode
 from tests.conftest import Line
 from tests.unit.test_bus import make_slave, read, write
 
@@ -37,7 +37,7 @@ def test_reply_faults_for_the_next_n_replies_switch_themselves_off(profile: Prof
 
 def test_a_forced_exception_for_the_next_n_replies(profile: Profile) -> None:
     line = Line(Bus([make_slave(profile, 1)], seed=1))
-    line.bus.link.forced_exception = 6  # type: ignore[assignment]
+    line.bus.link.forced_exception = ExceptionCode(6)
     line.bus.link.replies = 1
     assert line.hex(read(1, 0x2001)) == "01 83 06 " + _with_crc(b"\x01\x83\x06")[-2:].hex(" ").upper()
     assert line.hex(read(1, 0x2001)) == encode(ReadResponse(1, (0,))).hex(" ").upper()
