@@ -108,6 +108,11 @@ def polling(served: Served) -> Iterator[Poller]:
     thread = threading.Thread(target=poller.run, daemon=True)
     thread.start()
     try:
+        # the poller under way before the block: a loaded machine started its thread after a short block had ended
+        deadline = time.monotonic() + 10
+        while poller.asked == 0:
+            assert time.monotonic() < deadline, "the poller never asked"
+            time.sleep(0.01)
         yield poller
     finally:
         poller.stop.set()
