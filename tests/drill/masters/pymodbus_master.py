@@ -4,7 +4,7 @@
 
 As the raw master (raw_master.py), every 100 ms, drive 1:
 
-- careful: pymodbus's own 3 retries, a 250 ms timeout (1 s over Modbus TCP, beyond the gateway's 0.5 s), and 3
+- careful: pymodbus's own 3 retries, a 250 ms timeout (2 s over Modbus TCP, beyond the gateway's 1 s), and 3
   more on a gateway's 0x0B or a 0x06; polls 2100H and 3006H, backs off while the drive is
   silent; on a fault reads 2102H, sends no run command, resets once (not again for 3 s); a drive found stopped
   gets 2001H again, then the run command.
@@ -43,9 +43,10 @@ def main() -> None:
     args = parser.parse_args()
     logging.disable(logging.CRITICAL)  # pymodbus logs every timeout
     style = args.style
-    # over Modbus TCP a timeout longer than the gateway's (0.5 s): its 0x0B then answers a silent drive, and a
-    # retry under the same transaction id cannot take the first try's late 0x0B as its own answer
-    timeout = 0.03 if style == "stormy" else 1.0 if args.modbus_tcp and style == "careful" else 0.25
+    # over Modbus TCP a timeout longer than the gateway's (serve --gateway-timeout, 1 s): its 0x0B then answers
+    # a silent drive, and a retry under the same transaction id cannot take the first try's late 0x0B as its own
+    # answer (with both at 1 s the two raced: a retry 6 ms after its 0x0B, judged a storm)
+    timeout = 0.03 if style == "stormy" else 2.0 if args.modbus_tcp and style == "careful" else 0.25
     c = client(args, timeout, 3 if style == "careful" else 0)
     c.connect()
 
