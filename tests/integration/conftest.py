@@ -6,6 +6,7 @@ import asyncio
 import shutil
 import struct
 from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
 import pytest
@@ -16,6 +17,40 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.serve import ServeOptions, Server
+from c20sim.wire.registers import parse_fcode
+
+#: a drive served over Modbus TCP in the test's process, in virtual time, and a pymodbus master on it
+Link = tuple[Simulator, AsyncModbusTcpClient]
+
+
+@asynccontextmanager
+async def modbus_tcp_link(profile: Profile) -> AsyncIterator[Link]:
+    """Drive 1 of ``profile`` served over Modbus TCP here (the test moves its virtual time) and a master on it."""
+    sim = Simulator(profile, (1,), clock=VirtualClock())
+    server = Server(sim, ServeOptions(modbus_tcp="127.0.0.1:0"))
+    await server.start()
+    assert server.endpoints.modbus_tcp is not None
+    client = AsyncModbusTcpClient("127.0.0.1", port=server.endpoints.modbus_tcp.port, timeout=2.0, retries=0)
+    assert await client.connect()
+    try:
+        yield sim, client
+    finally:
+        client.close()
+        await server.aclose()
+
+
+async def write_register(client: AsyncModbusTcpClient, register: int | str, value: int) -> None:
+    """Write one register of drive 1 (an address, or a function code such as ``"F08.28"``); it must be taken."""
+    address = parse_fcode(register) if isinstance(register, str) else register
+    reply = await client.write_register(address, value, device_id=1)
+    assert not reply.isError(), (register, reply)
+
+
+async def read_register(client: AsyncModbusTcpClient, register: int) -> int:
+    """One register of drive 1; it must answer."""
+    reply = await client.read_holding_registers(register, count=1, device_id=1)
+    assert not reply.isError(), reply
+    return int(reply.registers[0])
 
 
 def mbap_read(transaction: int, register: int) -> bytes:

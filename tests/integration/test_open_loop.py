@@ -10,26 +10,17 @@ from __future__ import annotations
 import math
 
 import pytest
-from pymodbus.client import AsyncModbusTcpClient
 
-from c20sim.core.clock import VirtualClock
-from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
-from c20sim.serve import ServeOptions, Server
 from c20sim.wire.registers import Reg
+from tests.integration.conftest import modbus_tcp_link
 
 PROFILE = load_profile("c20-400hr")
 
 
 async def speeds(mode: int) -> tuple[int, int]:
     """3006H unloaded and under half the rated torque, in control mode ``mode``."""
-    sim = Simulator(PROFILE, (1,), clock=VirtualClock())
-    server = Server(sim, ServeOptions(modbus_tcp="127.0.0.1:0"))
-    await server.start()
-    assert server.endpoints.modbus_tcp is not None
-    client = AsyncModbusTcpClient("127.0.0.1", port=server.endpoints.modbus_tcp.port, timeout=2.0, retries=0)
-    assert await client.connect()
-    try:
+    async with modbus_tcp_link(PROFILE) as (sim, client):
         for register, value in ((Reg.CONTROL_MODE, mode), (Reg.SPEED_SETPOINT, 1500), (Reg.COMMAND, 1)):
             assert not (await client.write_register(register, value, device_id=1)).isError()
         sim.advance(3.0)
@@ -38,9 +29,6 @@ async def speeds(mode: int) -> tuple[int, int]:
         sim.advance(3.0)
         loaded = (await client.read_holding_registers(Reg.MOTOR_SPEED, count=1, device_id=1)).registers[0]
         return unloaded, loaded
-    finally:
-        client.close()
-        await server.aclose()
 
 
 async def test_closed_loop_holds_the_speed_and_open_loop_droops_by_the_ir_drop() -> None:

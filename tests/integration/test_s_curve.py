@@ -14,14 +14,12 @@ from collections.abc import AsyncIterator
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
-from c20sim.serve import ServeOptions, Server
 from c20sim.wire.registers import Reg, parse_fcode
+from tests.integration.conftest import Link, modbus_tcp_link
 
 PROFILE = load_profile("c20-400hr")
-Link = tuple[Simulator, AsyncModbusTcpClient]
 POLL = 0.01
 #: the S curve's jerk: a peak rate 1 / (1 - (0.3 + 0.3) / 2) of the linear one, reached in 30 % of 2 s;
 #: the linear ramp moves 200.00 Hz in 2 s = 1 Hz (100 counts) per 10 ms poll
@@ -31,17 +29,8 @@ JERK = PEAK / (0.3 * 2.0 / POLL)  # counts per poll, per poll
 
 @pytest.fixture
 async def link() -> AsyncIterator[Link]:
-    sim = Simulator(PROFILE, (1,), clock=VirtualClock())
-    server = Server(sim, ServeOptions(modbus_tcp="127.0.0.1:0"))
-    await server.start()
-    assert server.endpoints.modbus_tcp is not None
-    client = AsyncModbusTcpClient("127.0.0.1", port=server.endpoints.modbus_tcp.port, timeout=2.0, retries=0)
-    assert await client.connect()
-    try:
-        yield sim, client
-    finally:
-        client.close()
-        await server.aclose()
+    async with modbus_tcp_link(PROFILE) as pair:
+        yield pair
 
 
 async def ramp(sim: Simulator, client: AsyncModbusTcpClient, shape: int) -> list[int]:

@@ -13,41 +13,21 @@ from collections.abc import AsyncIterator
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
-from c20sim.serve import ServeOptions, Server
-from c20sim.wire.registers import Reg, parse_fcode
+from c20sim.wire.registers import Reg
+from tests.integration.conftest import Link, modbus_tcp_link
+from tests.integration.conftest import read_register as read
+from tests.integration.conftest import write_register as write
 
 PROFILE = load_profile("c20-400hr")
-Link = tuple[Simulator, AsyncModbusTcpClient]
 RUN, Y3, Y4 = 0x1, 0x4, 0x8
 
 
 @pytest.fixture
 async def link() -> AsyncIterator[Link]:
-    sim = Simulator(PROFILE, (1,), clock=VirtualClock())
-    server = Server(sim, ServeOptions(modbus_tcp="127.0.0.1:0"))
-    await server.start()
-    assert server.endpoints.modbus_tcp is not None
-    client = AsyncModbusTcpClient("127.0.0.1", port=server.endpoints.modbus_tcp.port, timeout=2.0, retries=0)
-    assert await client.connect()
-    try:
-        yield sim, client
-    finally:
-        client.close()
-        await server.aclose()
-
-
-async def write(client: AsyncModbusTcpClient, register: int | str, value: int) -> None:
-    address = parse_fcode(register) if isinstance(register, str) else register
-    assert not (await client.write_register(address, value, device_id=1)).isError(), register
-
-
-async def read(client: AsyncModbusTcpClient, register: int) -> int:
-    reply = await client.read_holding_registers(register, count=1, device_id=1)
-    assert not reply.isError(), reply
-    return int(reply.registers[0])
+    async with modbus_tcp_link(PROFILE) as pair:
+        yield pair
 
 
 async def programme(sim: Simulator, client: AsyncModbusTcpClient, mode: int) -> float:
