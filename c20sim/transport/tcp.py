@@ -283,6 +283,16 @@ class _TcpServer:
         self._refused_unlogged = 0
         self.watch: PeerWatch | None = None  #: made in start(), on the loop
 
+    def wrong_protocol(self, data: bytes, words: str, text: str, why: str) -> None:
+        """Bytes of the other Modbus framing on this port: not answered, logged as noise in ``words``, and ``text``
+        said once (stderr, the frame log's notices, the dashboard)."""
+        sim = self.line.sim
+        sim.bus.noise += 1
+        now = asyncio.get_running_loop().time()
+        sim.bus.record(FrameRecord(now, Direction.RX, data, RecordKind.NOISE, None, words, model_t=sim.now()))
+        if sim.notice(text):
+            log.warning("c20sim: %s; %s", text, why)
+
     def refuse(self, peername: object) -> None:
         """A connection over the cap: counted, and logged once (then once a minute while refusals go on)."""
         self.refused += 1
@@ -418,27 +428,17 @@ class RtuOverTcpServer(_TcpServer):
 
     def mbap_seen(self, data: bytes, headers: list[MbapHeader]) -> None:
         """Modbus TCP frames arrived here: not answered (they are no RTU frames), logged, and said once."""
-        sim = self.line.sim
         first = headers[0]
-        sim.bus.noise += 1
-        sim.bus.record(
-            FrameRecord(
-                asyncio.get_running_loop().time(),
-                Direction.RX,
-                data,
-                RecordKind.NOISE,
-                None,
-                f"Modbus TCP (MBAP) on the RTU-over-TCP port: transaction {first.transaction}, unit {first.unit}"
-                + (f", and {len(headers) - 1} more" if len(headers) > 1 else "")
-                + ": not answered",
-                model_t=sim.now(),
-            )
-        )
+        words = f"Modbus TCP (MBAP) on the RTU-over-TCP port: transaction {first.transaction}, unit {first.unit}"
+        words += (f", and {len(headers) - 1} more" if len(headers) > 1 else "") + ": not answered"
         where = self.modbus_tcp()
         use = f"use --modbus-tcp (open on {where})" if where else "use --modbus-tcp HOST:PORT (not open now)"
-        text = f"RTU over TCP {self.name}: this looks like Modbus TCP: {use}"
-        if sim.notice(text):
-            log.warning("c20sim: %s; this port answers no Modbus TCP frame, as a drive would not", text)
+        self.wrong_protocol(
+            data,
+            words,
+            f"RTU over TCP {self.name}: this looks like Modbus TCP: {use}",
+            "this port answers no Modbus TCP frame, as a drive would not",
+        )
 
 
 class _MbapConnection(_Connection):
@@ -640,25 +640,15 @@ class ModbusTcpServer(_TcpServer):
     def rtu_seen(self, data: bytes) -> None:
         """An RTU frame (with its CRC) arrived here, as from a master that speaks RTU over TCP: the connection is
         closed (it is no Modbus TCP), the frame logged, and the mistake said once, as the opposite one is."""
-        sim = self.line.sim
-        sim.bus.noise += 1
-        sim.bus.record(
-            FrameRecord(
-                asyncio.get_running_loop().time(),
-                Direction.RX,
-                data,
-                RecordKind.NOISE,
-                None,
-                "an RTU frame (with its CRC) on the Modbus TCP port: not answered, the connection closed",
-                model_t=sim.now(),
-            )
-        )
         where = self.rtu_tcp()
         use = (
             f"use --tcp (RTU over TCP, open on {where})"
             if where
             else "use --tcp HOST:PORT (RTU over TCP, not open now)"
         )
-        text = f"Modbus TCP {self.name}: this looks like Modbus RTU over TCP: {use}"
-        if sim.notice(text):
-            log.warning("c20sim: %s; this port answers Modbus TCP (MBAP) frames only, as a gateway would", text)
+        self.wrong_protocol(
+            data,
+            "an RTU frame (with its CRC) on the Modbus TCP port: not answered, the connection closed",
+            f"Modbus TCP {self.name}: this looks like Modbus RTU over TCP: {use}",
+            "this port answers Modbus TCP (MBAP) frames only, as a gateway would",
+        )
