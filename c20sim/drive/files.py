@@ -98,6 +98,31 @@ def _not_regular(path: str, kind: str, what: str) -> FileReadError:
     return FileReadError(path, f"is {kind}, not a regular file; give the {what} as a file")
 
 
+def _cannot(name: str, exc: OSError) -> FileReadError:
+    return FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=isinstance(exc, FileNotFoundError))
+
+
+def _open_regular(name: str, what: str) -> int:
+    """``name`` opened for reading (non-blocking), if it is a regular file: looked at before the open (a device
+    is not even opened: opening some has effects, a tape, a modem; a FIFO's open would wait for a writer) and
+    again after it (a link swapped between the look and the open). Raises :class:`FileReadError`."""
+    try:
+        before = os.stat(name)
+    except OSError as exc:
+        raise _cannot(name, exc) from None
+    if (kind := _kind(before.st_mode)) is not None:
+        raise _not_regular(name, kind, what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(name, flags)
+    except OSError as exc:
+        raise _cannot(name, exc) from None
+    if (kind := _kind(os.fstat(fd).st_mode)) is not None:
+        os.close(fd)
+        raise _not_regular(name, kind, what)
+    return fd
+
+
 def read_bytes(path: str | os.PathLike[str], what: str, limit: int | None = None) -> bytes:
     """The bytes of the regular file ``path``, at most ``limit`` (default: ``LIMITS[what]``).
 
@@ -106,23 +131,9 @@ def read_bytes(path: str | os.PathLike[str], what: str, limit: int | None = None
     """
     name = os.fspath(path)
     bound = LIMITS[what] if limit is None else limit
+    fd = _open_regular(name, what)
     try:
-        before = os.stat(name)  # a device is not even opened (opening some has effects: a tape, a modem)
-    except OSError as exc:
-        missing = isinstance(exc, FileNotFoundError)
-        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
-    if (kind := _kind(before.st_mode)) is not None:
-        raise _not_regular(name, kind, what)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(name, flags)
-    except OSError as exc:
-        missing = isinstance(exc, FileNotFoundError)
-        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
-    try:
-        info = os.fstat(fd)  # what was opened, which may not be what was looked at (a link changed meanwhile)
-        if (kind := _kind(info.st_mode)) is not None:
-            raise _not_regular(name, kind, what)
+        info = os.fstat(fd)
         too_big = FileReadError(name, f"bigger than {_size(bound)}, too big for a {what}; is it the right file?")
         if info.st_size > bound:
             raise too_big
@@ -150,23 +161,7 @@ def open_stream(path: str | os.PathLike[str], what: str) -> io.BufferedReader:
     """The regular file ``path`` open for reading a little at a time (a frame log of any length), by the same
     rules as :func:`read_bytes`: never a FIFO (whose open would wait for a writer) or a device, looked at again
     once open. Raises :class:`FileReadError`."""
-    name = os.fspath(path)
-    try:
-        before = os.stat(name)
-    except OSError as exc:
-        missing = isinstance(exc, FileNotFoundError)
-        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
-    if (kind := _kind(before.st_mode)) is not None:
-        raise _not_regular(name, kind, what)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(name, flags)
-    except OSError as exc:
-        missing = isinstance(exc, FileNotFoundError)
-        raise FileReadError(name, f"cannot read: {exc.strerror or exc}", missing=missing) from None
-    if (kind := _kind(os.fstat(fd).st_mode)) is not None:  # a link swapped between the look and the open
-        os.close(fd)
-        raise _not_regular(name, kind, what)
+    fd = _open_regular(os.fspath(path), what)
     os.set_blocking(fd, True)
     return io.BufferedReader(io.FileIO(fd, "rb", closefd=True))
 
