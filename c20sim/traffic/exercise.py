@@ -27,8 +27,10 @@ frame lengths.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import socket
 import struct
 import sys
@@ -137,6 +139,14 @@ SETTINGS: tuple[int, ...] = (
     Reg.RUN_CHANNEL,
     Reg.SPEED_SOURCE,
 )
+
+#: What the programme polls while the speed ramps: the current, which carries the inertia, and the speed.
+RAMP_POLL: tuple[int, ...] = (Reg.OUTPUT_CURRENT, Reg.MOTOR_SPEED)
+
+#: Rounds of the link's timing reads at the start: a one-register read, and one of 8 (answered, or refused with
+#: an exception where the drive reads one at a time): replies of two lengths tell a link that keeps the line's
+#: time (a longer reply takes longer) from one that does not.
+TIMING_ROUNDS = 10
 
 #: Silences in a row the programme tolerates (a lost frame on a real line) before it stops the drive.
 SILENCES_IN_A_ROW = 3
@@ -529,6 +539,13 @@ class Master:
         self.log.write(json.dumps(item) + "\n")
         self.frames += 1
 
+    def header(self, port: str, baud: int, fmt: str) -> None:
+        """The capture's first line: how it is carried (``c20sim fit`` models each transaction's time on it)."""
+        if self.log is not None:
+            note = f"link {port} {baud} {fmt}"
+            item = {"t": round(self.clock.now(), 6), "dir": "rx", "hex": "", "kind": "link", "slave": self.address}
+            self.log.write(json.dumps(item | {"text": f"carried by {port}, {baud} baud {fmt}", "note": note}) + "\n")
+
     def mark(self, note: str) -> None:
         """A line in the log saying what the user did by hand (no bytes on the wire): replay passes over it."""
         if self.log is not None:
@@ -598,6 +615,7 @@ class Step:
     prompt: str = ""  #: a change the user makes by hand, confirmed before the step starts
     mark: str = ""  #: written to the log (an empty rx frame of kind "mark") once the user confirmed: load-on ...
     until_stopped: bool = False  #: poll on until status word 1 reads stopped (at most ``hold`` more)
+    ramp: float = 0.0  #: seconds from the step's start that the speed ramps: :data:`RAMP_POLL` is read then
 
 
 def programme(
@@ -615,13 +633,13 @@ def programme(
         writes: tuple[tuple[int, int], ...] = ((Reg.SPEED_SETPOINT, round(rpm)),)
         if index == 0:
             writes += ((Reg.COMMAND, int(Command.FORWARD)),)
-        steps.append(Step(f"{'run at' if index == 0 else 'step to'} {rpm:g} rpm", writes, ramp + hold))
+        steps.append(Step(f"{'run at' if index == 0 else 'step to'} {rpm:g} rpm", writes, ramp + hold, ramp=ramp))
         last = rpm
     if load:
         steps.append(Step(f"with the load, at {last:g} rpm", (), hold, "apply the load now", LOAD_ON))
         steps.append(Step(f"load taken off, at {last:g} rpm", (), hold, "take the load off now", LOAD_OFF))
     stop_ramp = last / max_rpm * decel_s
-    steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True))
+    steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True, ramp=stop_ramp))
     steps.append(Step("at rest after the stop", hold=min(hold, 3.0)))
     return steps
 
@@ -682,6 +700,14 @@ def check_ready(master: Master) -> dict[int, int]:
     return values
 
 
+def time_the_link(master: Master) -> None:
+    """:data:`TIMING_ROUNDS` of a one-register read and a read of 8 (3000H-3007H; refused or not): at rest."""
+    for _ in range(TIMING_ROUNDS):
+        master.read(Reg.BUS_VOLTAGE)
+        with contextlib.suppress(DriveRefused):  # a drive that reads one at a time: its exception is the shorter reply
+            master.transact(ReadRequest(master.address, Reg.SET_FREQUENCY, 8))
+
+
 def run_programme(
     master: Master,
     steps: Sequence[Step],
@@ -699,7 +725,7 @@ def run_programme(
     reads = 0
     silent = 0
     last: dict[int, int] = {}
-    poll = _cycle(POLL)
+    poll, ramp_poll = _cycle(POLL), _cycle(RAMP_POLL)
     started = False
     try:
         for index, step in enumerate(steps):
@@ -725,7 +751,7 @@ def run_programme(
                 else:
                     k = max(k, math.floor((now - begin) / period))  # late: go on at the rate, no burst
                 k += 1
-                address = next(poll)
+                address = next(ramp_poll) if master.clock.now() < begin + step.ramp else next(poll)
                 try:
                     last[address] = master.read(address)
                     silent = 0
@@ -763,7 +789,9 @@ def simulated_capture(
     change (``load_nm``) made as a user would when told. Returns the reads made. Tests and benchmarks use it."""
     registers = sim.profile.registers
     master = Master(SimulatedLink(sim), registers, address, clock=SimulatedTime(sim), log=out)
+    master.header("simulated", sim.bus.line_baud, "8N1")
     settings = check_ready(master)
+    time_the_link(master)
     accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
     decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
     steps = programme(speeds, hold, accel, decel, sim.profile.motor.rated_speed_rpm, load_nm is not None)
@@ -839,12 +867,19 @@ def cmd_exercise(args: argparse.Namespace) -> int:
                 print(f"writing {words}")
             master.write(spec.address, value)
             return 0
-        return _run(args, link, registers, profile.motor.rated_speed_rpm)
+        return _run(args, link, registers, profile.motor.rated_speed_rpm, baud)
     finally:
         link.close()
 
 
-def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: float) -> int:
+def link_port(link: Link) -> str:
+    """What the capture's header calls the link: serial, pty, tcp or modbus-tcp."""
+    if isinstance(link, SerialLink):
+        return "pty" if os.path.realpath(link.port.port or "").startswith("/dev/pts/") else "serial"
+    return "modbus-tcp" if isinstance(link, MbapLink) else "tcp"
+
+
+def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: float, link_baud: int) -> int:
     try:
         out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the stop
     except OSError as exc:
@@ -852,7 +887,9 @@ def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, rated: fl
     tty = sys.stdout.isatty()
     with out:
         master = Master(link, registers, args.address, timeout=args.timeout, log=out)
+        master.header(link_port(link), link_baud, f"8{args.parity}{args.stopbits}")
         settings = check_ready(master)
+        time_the_link(master)
         accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
         decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
         speeds = (

@@ -57,11 +57,9 @@ from ..core.clock import VirtualClock
 from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
-from ..wire.protocol import (
-    frame_time,
-)
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .fitcapture import Capture, Event, _consistency, _held_speeds, _load_records, _units, load_capture
+from .fitlink import LINKS
 from .fitmodel import COMPARED, PARAMETERS, STATES, FitResult, Fitted, Parameter, given_settings, simulate, with_values
 from .fitreport import summary, write_profile, write_report
 from .replay import replay
@@ -122,28 +120,19 @@ def _sigma(address: int, capture: Capture) -> float:
     return sigma
 
 
-def _turnaround(capture: Capture, baud: int, wire: str) -> Fitted | None:
-    """protocol.turnaround_ms from the request-to-reply times: their median, less the reply's wire time where the
-    log's times include it (auto: they cannot when a reply came sooner than its bytes take at ``baud``)."""
-    samples = capture.turnaround
-    if len(samples) < 5:
+def _turnaround(capture: Capture) -> Fitted | None:
+    """protocol.turnaround_ms: what the capture's link leaves of each transaction's time (:mod:`.fitlink`)."""
+    if capture.turnaround is None:
         return None
-    wire_times = [frame_time(n, baud) for n in capture.reply_lengths]
-    included = wire == "included" or (wire == "auto" and all(s >= w for s, w in zip(samples, wire_times, strict=True)))
-    net = sorted(s - w if included else s for s, w in zip(samples, wire_times, strict=True))
-    median = statistics.median(net)
-    spread = statistics.median(abs(x - median) for x in net) * 1.4826
+    value, sigma, _ = capture.turnaround
     param = Parameter("protocol", "turnaround_ms", "ms", "answered requests with their times")
-    value = max(0.0, median * 1000.0)
-    return Fitted(param, 0.0, value, spread * 1000.0 / math.sqrt(len(net)) + 1e-3, True, "")
+    return Fitted(param, 0.0, max(0.0, value * 1000.0), sigma * 1000.0, True, "")
 
 
 def fit(
     capture: Capture,
     base: Profile,
     *,
-    baud: int | None = None,
-    wire: str = "auto",
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
     """Fit the parameters the capture reveals; the rest stay as in ``base``."""
@@ -276,7 +265,7 @@ def fit(
     load_fit = (load, float(sigma_x[-1]) * load_scale) if fit_load else None
     # the fitted profile holds only the identified values; it is what "after" shows
     final = with_values(base, {f.parameter.name: f.value for f in fitted if f.identified})
-    turnaround = _turnaround(capture, baud or _baud(base), wire)
+    turnaround = _turnaround(capture)
     if turnaround is not None:
         turnaround = dataclasses.replace(turnaround, base=base.protocol.turnaround_ms)
         final = with_values(final, {"protocol.turnaround_ms": turnaround.value})
@@ -314,18 +303,14 @@ def fit(
     )
 
 
-def _baud(profile: Profile) -> int:
-    raw = profile.default(Reg.BAUD)
-    return BAUD_RATES[raw] if raw < len(BAUD_RATES) else 19200
-
-
 def cmd_fit(args: argparse.Namespace) -> int:
     base = load_profile(args.profile)
     out = Path(args.out)
     if out.suffix != ".toml":
         raise C20SimError(f"--out {out}: a profile is a .toml file, such as mydrive.toml")
-    capture = load_capture(args.log, base, args.address)
-    result = fit(capture, base, baud=args.baud, wire=args.wire_time, progress=lambda s: print(s, file=sys.stderr))
+    link = args.link or {"included": "sniffer", "excluded": "bare"}.get(args.wire_time)
+    capture = load_capture(args.log, base, args.address, link=link, baud=args.baud)
+    result = fit(capture, base, progress=lambda s: print(s, file=sys.stderr))
     log_name = Path(args.log).name
     profile = write_profile(result, out, log_name)
     for line in summary(result):
@@ -358,11 +343,18 @@ def add_fit_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--out", required=True, metavar="FILE.toml", help="the fitted profile to write")
     parser.add_argument("--report", metavar="DIR", help="write report.md and residual plots (PNG, SVG) here")
     parser.add_argument("--address", type=int, help="the drive to fit (default: the one answering most)")
-    parser.add_argument("--baud", type=int, choices=BAUD_RATES, help="the line's baud (default: the profile's)")
+    parser.add_argument(
+        "--baud", type=int, choices=BAUD_RATES, help="the line's baud (default: the capture's header, or the profile's)"
+    )
+    parser.add_argument(
+        "--link",
+        choices=list(LINKS),
+        help="how the capture was carried, where its header and times cannot tell (docs/fit.md, 'What each link adds')",
+    )
     parser.add_argument(
         "--wire-time",
         default="auto",
         choices=["auto", "included", "excluded"],
-        help="whether the log's reply times include the reply's bytes on the wire (record: yes; a pty: no)",
+        help="older spelling of --link: included is --link sniffer, excluded --link bare",
     )
     parser.set_defaults(func=cmd_fit)

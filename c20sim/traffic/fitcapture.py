@@ -10,6 +10,7 @@ from ..drive import face
 from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.protocol import (
+    SHEET_CHAR_BITS,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -22,6 +23,7 @@ from ..wire.protocol import (
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .capture import LogRecord, _read_text, parse_log
 from .exercise import LOAD_OFF, LOAD_ON
+from .fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link, format_bits, turnaround_of
 from .replay import exchanges
 
 #: Registers whose reads are physical quantities or the drive's state: what a fit compares.
@@ -45,13 +47,17 @@ class Capture:
 
     path: str
     address: int
-    events: list[Event]  #: writes, marks and physical reads, in time order
+    events: list[Event]  #: writes, marks and physical reads, at the time the drive took or sampled each
     reads: dict[int, list[Event]]  #: register -> its reads
-    turnaround: list[float]  #: request end to reply, per answered request (s)
-    reply_lengths: list[int]
-    loads: int  #: load marks (load-on)
+    timings: list[Timing]  #: each answered request's times and lengths (exceptions too)
+    loads: int = 0  #: load marks (load-on)
     settings: dict[int, int] = field(default_factory=dict)  #: 20xxH settings read (pole pairs, ramps)
     duration: float = 0.0
+    link: LinkModel = LINKS["bare"]  #: how the transactions were carried
+    link_why: str = ""  #: how the link was told, in words
+    baud: int = 19200
+    bits: int = 10  #: of one character on the line
+    turnaround: tuple[float, float, int] | None = None  #: (s, its uncertainty, late transactions); None: too few
 
 
 # --- Reading the capture.
@@ -71,8 +77,47 @@ def _load_records(path: str) -> list[LogRecord]:
         raise
 
 
-def load_capture(path: str, profile: Profile, address: int | None = None) -> Capture:
-    """The events of a frame log for a fit; C20SimError in one line for a log that cannot be fitted."""
+def _header(records: list[LogRecord], path: str) -> tuple[str, int, int] | None:
+    """The capture's link header (``{"kind": "link", "note": "link PORT BAUD FORMAT"}``): port, baud, bits."""
+    for record in records[:4]:
+        if record.kind == "link" and not record.data:
+            words = record.note.split()
+            try:
+                if len(words) != 4 or words[0] != "link" or words[1] not in PORT_LINKS:
+                    raise ValueError(record.note)
+                return words[1], int(words[2]), format_bits(words[3])
+            except ValueError:
+                raise C20SimError(
+                    f"{path}: line {record.line}: key 'note': expected 'link PORT BAUD FORMAT' (PORT one of "
+                    f"{', '.join(PORT_LINKS)}; FORMAT such as 8N1), not {record.note[:60]!r}"
+                ) from None
+    return None
+
+
+def _timings(records: list[LogRecord], address: int) -> list[Timing]:
+    """Each answered request to ``address`` (a good CRC: a reply or an exception), with its reply's time."""
+    out = []
+    for request, reply in itertools.pairwise(records):
+        if (
+            request.direction == "rx"
+            and reply.direction == "tx"
+            and len(request.data) >= 4
+            and len(reply.data) >= 5
+            and request.data[0] == address
+            and crc_ok(reply.data)
+            and not reply.note  # a late reply to an earlier request (exercise says so) is not this one's
+        ):
+            out.append(Timing(request.t, reply.t, len(request.data), len(reply.data)))
+    return out
+
+
+def load_capture(
+    path: str, profile: Profile, address: int | None = None, *, link: str | None = None, baud: int | None = None
+) -> Capture:
+    """The events of a frame log for a fit; C20SimError in one line for a log that cannot be fitted.
+
+    ``link`` (a name in :data:`LINKS`) overrides what the capture's header and its times say of the link;
+    ``baud`` the header's (or, with no header, the profile's) baud."""
     records = _load_records(path)
     if not any(r.direction == "rx" for r in records):
         raise C20SimError(f"{path}: no frame from the master (dir rx): not a capture of a master and a drive")
@@ -106,15 +151,22 @@ def load_capture(path: str, profile: Profile, address: int | None = None) -> Cap
         )
     if address is None:
         address = max(answered, key=lambda a: answered[a]) if answered else 1
+    header = _header(records, path)
+    port, line_baud, bits = header if header is not None else ("", _profile_baud(profile), SHEET_CHAR_BITS)
+    line_baud = baud or line_baud
+    timings = _timings(records, address)
+    if link is not None:
+        model, why = LINKS[link], "as --link says"
+    else:
+        candidates = PORT_LINKS[port] if port else tuple(LINKS)
+        model, why = choose_link(timings, candidates, line_baud, bits, path)
+    turnaround = turnaround_of(timings, model, line_baud, bits) if len(timings) >= 5 else None
+    net = turnaround[0] if turnaround is not None else 0.0
+    replies = {id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx"}
     events: list[Event] = []
     reads: dict[int, list[Event]] = {}
-    turnaround: list[float] = []
-    lengths: list[int] = []
     settings: dict[int, int] = {}
     loads = 0
-    replies = {  # each request's first reply frame: when it ended
-        id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx" and n.data
-    }
     for exchange in found:
         record = exchange.record
         t = record.t - t0
@@ -136,9 +188,8 @@ def load_capture(path: str, profile: Profile, address: int | None = None) -> Cap
         if isinstance(response, ExceptionResponse):
             continue
         reply_t = replies.get(id(record))
-        if reply_t is not None:
-            turnaround.append(reply_t - record.t)
-            lengths.append(len(exchange.reply))
+        if reply_t is not None:  # the drive took the request or sampled its registers as its turnaround began
+            t = max(t, reply_t - t0 - net - model.after_sample(len(exchange.reply), line_baud, bits))
         if isinstance(request, WriteSingleRequest):
             if request.register == Reg.BAUD:
                 baud = BAUD_RATES[request.value] if request.value < len(BAUD_RATES) else request.value
@@ -174,8 +225,16 @@ def load_capture(path: str, profile: Profile, address: int | None = None) -> Cap
             f"{path}: no answered reads of physical quantities (3000H-3011H, 2100H-2102H) from drive {address}: "
             "nothing to fit; make a capture with: c20sim exercise PORT --out FILE"
         )
+    events.sort(key=lambda e: e.t)  # stable: a request's reads stay in their order
     duration = events[-1].t if events else 0.0
-    return Capture(path, address, events, reads, turnaround, lengths, loads, settings, duration)
+    return Capture(
+        path, address, events, reads, timings, loads, settings, duration, model, why, line_baud, bits, turnaround
+    )
+
+
+def _profile_baud(profile: Profile) -> int:
+    raw = profile.default(Reg.BAUD)
+    return BAUD_RATES[raw] if raw < len(BAUD_RATES) else 19200
 
 
 def _units(read: Event) -> float:

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
-from .fitcapture import _units
+from .fitcapture import Capture, _units
 from .fitmodel import COMPARED, FitResult
 
 # --- The new profile.
@@ -99,6 +99,7 @@ def summary(result: FitResult) -> list[str]:
     lines = [
         f"fit {capture.path} to {result.base.name}: drive {capture.address}, {capture.duration:.1f} s, "
         f"{reads} reads of physical quantities; {result.evaluations} model runs in {result.seconds:.1f} s",
+        *link_words(capture),
     ]
     for f in result.fitted:
         p = f.parameter
@@ -130,6 +131,19 @@ def summary(result: FitResult) -> list[str]:
             f"{result.states_compared} reads agree with the fitted model"
         )
     lines += [f"  note: {n}" for n in result.notes]
+    return lines
+
+
+def link_words(capture: Capture) -> list[str]:
+    """How the capture was carried, and what that link adds to each transaction's time, in words."""
+    link, baud, bits = capture.link, capture.baud, capture.bits
+    lines = [f"  link: {link.name}, {baud} baud, {bits}-bit characters ({link.why_words(capture.link_why)})"]
+    if capture.timings:
+        read = link.fixed(8, 7, baud, bits) * 1000
+        lines.append(f"  a one-register read's time on it, besides the turnaround: {read:.3f} ms ({link.words})")
+    if capture.turnaround is not None and capture.turnaround[2]:
+        late, count = capture.turnaround[2], len(capture.timings)
+        lines.append(f"  {late} of {count} transactions came over 1 ms later (a queue, a timer, the machine's load)")
     return lines
 
 

@@ -239,7 +239,7 @@ def test_pole_pairs_and_hall_codes_that_do_not_add_up() -> None:
     speed = [Event(t - 0.1, "read", Reg.MOTOR_SPEED, 1500) for t in (1.0, 2.0, 3.0)]
     hall = [Event(t, "read", Reg.HALL, code) for t, code in ((1.5, 3), (2.5, 7))]
     reads = {Reg.OUTPUT_FREQUENCY: frequency, Reg.MOTOR_SPEED: speed, Reg.HALL: hall}
-    capture = Capture("log", 1, [], reads, [], [], 0, {Reg.POLE_PAIRS: 2})
+    capture = Capture("log", 1, [], reads, [], settings={Reg.POLE_PAIRS: 2})
     assert _consistency(capture) == [
         "pole pairs: output frequency against speed gives 4.00, but 2002H reads 2: the motor's pole pairs are set "
         "wrong on the drive, or its speed is measured another way",
@@ -256,23 +256,43 @@ def test_a_base_value_of_zero_is_fitted_too(capture_file: Path) -> None:
     assert viscous.value == pytest.approx(0.030, rel=0.08)
 
 
-@pytest.mark.parametrize(("wire", "expected_ms"), [(False, 2.0), (True, 2.0)])
-def test_the_turnaround_with_and_without_the_replys_wire_time(tmp_path: Path, wire: bool, expected_ms: float) -> None:
-    from c20sim.wire.protocol import frame_time
-
+def _timed_log(tmp_path: Path, delay: float, header: str = "") -> Path:
+    """20 reads of the bus, each answered ``delay`` after its request."""
     reply = encode(ReadResponse(1, (480,)))
-    delay = 0.002 + (frame_time(len(reply), 19200) if wire else 0.0)  # a sniffer on the line, or a pty
-    lines = []
+    lines = [header] if header else []
     for i in range(20):
         lines.append(json.dumps({"t": i * 0.1, "dir": "rx", "hex": encode(ReadRequest(1, 0x3008, 1)).hex()}))
         lines.append(json.dumps({"t": i * 0.1 + delay, "dir": "tx", "hex": reply.hex()}))
     path = tmp_path / "log.jsonl"
     path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_the_turnaround_on_a_sniffed_line_needs_the_link_said(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c20sim.wire.protocol import frame_time
+
+    reply = encode(ReadResponse(1, (480,)))
+    path = _timed_log(tmp_path, 0.002 + frame_time(len(reply), 19200))  # a sniffer on the line: t3.5 and 7 bytes
+    # no header, replies of one length: a line's times, or a bare link's with a longer turnaround
+    assert _fit_error(path, capsys, tmp_path) == (
+        f"c20sim: {path}: cannot tell how the capture was carried (bare or pty or sniffer): its replies "
+        "are of one length, or too close in length at 19200 baud, or their "
+        "times fit each; give --link bare or another (docs/fit.md, 'What each link adds')\n"
+    )
     base = load_profile()
-    result = fit(load_capture(str(path), base), base)
+    result = fit(load_capture(str(path), base, link="sniffer"), base)
     assert result.turnaround is not None
-    assert result.turnaround.value == pytest.approx(2.0, abs=1e-6)  # ms: auto tells which the log holds
+    assert result.turnaround.value == pytest.approx(2.0, abs=1e-6)  # ms: t3.5 and the reply's bytes taken away
     assert {f.parameter.name for f in result.fitted if f.identified} == {"supply.voltage_v"}
+
+
+def test_a_reply_sooner_than_its_bytes_tells_a_bare_link(tmp_path: Path) -> None:
+    base = load_profile()
+    result = fit(load_capture(str(_timed_log(tmp_path, 0.002)), base), base)  # 2 ms: less than 7 bytes and t3.5
+    assert result.capture.link.name == "bare"
+    assert result.turnaround is not None and result.turnaround.value == pytest.approx(2.0, abs=1e-6)
 
 
 def test_a_capture_of_a_drive_at_rest_fits_nothing_and_says_so(tmp_path: Path) -> None:
