@@ -43,6 +43,7 @@ fitted too and reported, not written (it belongs to the bench, not the drive).
 from __future__ import annotations
 
 import argparse
+import bisect
 import dataclasses
 import itertools
 import math
@@ -76,6 +77,12 @@ TRANSIENT = 5.0
 #: A fitted value is kept when its standard uncertainty is below this fraction of it.
 IDENTIFIABLE = 0.25
 
+#: Current reads in speed ramps a fit needs before it fits the inertia.
+MIN_RAMP_READS = 3
+
+#: Seconds either side of a current read within which the speed reads tell a ramp.
+RAMP_WINDOW = 0.5
+
 #: The temperature must move this much (K) over the capture for the thermal parameters to be fitted.
 THERMAL_RISE = 1.5
 
@@ -96,16 +103,35 @@ def _thin(reads: list[Event], limit: int, changes: Sequence[float]) -> list[Even
             i += 1
         near = bool(changes) and changes[i] <= read.t < changes[i] + TRANSIENT
         (moving if near else steady).append(read)
-    moving = _evenly(moving, limit)
+    moving = _evenly(moving, max(limit * 3 // 4, limit - len(steady)))  # a long capture's holds keep a quarter
     kept = {id(e) for e in moving} | {id(e) for e in _evenly(steady, limit - len(moving))}
     return [e for e in reads if id(e) in kept]
 
 
 def _evenly(reads: list[Event], count: int) -> list[Event]:
+    if count <= 0:
+        return []
     if len(reads) <= count:
         return reads
     stride = len(reads) / count
     return [reads[int(i * stride)] for i in range(count)]
+
+
+def _current_reads_in_ramps(capture: Capture) -> int:
+    """Current reads (3004H) taken while the speed changed: the speed reads either side of it (each within
+    :data:`RAMP_WINDOW`) differ by more than 30 rpm and 200 rpm a second."""
+    speed = capture.reads.get(Reg.MOTOR_SPEED, [])
+    times = [e.t for e in speed]
+    count = 0
+    for read in capture.reads.get(Reg.OUTPUT_CURRENT, []):
+        j = bisect.bisect_left(times, read.t)
+        if 0 < j < len(speed):
+            before, after = speed[j - 1], speed[j]
+            span = after.t - before.t
+            change = abs(after.value - before.value)
+            if 0 < span <= 2 * RAMP_WINDOW and change > 30 and change / span > 200:
+                count += 1
+    return count
 
 
 def _sigma(address: int, capture: Capture) -> float:
@@ -176,92 +202,125 @@ def fit(
     if rise < THERMAL_RISE:
         why = f"the temperature moved {rise:.1f} K only: a longer capture with a load is needed"
         reasons["thermal.time_constant_s"] = reasons["thermal.resistance_k_per_w"] = why
-    free = [p for p in PARAMETERS if p.name not in reasons]
+    in_ramps = _current_reads_in_ramps(capture)
+    if "motor.inertia_kg_m2" not in reasons and in_ramps < MIN_RAMP_READS:
+        reasons["motor.inertia_kg_m2"] = (
+            f"{in_ramps} current read(s) (3004H) fell in a speed ramp, and inertia shows only there: the programme "
+            f"must read the current while the speed changes (at least {MIN_RAMP_READS}; c20sim exercise times its "
+            "reads into the ramps: a higher --rate, or longer ramps, 2003H/2004H)"
+        )
     start_values = {p.name: p.get(base) for p in PARAMETERS}
     if temps:
         base = with_values(base, {"thermal.ambient_c": temps[0]})  # the drive's temperature when the capture began
     fit_load = capture.loads > 0
-
-    names = [p.name for p in free]
-    # Each parameter moves as a multiple of its base value (1 = the base), within the profile format's range and
-    # a factor of 50 either way; a base value of 0 (no viscous friction, say) starts at 0 on a scale of its range.
-    x0: list[float] = []
-    scales: list[float] = []
-    lower: list[float] = []
-    upper: list[float] = []
-    for p in free:
-        low, high = p.bounds(base)
-        start = start_values[p.name]
-        if start > 0:
-            scale, low, high = start, max(low, start / 50.0), min(high, start * 50.0)
-        else:
-            scale = (high - low) / 1000.0 or 1.0
-        x0.append(start / scale)
-        scales.append(scale)
-        lower.append(low / scale)
-        upper.append(high / scale)
-    load_scale = 0.25 * base.motor.kt_nm_per_a * base.motor.rated_current_a
-    if fit_load:
-        x0.append(1.0)
-        lower.append(0.0)
-        upper.append(20.0)
     recorded = {a: np.array([_units(e) for e in reads]) for a, reads in compared.items()}
     weights = {a: 1.0 / (sigmas[a] * math.sqrt(len(reads))) for a, reads in compared.items()}
+    # the robust loss's scale: three standard deviations of one read, in the weighted residuals' units
+    f_scale = 3.0 / math.sqrt(statistics.median(len(reads) for reads in compared.values()))
     evaluations = [0]
+    load_scale = 0.25 * base.motor.kt_nm_per_a * base.motor.rated_current_a
+    rejected: dict[str, Fitted] = {}
+    before_values: dict[int, list[float]] | None = None
+    for _ in range(3):  # a parameter found too uncertain is fixed at its base, and the rest fitted again without it
+        free = [p for p in PARAMETERS if p.name not in reasons and p.name not in rejected]
+        names = [p.name for p in free]
+        # Each parameter moves as a multiple of its base value (1 = the base), within the profile format's range
+        # and a factor of 50 either way; a base value of 0 (no viscous friction) starts at 0 on a scale of its range.
+        x0: list[float] = []
+        scales: list[float] = []
+        lower: list[float] = []
+        upper: list[float] = []
+        for p in free:
+            low, high = p.bounds(base)
+            start = start_values[p.name]
+            if start > 0:
+                scale, low, high = start, max(low, start / 50.0), min(high, start * 50.0)
+            else:
+                scale = (high - low) / 1000.0 or 1.0
+            x0.append(start / scale)
+            scales.append(scale)
+            lower.append(low / scale)
+            upper.append(high / scale)
+        if fit_load:
+            x0.append(1.0)
+            lower.append(0.0)
+            upper.append(20.0)
 
-    def model(x: Sequence[float]) -> tuple[Profile, float, dict[int, list[float]], list[tuple[Event, int]]]:
-        values = {n: float(v) * s for n, v, s in zip(names, x, scales, strict=False)}
-        profile = with_values(base, values)
-        load = float(x[-1]) * load_scale if fit_load else 0.0
-        evaluations[0] += 1
-        got, states = simulate(profile, capture, events, load)
-        return profile, load, got, states
+        def model(
+            x: Sequence[float], names: list[str] = names, scales: list[float] = scales
+        ) -> tuple[Profile, float, dict[int, list[float]], list[tuple[Event, int]]]:
+            values = {n: float(v) * s for n, v, s in zip(names, x, scales, strict=False)}
+            profile = with_values(base, values)
+            load = float(x[-1]) * load_scale if fit_load else 0.0
+            evaluations[0] += 1
+            got, states = simulate(profile, capture, events, load)
+            return profile, load, got, states
 
-    def residuals(x: Sequence[float]) -> Any:
-        _, _, got, _ = model(x)
-        parts = [(np.array(got[a]) - recorded[a]) * weights[a] for a in compared]
-        return np.concatenate(parts)
+        def residuals(x: Sequence[float], model: Callable[..., Any] = model) -> Any:
+            _, _, got, _ = model(x)
+            parts = [(np.array(got[a]) - recorded[a]) * weights[a] for a in compared]
+            return np.concatenate(parts)
 
-    say(
-        f"fitting {len(names)} parameter(s){' and the load' if fit_load else ''} to {sum(map(len, compared.values()))} reads"
-    )
-    _, _, before_values, _ = model(x0)
-    if x0:
-        result = least_squares(
-            residuals, x0, bounds=(lower, upper), method="trf", x_scale="jac", diff_step=1e-3, max_nfev=60
-        )
-        if result.status == 0:
-            notes.append("the least squares stopped at their limit of model runs before they converged")
-        x, fun, jac = result.x, result.fun, result.jac
-    else:  # nothing to fit: the comparison and the turnaround only
-        x, fun, jac = np.array([]), residuals(x0), np.zeros((0, 0))
-    profile_x, load, after_values, states = model(x)
-    # Standard uncertainties from the Jacobian at the solution. Each quantity's residuals are weighted by
-    # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
-    # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
-    # honest uncertainty is what one read at the register's resolution allows, times the misfit where it is worse.
-    spread = max(1.0, float(np.sum(fun**2)) / max(1, len(compared)))
-    try:
-        covariance = np.linalg.pinv(jac.T @ jac) * spread if len(x) else np.zeros((0, 0))
-        sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    except np.linalg.LinAlgError:
-        sigma_x = np.full(len(x), np.inf)
+        if before_values is None:
+            say(
+                f"fitting {len(names)} parameter(s){' and the load' if fit_load else ''} to "
+                f"{sum(map(len, compared.values()))} reads"
+            )
+            _, _, before_values, _ = model(x0)
+        if x0:
+            # a robust loss: a read that is late, lost or an outlier weighs as one, and rejects no parameter
+            result = least_squares(
+                residuals,
+                x0,
+                bounds=(lower, upper),
+                method="trf",
+                x_scale="jac",
+                diff_step=1e-3,
+                max_nfev=60,
+                loss="soft_l1",
+                f_scale=f_scale,
+            )
+            if result.status == 0:
+                notes.append("the least squares stopped at their limit of model runs before they converged")
+            x, fun, jac = result.x, result.fun, result.jac
+        else:  # nothing to fit: the comparison and the turnaround only
+            x, fun, jac = np.array([]), residuals(x0), np.zeros((0, 0))
+        profile_x, load, after_values, states = model(x)
+        # Standard uncertainties from the Jacobian at the solution. Each quantity's residuals are weighted by
+        # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
+        # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
+        # honest uncertainty is what one read at the register's resolution allows, times the misfit where worse.
+        spread = max(1.0, float(np.sum(fun**2)) / max(1, len(compared)))
+        try:
+            covariance = np.linalg.pinv(jac.T @ jac) * spread if len(x) else np.zeros((0, 0))
+            sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        except np.linalg.LinAlgError:
+            sigma_x = np.full(len(x), np.inf)
+        found: dict[str, Fitted] = {}
+        for i, parameter in enumerate(free):
+            base_value = start_values[parameter.name]
+            value, sigma = float(x[i]) * scales[i], float(sigma_x[i]) * scales[i]
+            column = float(np.abs(jac[:, i]).max()) if jac.size else 0.0
+            if column == 0.0:
+                why = "nothing in the capture moves it"
+                found[parameter.name] = Fitted(parameter, base_value, base_value, math.inf, False, why)
+            elif not sigma < IDENTIFIABLE * abs(value):
+                why = f"fitted {value:.4g} +-{sigma:.2g}: too uncertain; it needs {parameter.needs}"
+                found[parameter.name] = Fitted(parameter, base_value, base_value, sigma, False, why)
+            else:
+                found[parameter.name] = Fitted(parameter, base_value, value, sigma, True)
+        dropped = {name: f for name, f in found.items() if not f.identified}
+        if not dropped:
+            break
+        rejected |= dropped
     fitted: list[Fitted] = []
     for parameter in PARAMETERS:
         base_value = start_values[parameter.name]
         if parameter.name in reasons:
             fitted.append(Fitted(parameter, base_value, base_value, math.inf, False, reasons[parameter.name]))
-            continue
-        i = names.index(parameter.name)
-        value, sigma = float(x[i]) * scales[i], float(sigma_x[i]) * scales[i]
-        column = float(np.abs(jac[:, i]).max()) if jac.size else 0.0
-        if column == 0.0:
-            fitted.append(Fitted(parameter, base_value, base_value, math.inf, False, "nothing in the capture moves it"))
-        elif not sigma < IDENTIFIABLE * abs(value):
-            why = f"fitted {value:.4g} +-{sigma:.2g}: too uncertain; it needs {parameter.needs}"
-            fitted.append(Fitted(parameter, base_value, base_value, sigma, False, why))
         else:
-            fitted.append(Fitted(parameter, base_value, value, sigma, True))
+            fitted.append(found.get(parameter.name) or rejected[parameter.name])
+    assert before_values is not None
     load_fit = (load, float(sigma_x[-1]) * load_scale) if fit_load else None
     # the fitted profile holds only the identified values; it is what "after" shows
     final = with_values(base, {f.parameter.name: f.value for f in fitted if f.identified})
