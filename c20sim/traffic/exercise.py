@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import math
 import os
@@ -37,7 +38,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import IO, Any, Protocol
+from typing import IO, Any, Protocol, TypeVar
 
 from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, load_profile
@@ -74,6 +75,8 @@ __all__ = [
     "run_programme",
     "simulated_capture",
 ]
+
+T = TypeVar("T")
 
 #: Short names a person at a bench types, for the registers they read and write most.
 NAMES: dict[str, int] = {
@@ -670,13 +673,28 @@ def _stop(master: Master) -> str:
     return "the drive was told to stop (2000H = 5)"
 
 
+def _again(master: Master, ask: Callable[[], T]) -> T:
+    """``ask()`` asked again where its reply was lost, up to :data:`SILENCES_IN_A_ROW` times in all."""
+    for attempt in range(SILENCES_IN_A_ROW):
+        try:
+            return ask()
+        except DriveSilent:
+            if attempt == SILENCES_IN_A_ROW - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _read_again(master: Master, address: int) -> int:
+    return _again(master, lambda: master.read(address))
+
+
 def check_ready(master: Master) -> dict[int, int]:
     """The settings, read; C20SimError (one line) if the drive is not one the programme may start."""
     values: dict[int, int] = {}
     for address in SETTINGS:
-        values[address] = master.read(address)
-    status = master.read(Reg.STATUS1)
-    fault = master.read(Reg.FAULT_CODE)
+        values[address] = _read_again(master, address)
+    status = _read_again(master, Reg.STATUS1)
+    fault = _read_again(master, Reg.FAULT_CODE)
     registers = master.registers
     if status != STATUS_STOPPED:
         state = registers[Reg.STATUS1].describe(status)
@@ -705,9 +723,10 @@ def time_the_link(master: Master) -> None:
     apart, so that neither waits for the line behind the one before."""
     for _ in range(TIMING_ROUNDS):
         master.clock.sleep(0.02)
-        master.read(Reg.BUS_VOLTAGE)
+        with contextlib.suppress(DriveSilent):  # a lost reply: that round has one timing fewer
+            master.read(Reg.BUS_VOLTAGE)
         master.clock.sleep(0.02)
-        with contextlib.suppress(DriveRefused):  # a drive that reads one at a time: its exception is the shorter reply
+        with contextlib.suppress(DriveRefused, DriveSilent):  # refused: a drive that reads one at a time
             master.transact(ReadRequest(master.address, Reg.SET_FREQUENCY, 8))
 
 
@@ -737,7 +756,7 @@ def run_programme(
             if step.mark:
                 master.mark(step.mark)
             for address, value in step.writes:
-                master.write(address, value)
+                _again(master, functools.partial(master.write, address, value))  # the same value again: harmless
                 started = started or address == Reg.COMMAND
             begin = master.clock.now()
             end = begin + step.hold

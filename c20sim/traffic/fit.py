@@ -80,9 +80,6 @@ IDENTIFIABLE = 0.25
 #: Current reads in speed ramps a fit needs before it fits the inertia.
 MIN_RAMP_READS = 3
 
-#: Seconds either side of a current read within which the speed reads tell a ramp.
-RAMP_WINDOW = 0.5
-
 #: The temperature must move this much (K) over the capture for the thermal parameters to be fitted.
 THERMAL_RISE = 1.5
 
@@ -118,19 +115,35 @@ def _evenly(reads: list[Event], count: int) -> list[Event]:
 
 
 def _current_reads_in_ramps(capture: Capture) -> int:
-    """Current reads (3004H) taken while the speed changed: the speed reads either side of it (each within
-    :data:`RAMP_WINDOW`) differ by more than 30 rpm and 200 rpm a second."""
+    """Current reads (3004H) taken inside a speed ramp: after the write that set the speed going, with the speed
+    read before and after it still short of the speed asked (by 3 % of it, 50 rpm at least) and changing. A read
+    at a ramp's very end, where the current falls from the ramp's to the hold's within a step, is no inertia's."""
     speed = capture.reads.get(Reg.MOTOR_SPEED, [])
     times = [e.t for e in speed]
+    asked: list[tuple[float, float]] = []  #: (time, the speed the drive is to reach)
+    setpoint, running = 0.0, False
+    for event in capture.events:
+        if event.kind != "write":
+            continue
+        if event.address == Reg.SPEED_SETPOINT:
+            setpoint = float(event.value)
+        elif event.address == Reg.COMMAND:
+            running = event.value in (1, 2)
+        else:
+            continue
+        asked.append((event.t, setpoint if running else 0.0))
+    starts = [t for t, _ in asked]
     count = 0
     for read in capture.reads.get(Reg.OUTPUT_CURRENT, []):
+        i = bisect.bisect_right(starts, read.t) - 1
         j = bisect.bisect_left(times, read.t)
-        if 0 < j < len(speed):
-            before, after = speed[j - 1], speed[j]
-            span = after.t - before.t
-            change = abs(after.value - before.value)
-            if 0 < span <= 2 * RAMP_WINDOW and change > 30 and change / span > 200:
-                count += 1
+        if i < 0 or not 0 < j < len(speed) or speed[j - 1].t < starts[i]:
+            continue
+        target = asked[i][1]
+        before, after = speed[j - 1].value, speed[j].value
+        short = max(50.0, 0.03 * target)
+        if abs(target - before) > short and abs(target - after) > short and abs(after - before) > 30:
+            count += 1
     return count
 
 
@@ -219,6 +232,7 @@ def fit(
     f_scale = 3.0 / math.sqrt(statistics.median(len(reads) for reads in compared.values()))
     evaluations = [0]
     load_scale = 0.25 * base.motor.kt_nm_per_a * base.motor.rated_current_a
+    count = sum(len(reads) for reads in compared.values())
     rejected: dict[str, Fitted] = {}
     before_values: dict[int, list[float]] | None = None
     for _ in range(3):  # a parameter found too uncertain is fixed at its base, and the rest fitted again without it
@@ -257,9 +271,13 @@ def fit(
             return profile, load, got, states
 
         def residuals(x: Sequence[float], model: Callable[..., Any] = model) -> Any:
-            _, _, got, _ = model(x)
-            parts = [(np.array(got[a]) - recorded[a]) * weights[a] for a in compared]
-            return np.concatenate(parts)
+            try:
+                _, _, got, _ = model(x)
+                parts = [(np.array(got[a]) - recorded[a]) * weights[a] for a in compared]
+                out = np.concatenate(parts)
+            except (ArithmeticError, ValueError):  # a trial value the model cannot run with (a NaN in its state)
+                out = np.full(count, np.nan)
+            return np.where(np.isfinite(out), out, 1e3)  # far from any fit: the least squares step back
 
         if before_values is None:
             say(
