@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import json
 import math
@@ -143,7 +144,8 @@ SETTINGS: tuple[int, ...] = (
     Reg.SPEED_SOURCE,
 )
 
-#: What the programme polls while the speed ramps: the current, which carries the inertia, and the speed.
+#: What the programme polls while the speed ramps, back to back (a ramp may last a tenth of a second): the
+#: current, which carries the inertia, and the speed.
 RAMP_POLL: tuple[int, ...] = (Reg.OUTPUT_CURRENT, Reg.MOTOR_SPEED)
 
 #: Rounds of the link's timing reads at the start: a one-register read, and one of 8 (answered, or refused with
@@ -749,15 +751,21 @@ def run_programme(
     last: dict[int, int] = {}
     poll, ramp_poll = _cycle(POLL), _cycle(RAMP_POLL)
     started = False
+    steps = list(steps)
+    setpoint = 0  #: the speed set before the step being run
+    repeated: set[int] = set()
     try:
         for index, step in enumerate(steps):
+            in_ramp = 0  #: current reads answered while this step ramps
             if step.prompt and confirm is not None:
                 confirm(step.prompt)
             if step.mark:
                 master.mark(step.mark)
+            before = setpoint
             for address, value in step.writes:
                 _again(master, functools.partial(master.write, address, value))  # the same value again: harmless
                 started = started or address == Reg.COMMAND
+                setpoint = value if address == Reg.SPEED_SETPOINT else setpoint
             begin = master.clock.now()
             end = begin + step.hold
             k = 0
@@ -767,13 +775,16 @@ def run_programme(
                     break
                 if step.until_stopped and now >= end + step.hold + 10.0:
                     raise C20SimError("the drive did not stop within its ramp and 10 s more")
+                ramping = now < begin + step.ramp  # the current and speed back to back: as many as the line carries
                 due = begin + k * period
-                if due > now:
+                if ramping:
+                    k = math.floor((now - begin) / period)  # the steady rate picks up where the ramp ends
+                elif due > now:
                     master.clock.sleep(due - now)
                 else:
                     k = max(k, math.floor((now - begin) / period))  # late: go on at the rate, no burst
                 k += 1
-                address = next(ramp_poll) if master.clock.now() < begin + step.ramp else next(poll)
+                address = next(ramp_poll) if ramping else next(poll)
                 try:
                     last[address] = master.read(address)
                     silent = 0
@@ -783,11 +794,20 @@ def run_programme(
                         raise
                     continue
                 reads += 1
+                in_ramp += ramping and address == Reg.OUTPUT_CURRENT
                 if address == Reg.FAULT_CODE and last[address]:
                     name = master.registers[Reg.FAULT_CODE].describe(last[address])
                     raise C20SimError(f"the drive tripped: fault {name} in step '{step.say}'")
                 if progress is not None:
                     progress(index, len(steps), step, master.clock.now() - begin, step.hold, last)
+            if step.ramp and in_ramp < 2 and before and setpoint and index not in repeated:
+                # the ramp's reads were lost (a reply lost costs the timeout): back to the speed before, and again
+                repeated |= {index + 1, index + 2}
+                back = Step(f"{step.say}: again, its ramp's reads were lost", ((Reg.SPEED_SETPOINT, before),))
+                steps[index + 1 : index + 1] = [
+                    dataclasses.replace(back, hold=step.ramp + 1.0, ramp=step.ramp),
+                    dataclasses.replace(step, say=f"{step.say} (again)", hold=step.ramp + 1.0),
+                ]
     except KeyboardInterrupt:
         raise Interrupted(_stop(master) if started else "the drive was not started") from None
     except C20SimError as exc:

@@ -393,9 +393,8 @@ def test_no_current_read_in_a_ramp_leaves_inertia_named_and_unwritten(
         "current while the speed changes (at least 3; c20sim exercise times its reads into the ramps: a higher "
         "--rate, or longer ramps, 2003H/2004H)"
     )
-    for name in ("motor.kt_nm_per_a", "supply.voltage_v"):
-        true, tolerance = TRUE[name]
-        assert found[name].identified and found[name].value == pytest.approx(true, rel=tolerance), name
+    true, tolerance = TRUE["motor.kt_nm_per_a"]  # the output voltage against speed has nothing of inertia
+    assert found["motor.kt_nm_per_a"].value == pytest.approx(true, rel=tolerance)
     for f in result.fitted:  # whatever was written is honest about its uncertainty
         if f.identified and f.parameter.name in TRUE:
             assert abs(f.value - TRUE[f.parameter.name][0]) <= 3 * f.sigma, f.parameter.name

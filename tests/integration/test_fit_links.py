@@ -94,4 +94,5 @@ def test_the_turnaround_comes_back_on_each_link(
     assert -0.5 <= error <= 3 * result.turnaround.sigma, (error, result.turnaround.sigma)
     if link == "pty":
         assert abs(error) <= 0.5
-    assert result.turnaround.sigma == pytest.approx(0.5 if link != "pty" else 0.1, rel=0.2)
+    # at least the floor assumed for what the link's arithmetic does not hold: 0.1 ms on a pty, 0.5 ms through TCP
+    assert (0.1 <= result.turnaround.sigma <= 0.3) if link == "pty" else (0.5 <= result.turnaround.sigma <= 0.7)
