@@ -32,7 +32,8 @@ from c20sim.core.simulator import Simulator  # noqa: E402
 from c20sim.drive.profile import Profile, load_profile  # noqa: E402
 from c20sim.traffic.capture import load_frame_log  # noqa: E402
 from c20sim.traffic.exercise import simulated_capture  # noqa: E402
-from c20sim.traffic.fit import fit, load_capture, summary  # noqa: E402
+from c20sim.traffic.fit import fit, load_capture  # noqa: E402
+from c20sim.traffic.fitreport import summary  # noqa: E402
 from c20sim.traffic.replay import replay  # noqa: E402
 
 T = TypeVar("T")
