@@ -16,6 +16,7 @@ Run alone, on an idle machine: .venv/bin/python bench/bench_fit.py
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import sys
 import tempfile
 import time
@@ -26,8 +27,6 @@ from typing import TypeVar
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
-
-import itertools
 
 from c20sim.core.clock import VirtualClock  # noqa: E402
 from c20sim.core.simulator import Simulator  # noqa: E402
