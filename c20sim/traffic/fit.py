@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import dataclasses
+import functools
 import itertools
 import math
 import statistics
@@ -287,17 +288,13 @@ def fit(
             _, _, before_values, _ = model(x0)
         if x0:
             # a robust loss: a read that is late, lost or an outlier weighs as one, and rejects no parameter
-            result = least_squares(
-                residuals,
-                x0,
-                bounds=(lower, upper),
-                method="trf",
-                x_scale="jac",
-                diff_step=1e-3,
-                max_nfev=60,
-                loss="soft_l1",
-                f_scale=f_scale,
+            # first the squared loss, from the base (far from the drive, every read is "off": a robust loss there
+            # flattens the very differences that lead to it), then the robust loss from where that ended
+            solve = functools.partial(
+                least_squares, residuals, bounds=(lower, upper), method="trf", x_scale="jac", diff_step=1e-3
             )
+            start = solve(x0, max_nfev=60).x
+            result = solve(start, max_nfev=40, loss="soft_l1", f_scale=f_scale)
             if result.status == 0:
                 notes.append("the least squares stopped at their limit of model runs before they converged")
             x, fun, jac = result.x, result.fun, result.jac
@@ -308,7 +305,10 @@ def fit(
         # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
         # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
         # honest uncertainty is what one read at the register's resolution allows, times the misfit where worse.
-        spread = max(1.0, float(np.sum(fun**2)) / max(1, len(compared)))
+        # The misfit as the robust loss weighs it (scipy's jac is the loss's too): a read far off (late, an
+        # outlier) counts as one read 3 sigma off, not as its square, and cannot make every parameter too uncertain.
+        robust = f_scale**2 * 2.0 * (np.sqrt(1.0 + (np.asarray(fun) / f_scale) ** 2) - 1.0)  # soft_l1's rho
+        spread = max(1.0, float(np.sum(robust)) / max(1, len(compared)))
         try:
             covariance = np.linalg.pinv(jac.T @ jac) * spread if len(x) else np.zeros((0, 0))
             sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))

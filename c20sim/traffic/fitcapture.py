@@ -188,8 +188,12 @@ def load_capture(
         if isinstance(response, ExceptionResponse):
             continue
         reply_t = replies.get(id(record))
-        if reply_t is not None:  # the drive took the request or sampled its registers as its turnaround began
-            t = max(t, reply_t - t0 - net - model.after_sample(len(exchange.reply), line_baud, bits))
+        if reply_t is not None:
+            # the drive took the request when the link had carried it: its record's time, and what the
+            # transaction took beyond the link's arithmetic and the turnaround (a queue behind other masters, a
+            # transaction held up); the link's own part is the same for every request, and left out
+            fixed = model.fixed(len(record.data), len(exchange.reply), line_baud, bits)
+            t += max(0.0, reply_t - record.t - fixed - net)
         if isinstance(request, WriteSingleRequest):
             if request.register == Reg.BAUD:
                 baud = BAUD_RATES[request.value] if request.value < len(BAUD_RATES) else request.value
