@@ -144,9 +144,13 @@ SETTINGS: tuple[int, ...] = (
     Reg.SPEED_SOURCE,
 )
 
-#: What the programme polls while the speed ramps, back to back (a ramp may last a tenth of a second): the
-#: current, which carries the inertia, and the speed.
+#: What the programme polls while the speed ramps, every :data:`RAMP_PERIOD` (a ramp may last a tenth of a
+#: second): the current, which carries the inertia, and the speed.
 RAMP_POLL: tuple[int, ...] = (Reg.OUTPUT_CURRENT, Reg.MOTOR_SPEED)
+
+#: Seconds between reads while a step ramps: 50 a second, within what a line at 19200 baud carries (74 one-register
+#: reads a second with a 2 ms turnaround), so that none waits for the line behind the one before.
+RAMP_PERIOD = 0.02
 
 #: Rounds of the link's timing reads at the start: a one-register read, and one of 8 (answered, or refused with
 #: an exception where the drive reads one at a time): replies of two lengths tell a link that keeps the line's
@@ -769,15 +773,19 @@ def run_programme(
             begin = master.clock.now()
             end = begin + step.hold
             k = 0
+            ramp_due = begin
             while True:
                 now = master.clock.now()
                 if now >= end and not (step.until_stopped and last.get(Reg.STATUS1) != STATUS_STOPPED):
                     break
                 if step.until_stopped and now >= end + step.hold + 10.0:
                     raise C20SimError("the drive did not stop within its ramp and 10 s more")
-                ramping = now < begin + step.ramp  # the current and speed back to back: as many as the line carries
+                ramping = now < begin + step.ramp  # the current and speed every RAMP_PERIOD while the speed ramps
                 due = begin + k * period
                 if ramping:
+                    if ramp_due > now:
+                        master.clock.sleep(ramp_due - now)
+                    ramp_due = max(ramp_due, now) + RAMP_PERIOD
                     k = math.floor((now - begin) / period)  # the steady rate picks up where the ramp ends
                 elif due > now:
                     master.clock.sleep(due - now)

@@ -179,6 +179,12 @@ def load_capture(
             request = decode_request(record.data)
         except ValueError:
             continue
+        if request.slave == address and not exchange.reply and isinstance(request, WriteSingleRequest):
+            # its reply was lost, not always its request: the drive most likely took it (a master asks again with
+            # the same value, which changes nothing); the baud is refused below, when answered
+            if request.register != Reg.BAUD:
+                events.append(Event(t, "write", request.register, request.value, record.line))
+            continue
         if request.slave != address or not exchange.reply or not crc_ok(exchange.reply):
             continue
         try:

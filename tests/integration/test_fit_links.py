@@ -1,8 +1,9 @@
-"""fit over the links plants use: a drive served with a known turnaround, captured by ``exercise`` over the
-line-timed pty, RTU over TCP with the line's time (serve's default) and Modbus TCP, fits its turnaround."""
+"""fit over the links plants use: a drive served with a known turnaround and physics, captured by ``exercise``
+over the line-timed pty, RTU over TCP with the line's time (serve's default) and Modbus TCP, fits them."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -13,9 +14,12 @@ import pytest
 from c20sim.drive.profile import load_profile
 from c20sim.traffic.capture import load_frame_log
 from c20sim.traffic.fit import fit, load_capture
+from c20sim.traffic.fitreport import summary
 from tests.conftest import wait_for_ready_file
 
 TURNAROUND_MS = 3.2  # the shipped profile says 2.0
+#: the drive's physics, changed from the shipped (0.127, 0.0003, 0.02): what fit must find on every link
+PHYSICS = {"motor.kt_nm_per_a": 0.140, "motor.inertia_kg_m2": 4.5e-4, "motor.friction_nm": 0.030}
 
 
 def c20sim(*args: str) -> list[str]:
@@ -30,7 +34,12 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
     shipped = Path(load_profile().path).read_text()
     assert "turnaround_ms = 2.0" in shipped
     truth = folder / "truth.toml"
-    truth.write_text(shipped.replace("turnaround_ms = 2.0", f"turnaround_ms = {TURNAROUND_MS}", 1))
+    text = shipped.replace("turnaround_ms = 2.0", f"turnaround_ms = {TURNAROUND_MS}", 1)
+    for name, value in PHYSICS.items():
+        key = name.split(".")[1]
+        text, count = re.subn(rf"(?m)^{key} = [0-9.e-]+", f"{key} = {value}", text, count=1)
+        assert count == 1, key
+    truth.write_text(text)
     ready = folder / "ready.json"
     args = ("--pty", "--line-timing", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0", "--no-audit")
     proc = subprocess.Popen(
@@ -65,7 +74,7 @@ def test_the_turnaround_comes_back_on_each_link(
             "--out",
             str(out),
             "--hold",
-            "0.5",
+            "2",
             "--rate",
             "20",
             "--speeds",
@@ -96,3 +105,12 @@ def test_the_turnaround_comes_back_on_each_link(
         assert abs(error) <= 0.5
     # at least the floor assumed for what the link's arithmetic does not hold: 0.1 ms on a pty, 0.5 ms through TCP
     assert (0.1 <= result.turnaround.sigma <= 0.3) if link == "pty" else (0.5 <= result.turnaround.sigma <= 0.7)
+    # the physics, on every link: Kt and inertia identified; whatever is written within 5 % and 3 of its +-x
+    found = {f.parameter.name: f for f in result.fitted}
+    assert found["motor.kt_nm_per_a"].identified and found["motor.inertia_kg_m2"].identified
+    for name, true in PHYSICS.items():
+        if found[name].identified:
+            assert found[name].value == pytest.approx(true, rel=0.05), (name, summary(result))
+            assert abs(found[name].value - true) <= 3 * found[name].sigma, name
+        else:
+            assert found[name].value == found[name].base, name
