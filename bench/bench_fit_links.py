@@ -1,6 +1,7 @@
 """The turnaround ``c20sim fit`` finds over each link a plant uses, against the drive's own, and serve's timer.
 
-A drive with a 3.2 ms turnaround (the shipped profile with that one change) is
+A drive with a 3.2 ms turnaround, Kt 0.140, inertia 4.5e-4 and friction 0.030 (the shipped profile: 2 ms,
+0.127, 3e-4, 0.02) is
 served by ``c20sim serve --pty --line-timing --tcp --modbus-tcp`` (bus timing
 on, the default); ``c20sim exercise`` runs the identification programme over
 each endpoint (``--hold 2 --rate 10 --speeds 1000,2000``); ``fit`` reads each
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import statistics
 import subprocess
 import sys
@@ -33,6 +35,8 @@ from c20sim.traffic.fit import fit, load_capture  # noqa: E402
 from c20sim.transport.line import DueTimer  # noqa: E402
 
 TRUTH_MS = 3.2
+#: the served drive's physics, changed from the shipped (0.127, 0.0003, 0.02)
+PHYSICS = {"kt_nm_per_a": 0.140, "inertia_kg_m2": 4.5e-4, "friction_nm": 0.030}
 
 
 def timer_lateness(rounds: int = 100) -> list[float]:
@@ -59,9 +63,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         truth = folder / "truth.toml"
-        truth.write_text(
-            Path(load_profile().path).read_text().replace("turnaround_ms = 2.0", f"turnaround_ms = {TRUTH_MS}", 1)
-        )
+        text = Path(load_profile().path).read_text().replace("turnaround_ms = 2.0", f"turnaround_ms = {TRUTH_MS}", 1)
+        for key, value in PHYSICS.items():
+            text = re.sub(rf"(?m)^{key} = [0-9.e-]+", f"{key} = {value}", text, count=1)
+        truth.write_text(text)
         ready = folder / "ready.json"
         args = ["--pty", "--line-timing", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0", "--no-audit"]
         serve = subprocess.Popen(
@@ -93,6 +98,16 @@ def main() -> None:
                     f"{t.value - TRUTH_MS:+.2f} ms = {(t.value - TRUTH_MS) / t.sigma:+.1f} sigma; "
                     f"{delayed} of {len(capture.timings)} transactions over 1 ms later"
                 )
+                for f in result.fitted:
+                    if f.parameter.key in PHYSICS:
+                        true = PHYSICS[f.parameter.key]
+                        words = (
+                            f"{f.value:.4g} +-{f.sigma:.2g}: {100 * (f.value - true) / true:+.2f} % "
+                            f"= {(f.value - true) / f.sigma:+.1f} sigma"
+                            if f.identified
+                            else f"not written ({f.why[:60]})"
+                        )
+                        print(f"            {f.parameter.key:<14} (true {true:g}) {words}")
         finally:
             serve.kill()
             serve.wait()
