@@ -27,8 +27,12 @@ frame lengths.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
+import functools
 import json
 import math
+import os
 import socket
 import struct
 import sys
@@ -122,6 +126,19 @@ SETTINGS: tuple[int, ...] = (
     Reg.RUN_CHANNEL,
     Reg.SPEED_SOURCE,
 )
+
+#: What the programme polls while the speed ramps, every :data:`RAMP_PERIOD` (a ramp may last a tenth of a
+#: second): the current, which carries the inertia, and the speed.
+RAMP_POLL: tuple[int, ...] = (Reg.OUTPUT_CURRENT, Reg.MOTOR_SPEED)
+
+#: Seconds between reads while a step ramps: 50 a second, within what a line at 19200 baud carries (74 one-register
+#: reads a second with a 2 ms turnaround), so that none waits for the line behind the one before.
+RAMP_PERIOD = 0.02
+
+#: Rounds of the link's timing reads at the start: a one-register read, and one of 8 (answered, or refused with
+#: an exception where the drive reads one at a time): replies of two lengths tell a link that keeps the line's
+#: time (a longer reply takes longer) from one that does not.
+TIMING_ROUNDS = 10
 
 #: Silences in a row the programme tolerates (a lost frame on a real line) before it stops the drive.
 SILENCES_IN_A_ROW = 3
@@ -527,6 +544,13 @@ class Master:
         self.log.write(json.dumps(item) + "\n")
         self.frames += 1
 
+    def header(self, port: str, baud: int, fmt: str) -> None:
+        """The capture's first line: how it is carried (``c20sim fit`` models each transaction's time on it)."""
+        if self.log is not None:
+            note = f"link {port} {baud} {fmt}"
+            item = {"t": round(self.clock.now(), 6), "dir": "rx", "hex": "", "kind": "link", "slave": self.address}
+            self.log.write(json.dumps(item | {"text": f"carried by {port}, {baud} baud {fmt}", "note": note}) + "\n")
+
     def mark(self, note: str) -> None:
         """A line in the log saying what the user did by hand (no bytes on the wire): replay passes over it."""
         if self.log is not None:
@@ -596,6 +620,7 @@ class Step:
     prompt: str = ""  #: a change the user makes by hand, confirmed before the step starts
     mark: str = ""  #: written to the log (an empty rx frame of kind "mark") once the user confirmed: load-on ...
     until_stopped: bool = False  #: poll on until status word 1 reads stopped (at most ``hold`` more)
+    ramp: float = 0.0  #: seconds from the step's start that the speed ramps: :data:`RAMP_POLL` is read then
 
 
 def programme(
@@ -613,13 +638,13 @@ def programme(
         writes: tuple[tuple[int, int], ...] = ((Reg.SPEED_SETPOINT, round(rpm)),)
         if index == 0:
             writes += ((Reg.COMMAND, int(Command.FORWARD)),)
-        steps.append(Step(f"{'run at' if index == 0 else 'step to'} {rpm:g} rpm", writes, ramp + hold))
+        steps.append(Step(f"{'run at' if index == 0 else 'step to'} {rpm:g} rpm", writes, ramp + hold, ramp=ramp))
         last = rpm
     if load:
         steps.append(Step(f"with the load, at {last:g} rpm", (), hold, "apply the load now", LOAD_ON))
         steps.append(Step(f"load taken off, at {last:g} rpm", (), hold, "take the load off now", LOAD_OFF))
     stop_ramp = last / max_rpm * decel_s
-    steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True))
+    steps.append(Step("stop", ((Reg.COMMAND, int(Command.STOP)),), stop_ramp + 2.0, until_stopped=True, ramp=stop_ramp))
     steps.append(Step("at rest after the stop", hold=min(hold, 3.0)))
     return steps
 
@@ -650,13 +675,28 @@ def _stop(master: Master) -> str:
     return "the drive was told to stop (2000H = 5)"
 
 
+def _again(master: Master, ask: Callable[[], T]) -> T:
+    """``ask()`` asked again where its reply was lost, up to :data:`SILENCES_IN_A_ROW` times in all."""
+    for attempt in range(SILENCES_IN_A_ROW):
+        try:
+            return ask()
+        except DriveSilent:
+            if attempt == SILENCES_IN_A_ROW - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _read_again(master: Master, address: int) -> int:
+    return _again(master, lambda: master.read(address))
+
+
 def check_ready(master: Master) -> dict[int, int]:
     """The settings, read; C20SimError (one line) if the drive is not one the programme may start."""
     values: dict[int, int] = {}
     for address in SETTINGS:
-        values[address] = master.read(address)
-    status = master.read(Reg.STATUS1)
-    fault = master.read(Reg.FAULT_CODE)
+        values[address] = _read_again(master, address)
+    status = _read_again(master, Reg.STATUS1)
+    fault = _read_again(master, Reg.FAULT_CODE)
     registers = master.registers
     if status != STATUS_STOPPED:
         state = registers[Reg.STATUS1].describe(status)
@@ -680,6 +720,18 @@ def check_ready(master: Master) -> dict[int, int]:
     return values
 
 
+def time_the_link(master: Master) -> None:
+    """:data:`TIMING_ROUNDS` of a one-register read and a read of 8 (3000H-3007H; refused or not): at rest, 20 ms
+    apart, so that neither waits for the line behind the one before."""
+    for _ in range(TIMING_ROUNDS):
+        master.clock.sleep(0.02)
+        with contextlib.suppress(DriveSilent):  # a lost reply: that round has one timing fewer
+            master.read(Reg.BUS_VOLTAGE)
+        master.clock.sleep(0.02)
+        with contextlib.suppress(DriveRefused, DriveSilent):  # refused: a drive that reads one at a time
+            master.transact(ReadRequest(master.address, Reg.SET_FREQUENCY, 8))
+
+
 def run_programme(
     master: Master,
     steps: Sequence[Step],
@@ -697,33 +749,46 @@ def run_programme(
     reads = 0
     silent = 0
     last: dict[int, int] = {}
-    poll = _cycle(POLL)
+    poll, ramp_poll = _cycle(POLL), _cycle(RAMP_POLL)
     started = False
+    steps = list(steps)
+    setpoint = 0  #: the speed set before the step being run
+    repeated: set[int] = set()
     try:
         for index, step in enumerate(steps):
+            in_ramp = 0  #: current reads answered while this step ramps
             if step.prompt and confirm is not None:
                 confirm(step.prompt)
             if step.mark:
                 master.mark(step.mark)
+            before = setpoint
             for address, value in step.writes:
-                master.write(address, value)
+                _again(master, functools.partial(master.write, address, value))  # the same value again: harmless
                 started = started or address == Reg.COMMAND
+                setpoint = value if address == Reg.SPEED_SETPOINT else setpoint
             begin = master.clock.now()
             end = begin + step.hold
             k = 0
+            ramp_due = begin
             while True:
                 now = master.clock.now()
                 if now >= end and not (step.until_stopped and last.get(Reg.STATUS1) != STATUS_STOPPED):
                     break
                 if step.until_stopped and now >= end + step.hold + 10.0:
                     raise C20SimError("the drive did not stop within its ramp and 10 s more")
+                ramping = now < begin + step.ramp  # the current and speed every RAMP_PERIOD while the speed ramps
                 due = begin + k * period
-                if due > now:
+                if ramping:
+                    if ramp_due > now:
+                        master.clock.sleep(ramp_due - now)
+                    ramp_due = max(ramp_due, now) + RAMP_PERIOD
+                    k = math.floor((now - begin) / period)  # the steady rate picks up where the ramp ends
+                elif due > now:
                     master.clock.sleep(due - now)
                 else:
                     k = max(k, math.floor((now - begin) / period))  # late: go on at the rate, no burst
                 k += 1
-                address = next(poll)
+                address = next(ramp_poll) if ramping else next(poll)
                 try:
                     last[address] = master.read(address)
                     silent = 0
@@ -733,11 +798,20 @@ def run_programme(
                         raise
                     continue
                 reads += 1
+                in_ramp += ramping and address == Reg.OUTPUT_CURRENT
                 if address == Reg.FAULT_CODE and last[address]:
                     name = master.registers[Reg.FAULT_CODE].describe(last[address])
                     raise C20SimError(f"the drive tripped: fault {name} in step '{step.say}'")
                 if progress is not None:
                     progress(index, len(steps), step, master.clock.now() - begin, step.hold, last)
+            if step.ramp and in_ramp < 2 and before and setpoint and index not in repeated:
+                # the ramp's reads were lost (a reply lost costs the timeout): back to the speed before, and again
+                repeated |= {index + 1, index + 2}
+                back = Step(f"{step.say}: again, its ramp's reads were lost", ((Reg.SPEED_SETPOINT, before),))
+                steps[index + 1 : index + 1] = [
+                    dataclasses.replace(back, hold=step.ramp + 1.0, ramp=step.ramp),
+                    dataclasses.replace(step, say=f"{step.say} (again)", hold=step.ramp + 1.0),
+                ]
     except KeyboardInterrupt:
         raise Interrupted(_stop(master) if started else "the drive was not started") from None
     except C20SimError as exc:
@@ -761,7 +835,9 @@ def simulated_capture(
     change (``load_nm``) made as a user would when told. Returns the reads made. Tests and benchmarks use it."""
     registers = sim.profile.registers
     master = Master(SimulatedLink(sim), registers, address, clock=SimulatedTime(sim), log=out)
+    master.header("simulated", sim.bus.line_baud, "8N1")
     settings = check_ready(master)
+    time_the_link(master)
     accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
     decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
     steps = programme(speeds, hold, accel, decel, sim.profile.motor.rated_speed_rpm, load_nm is not None)
@@ -840,7 +916,7 @@ def cmd_exercise(args: argparse.Namespace) -> int:
                 print(f"writing {words}")
             _first(master.write, spec.address, args, baud, value)
             return 0
-        return _run(args, link, registers, speeds, profile.motor.rated_speed_rpm)
+        return _run(args, link, registers, speeds, profile.motor.rated_speed_rpm, baud)
     finally:
         link.close()
 
@@ -873,7 +949,16 @@ def _speeds(text: str | None, rated: float) -> list[float]:
     return out
 
 
-def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, speeds: list[float], rated: float) -> int:
+def link_port(link: Link) -> str:
+    """What the capture's header calls the link: serial, pty, tcp or modbus-tcp."""
+    if isinstance(link, SerialLink):
+        return "pty" if os.path.realpath(link.port.port or "").startswith("/dev/pts/") else "serial"
+    return "modbus-tcp" if isinstance(link, MbapLink) else "tcp"
+
+
+def _run(
+    args: argparse.Namespace, link: Link, registers: RegisterMap, speeds: list[float], rated: float, link_baud: int
+) -> int:
     try:
         out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the stop
     except OSError as exc:
@@ -881,7 +966,9 @@ def _run(args: argparse.Namespace, link: Link, registers: RegisterMap, speeds: l
     tty = sys.stdout.isatty()
     with out:
         master = Master(link, registers, args.address, timeout=args.timeout, log=out)
+        master.header(link_port(link), link_baud, f"8{args.parity}{args.stopbits}")
         settings = check_ready(master)
+        time_the_link(master)
         accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
         decel = settings[Reg.DECEL_TIME] * registers[Reg.DECEL_TIME].scale
         steps = programme(speeds, args.hold, accel, decel, rated, args.load_change)

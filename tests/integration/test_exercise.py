@@ -104,22 +104,36 @@ def test_the_programme_makes_a_capture_fit_accepts(served: dict[str, str], tmp_p
     result = exercise(port, "--out", str(out), "--hold", "0.3", "--rate", "20", "--speeds", "1000,2000")
     assert result.returncode == 0, result.stderr
     assert "no function code" in result.stdout
-    records = load_frame_log(str(out))
+    header, *records = load_frame_log(str(out))
+    assert (header.kind, header.data) == ("link", b"")  # how the capture was carried: fit models the link by it
+    assert header.note == ("link pty 19200 8N1" if transport == "pty" else "link tcp 19200 8N1")
     requests = [decode_request(r.data) for r in records if r.direction == "rx"]
     writes = [(r.register, r.value) for r in requests if r.function == 6]  # type: ignore[union-attr]
     assert writes == [(0x2001, 1000), (0x2000, 1), (0x2001, 2000), (0x2000, 5)]  # no function code written
     read = {r.start for r in requests if r.function == 3}  # type: ignore[union-attr]
     assert set(POLL) <= read
+    # the link's timing reads: a one-register read and a read of 8, which c20sim refuses (it reads one at a time)
+    blocks = [i for i, r in enumerate(requests) if r.function == 3 and r.count == 8]  # type: ignore[union-attr]
+    assert len(blocks) == 10
+    assert all(records[2 * i + 1].data[1:3] == bytes((0x83, 0x03)) for i in blocks)
     assert all(r.direction == "tx" for r in records[1::2]) and len(records) % 2 == 0  # every request answered
     times = [r.t for r in records]
     assert times == sorted(times)
-    # it ran and stopped the drive: the last status words read stopped, after reads of it running
-    status = [
-        int(records[i + 1].data[3:5].hex(), 16)
-        for i, r in enumerate(records)
-        if r.direction == "rx" and r.data[2:4] == bytes.fromhex("2100")
-    ]
-    assert 1 in status and status[-1] == 3
+
+    # it ran and stopped the drive: the last status word read stopped, after speeds near 2000 rpm were read
+    def values(register: str) -> list[int]:
+        return [
+            int(records[i + 1].data[3:5].hex(), 16)
+            for i, r in enumerate(records)
+            if r.direction == "rx" and r.data[1:4] == bytes.fromhex("03" + register)
+        ]
+
+    assert max(values("3006")) > 1900 and values("2100")[-1] == 3
+    # while a step ramps (1000 rpm in 0.17 s with serve's 0.5 s ramps), the current and the speed are read in turn
+    reads = [(i, r.start) for i, r in enumerate(requests) if r.function == 3]  # type: ignore[union-attr]
+    for step in (i for i, r in enumerate(requests) if r.function == 6 and r.register == 0x2001):  # type: ignore[union-attr]
+        first_two = [start for i, start in reads if i > step][:2]
+        assert sorted(first_two) == [0x3004, 0x3006], first_two
     fitted = subprocess.run(
         c20sim("fit", str(out), "--out", str(tmp_path / "mydrive.toml")), capture_output=True, text=True, check=False
     )
@@ -137,7 +151,7 @@ def test_refuses_a_drive_that_is_not_stopped(served: dict[str, str], tmp_path: P
         "c20sim: the drive is not stopped (forward running, 2100H = 1); the programme starts only a stopped drive\n"
     )
     records = load_frame_log(str(out))
-    assert all(decode_request(r.data).function == 3 for r in records if r.direction == "rx")  # it only read
+    assert all(decode_request(r.data).function == 3 for r in records if r.direction == "rx" and r.data)  # only read
 
 
 async def _exercise_in_thread(served_port: str, out: Path, started: asyncio.Event) -> int:
