@@ -387,7 +387,7 @@ def comm_actions(profile: Profile) -> list[Row]:
     return [
         (
             "comm timeout 1 s, F08.03 = 0 / 1 / 2 / 3",
-            "alarm + coast / keep running / ramp stop / ramp stop (GD20 P14.03)",
+            "alarm + coast / keep running / ramp stop / ramp stop (GD20 P14.05)",
             "; ".join(outcomes),
         )
     ]

@@ -27,7 +27,7 @@ SOURCES: Mapping[str, str] = {
     "guide": "Modbus over Serial Line V1.02 (2.4.1 response timeout; 2.5.1 frame checks)",
     "tcp": "Modbus Messaging on TCP/IP Implementation Guide V1.0b (4.4.1 transaction identifier)",
     "sheet": "the C20 protocol sheet (2000H commands, 2100H/2102H status and fault, 0x06 frame error)",
-    "invt": "INVT Goodrive/GD20 manuals (P14.03/P14.04 comm timeout and action; fault reset)",
+    "invt": "INVT Goodrive/GD20 manuals (P14.04/P14.05 comm timeout and action; fault reset)",
     "assumed": "assumed",
 }
 

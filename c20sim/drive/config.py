@@ -81,7 +81,7 @@ CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
 #: F00.00 / 2005H: the control modes the model tells apart.
 CONTROL_OPEN_LOOP, CONTROL_DIAL = 1, 3
 
-#: F08.03, the action on a communication timeout (INVT GD20 P14.03).
+#: F08.03, the action on a communication timeout (INVT GD20 P14.05, remembered: P14.03 is the answer delay).
 COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
 
 CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION

@@ -20,6 +20,9 @@ from c20sim.browser.page import SHEET_FRAMES, Page, SerialServe, parse_hex, star
 from c20sim.wire.errors import C20SimError
 from tests.unit.test_golden import ECHO, STATELESS_ROWS
 
+# its serial endpoint is fed in chunks ms apart, and a 20 ms stall ends a frame: .ci/run runs it alone
+pytestmark = pytest.mark.serial
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -29,6 +29,7 @@ from tests.tui.test_web import read_png
 from tests.unit.test_golden import ECHO, STATELESS_ROWS
 
 pytestmark = [
+    pytest.mark.serial,  # the page's stand-in port is fed in chunks; a 20 ms stall in the page ends a frame
     pytest.mark.skipif(
         CHROMIUM is None,
         reason="Debian's chromium is not installed (apt-get install chromium); .ci/run must install it",

@@ -89,9 +89,11 @@ def test_a_master_that_never_sends_is_stopped_one_line_and_exit_2(tmp_path: Path
     master = (
         f"{sys.executable} -c \"import os, time; open('{pid_file}', 'w').write(str(os.getpid())); time.sleep(120)\""
     )
-    done = _run("--master", master, "--plan", str(_plan(tmp_path)), "--wait", "1.5")
+    # 5 s: time for the master's interpreter to start and write its pid on a loaded machine
+    done = _run("--master", master, "--plan", str(_plan(tmp_path)), "--wait", "5")
     assert done.returncode == 2
-    assert _one_line(done).startswith("c20sim: the master sent nothing in 1.5 s on tcp 127.0.0.1:")
+    assert _one_line(done).startswith("c20sim: the master sent nothing in 5 s on tcp 127.0.0.1:")
+    assert pid_file.exists(), "the master never started"
     assert _gone(int(pid_file.read_text()))
 
 

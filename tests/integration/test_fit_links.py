@@ -17,7 +17,7 @@ from c20sim.traffic.fit import fit, load_capture
 from c20sim.traffic.fitreport import summary
 from tests.conftest import wait_for_ready_file
 
-pytestmark = pytest.mark.serial  # the turnaround fitted from real-time captures, within 0.5 ms: .ci/run runs it alone
+pytestmark = pytest.mark.serial  # a turnaround fitted from real-time captures: .ci/run runs it alone
 
 TURNAROUND_MS = 3.2  # the shipped profile says 2.0
 #: the drive's physics, changed from the shipped (0.127, 0.0003, 0.02): what fit must find on every link

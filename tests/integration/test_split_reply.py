@@ -12,6 +12,8 @@ import pytest
 from c20sim.testing import C20Sim
 from c20sim.wire.protocol import crc16
 
+pytestmark = pytest.mark.serial  # the split reply's two pieces 0.2 s apart in real time: .ci/run runs it alone
+
 
 def _read(register: int) -> bytes:
     body = struct.pack(">BBHH", 1, 3, register, 1)
