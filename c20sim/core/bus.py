@@ -425,16 +425,18 @@ class Bus:
             return None
         rx("", slave.registers)
         forced = self._forced(slave)
+        spent: LinkFaults | None = None
         if forced is not None:
             counters.injected += 1
             response: Response = ExceptionResponse(address, request.function, forced)
             own = self._link_of[slave]
-            (own if own.forced_exception is not None else self.link).spend()
+            spent = own if own.forced_exception is not None else self.link
+            spent.spend()
         else:
             response = slave.handle(request, t)
         baud = self.line_baud
         self._follow_baud(slave)
-        return self._reply(slave, response, event.t, t, request, baud, event.mbap, event.data)
+        return self._reply(slave, response, event.t, t, request, baud, event.mbap, event.data, spent)
 
     def _follow_baud(self, slave: Slave) -> None:
         """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
@@ -451,7 +453,10 @@ class Bus:
         baud: int,
         mbap: MbapHeader | None = None,
         raw: bytes = b"",
+        spent: LinkFaults | None = None,
     ) -> Reply | None:
+        """The reply to ``response`` with the links' reply faults on it; ``spent``: a link whose "next N replies"
+        this reply has counted already (a forced exception), which is not counted again."""
         data: bytes | None = encode(response)
         kind = RecordKind.EXCEPTION if response.function & 0x80 else RecordKind.REPLY
         delay = slave.answer_delay
@@ -462,7 +467,8 @@ class Bus:
                 continue
             assert data is not None
             mangled = link.mangle(data, delay, self.rng, raw, t)
-            link.spend()
+            if link is not spent:
+                link.spend()
             data, delay = mangled.data, mangled.delay
             split = max(split, mangled.split)
             wrong_transaction = max(wrong_transaction, mangled.wrong_transaction)

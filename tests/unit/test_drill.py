@@ -43,6 +43,17 @@ def test_a_forced_exception_for_the_next_n_replies(profile: Profile) -> None:
     assert line.hex(read(1, 0x2001)) == encode(ReadResponse(1, (0,))).hex(" ").upper()
 
 
+def test_a_forced_exception_with_another_reply_fault_counts_each_reply_once(profile: Profile) -> None:
+    """The next 4 replies forced to 0x06 and delayed: 4 exceptions, then the drive's own replies (each reply was
+    counted twice, so the fault ended after 2)."""
+    line = Line(Bus([make_slave(profile, 1)], seed=1))
+    line.bus.link.forced_exception = ExceptionCode(6)
+    line.bus.link.delay = 0.001
+    line.bus.link.replies = 4
+    codes = [line.send(read(1, 0x2001), dt=0.1) for _ in range(6)]
+    assert [reply[1] if reply else None for reply in codes] == [0x83, 0x83, 0x83, 0x83, 0x03, 0x03]
+
+
 def test_wrong_function_answers_the_code_xor_7_with_a_good_crc(profile: Profile) -> None:
     line = Line(Bus([make_slave(profile, 1)], seed=1))
     line.bus.link.wrong_function = True
