@@ -448,6 +448,9 @@ class _MbapConnection(_Connection):
         self._gateway = owner
         self._buffer = bytearray()
         self._timers: set[asyncio.TimerHandle] = set()
+        #: replies held while a split reply's second half is still to go (None: no split pending); at most one a
+        #: request in hand, so no more than the connection's share of the line
+        self._held: list[bytes] | None = None
         self._outstanding = 0  #: requests not yet answered (on the line, or waiting for the gateway's timeout)
         self._write_paused = False
         self._paused = False
@@ -577,9 +580,22 @@ class _MbapConnection(_Connection):
 
     def _answer(self, transaction: int, unit: int, pdu: bytes, split: float = 0.0) -> None:
         adu = struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu
+        if self._held is not None:  # a split reply's second half is still to go: this one follows it, whole
+            self._held.append(adu)
+            return
         if split > 0:  # a link fault: two TCP segments (asyncio's sockets send with TCP_NODELAY)
             self.send(adu[:7])
-            self.loop.call_later(split, self.send, adu[7:])
+            self._held = []
+
+            def second_half() -> None:
+                self._timers.discard(timer)
+                held, self._held = self._held or [], None
+                self.send(adu[7:])
+                for data in held:  # nothing ever goes between a reply's two segments
+                    self.send(data)
+
+            timer = self.loop.call_later(split, second_half)
+            self._timers.add(timer)
             return
         self.send(adu)
 

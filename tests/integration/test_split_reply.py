@@ -68,3 +68,25 @@ def test_a_modbus_tcp_reply_split_in_two_segments(sim: C20Sim) -> None:
         first = s.recv(64)
         rest = s.recv(64)
         assert first == struct.pack(">HHHB", 7, 0, 5, 1) and rest == bytes.fromhex("03 02 00 20")
+
+
+def test_pipelined_modbus_tcp_replies_never_go_between_a_split_replys_two_segments(sim: C20Sim) -> None:
+    """Three requests sent at once, the replies split: each reply's MBAP header is followed by its own PDU, the
+    next reply after it (the second and third replies came between the first's two segments: header, header,
+    header, then the PDUs: a corrupt stream)."""
+    assert sim.modbus_tcp_port is not None
+    sim.link_faults(split=0.05)
+    requests = b"".join(struct.pack(">HHHBBHH", tid, 0, 6, 1, 3, 0x2103, 1) for tid in (1, 2, 3))
+    with _connect(sim.modbus_tcp_port) as s:
+        s.sendall(requests)
+        data = b""
+        while len(data) < 3 * 11:  # three ADUs of 11 bytes: a one-register read's reply
+            chunk = s.recv(4096)
+            assert chunk, data.hex(" ")
+            data += chunk
+    adus = [struct.unpack_from(">HHHBBB", data, i) for i in range(0, 33, 11)]
+    assert [(tid, proto, length, unit, function, count) for tid, proto, length, unit, function, count in adus] == [
+        (1, 0, 5, 1, 3, 2),
+        (2, 0, 5, 1, 3, 2),
+        (3, 0, 5, 1, 3, 2),
+    ], data.hex(" ")
