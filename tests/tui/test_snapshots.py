@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from textual.pilot import Pilot
+from textual.widgets import RichLog
 
 from c20sim.control import http
 from c20sim.tui import Dashboard, widgets
@@ -100,6 +101,10 @@ def test_frame_log(snap_compare: Any, served2: Served, monkeypatch: pytest.Monke
         assert len(log.records) == 14, [r.text for r in log.records]
         await until(lambda: app.remote.now() >= 0.35, "the telemetry after the frames")
         app.refresh_views()
+        await pilot.pause()
+        # the log scrolls to its last line when it next lays out, which a loaded machine puts off past a pause
+        lines = log.query_one(RichLog)
+        await until(lambda: lines.max_scroll_y > 0 and lines.scroll_y == lines.max_scroll_y, "the log at its end")
         await pilot.pause()
 
     assert snap_compare(Dashboard(served2.remote()), terminal_size=(100, 30), run_before=frames_with_errors)
