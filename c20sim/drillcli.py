@@ -67,7 +67,7 @@ def cmd_drill(args: argparse.Namespace) -> int:
         raise C20SimError(f"--wait {args.wait:g}: expected 0.1 to 3600 seconds")
     early = ""
     if args.judge:
-        if args.plan is None and args.master is not None:
+        if args.master is not None:
             raise C20SimError("--judge takes a frame log and --plan, not --master")
         plan = load_plan(args.plan, args.seed, args.transport if args.plan is None else None)
         judgement = judge_log(args.judge, plan, profile)

@@ -353,7 +353,7 @@ class _Run:
         self._sleep(plan.warmup)
         given = Learned(plan.poll_period, plan.timeout, 0.0, True) if plan.poll_period and plan.timeout else None
         self._mark("probe")
-        if given is None:
+        if given is None and self._alive():  # stopped (DELETE /drill) or the master gone: no fault, not the probe
             before = self._requests()
             self._at(lambda sim: ops.set_link_faults(sim, None, {"drop_next": 1}))
             limit = time.monotonic() + 30.0

@@ -180,6 +180,8 @@ class Server:
 
             rtu = opts.pty or opts.link or opts.serial or opts.tcp
             drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), "tcp" if rtu else "modbus-tcp"))
+            # at close: a running drill stops (its thread calls on this loop no more) and the service goes
+            self._unsubscribe.append(lambda: drills.detach(sim))
             if opts.log_frames:
                 self._open_frame_log(opts.log_frames)
             if opts.pty or opts.link:

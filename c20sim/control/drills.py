@@ -18,7 +18,7 @@ from typing import Any
 from ..core.simulator import Simulator
 from .ops import ControlError
 
-__all__ = ["DrillService", "Runner", "attach", "of"]
+__all__ = ["DrillService", "Runner", "attach", "detach", "of"]
 
 #: (the request's fields, a progress callback, the stop event) -> the report (JSON-ready)
 Runner = Callable[[Mapping[str, Any], Callable[[str], None], threading.Event], dict[str, Any]]
@@ -92,6 +92,14 @@ def attach(sim: Simulator, runner: Runner) -> DrillService:
     if found is None:
         found = _SERVICES[sim] = DrillService(runner)
     return found
+
+
+def detach(sim: Simulator) -> None:
+    """The serve of ``sim`` is stopping: its running drill is told to stop, and the service goes (the service's
+    runner holds the simulator, so the weak map alone would keep both)."""
+    found = _SERVICES.pop(sim, None)
+    if found is not None:
+        found.stop()
 
 
 def of(sim: Simulator) -> DrillService:
