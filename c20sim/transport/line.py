@@ -339,7 +339,17 @@ class Line:
             item.waiting = False
         self._forget(peer, len(queue))
         self.cancelled += len(queue)
+        self._compact()
         return len(queue)
+
+    def _compact(self) -> None:
+        """Drop the deadlines of requests no longer waiting once they are most of the heap: a host that opens and
+        closes connections costs no memory beyond what waits (the heap forgets served and cancelled requests
+        lazily, at their deadline, and each holds its connection until then)."""
+        heap = self._deadlines
+        if len(heap) > 2 * self._count + 64:
+            heap[:] = [entry for entry in heap if entry[2].waiting]  # in place: a caller may hold the list
+            heapq.heapify(heap)
 
     def _forget(self, peer: object, count: int) -> None:
         self._count -= count
@@ -394,6 +404,7 @@ class Line:
             self._queues[peer] = sources  # to the back of the peers
         item.waiting = False
         self._forget(peer, 1)
+        self._compact()
         return item
 
     def _expire_due(self, now: float) -> None:

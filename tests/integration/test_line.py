@@ -126,3 +126,23 @@ async def test_peers_and_their_masters_are_served_in_turn_and_a_full_peer_waits_
     assert woken == ["p3"]
     assert line.refused == 1
     assert (line.waiting, line.waiting_of("P"), line.waiting_of("Q")) == (0, 0, 0)
+
+
+async def test_the_deadline_heap_forgets_what_closed_connections_queued() -> None:
+    """20,000 connections each queue 4 requests behind a busy line and close: the line's deadline heap keeps no
+    more than twice what waits, plus a little (it kept all 80,000, each holding its connection, until their
+    deadlines)."""
+    sim = Simulator(load_profile(), (1,), clock=VirtualClock())
+    line = Line(sim)
+    read = frame(encode(ReadRequest(1, 0x2100, 1)))
+    answered: list[Reply | None] = []
+    line.submit(read, answered.append, object(), wait_limit=60.0)  # on the line: the rest wait
+    assert line.busy
+    for _ in range(20_000):
+        source = object()
+        for _ in range(4):
+            assert line.submit(read, answered.append, source, wait_limit=60.0)
+        assert line.cancel(source) == 4
+    assert (line.waiting, line.cancelled) == (0, 80_000)
+    assert len(line._deadlines) <= 64
+    line.close()
