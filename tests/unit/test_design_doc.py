@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import os
 import re
 import sys
 from collections import defaultdict
@@ -58,10 +59,11 @@ def _spans() -> list[str]:
 def _repo_files() -> list[str]:
     skip = {".git", ".venv", "node_modules", "__pycache__", ".ruff_cache", ".mypy_cache", ".pytest_cache"}
     found = []
-    for path in ROOT.rglob("*"):
-        parts = path.relative_to(ROOT).parts
-        if not skip.intersection(parts):
-            found.append("/".join(parts) + ("/" if path.is_dir() else ""))
+    for folder, dirs, files in os.walk(ROOT):
+        dirs[:] = [d for d in dirs if d not in skip and not d.endswith(".egg-info")]
+        here = Path(folder).relative_to(ROOT).as_posix()
+        prefix = "" if here == "." else here + "/"
+        found += [f"{prefix}{d}/" for d in dirs] + [prefix + f for f in files]
     return found
 
 
