@@ -34,3 +34,26 @@ def test_the_layout_names_no_module_that_is_gone() -> None:
     present = {path.name for path in (ROOT / "c20sim").rglob("*.py")}
     present |= {name for name in names if "/" in name and (ROOT / name).exists()}
     assert sorted(names - present) == []
+
+
+def test_the_layout_names_every_doc_and_test_folder() -> None:
+    """Each page of docs/, each folder of tests/ and each script of tools/ is named in the Layout."""
+    block = layout()
+    words = {word.strip("(),;:") for word in block.split()}
+    docs = sorted(path.name for path in (ROOT / "docs").glob("*.md"))
+    folders = sorted(f"{path.name}/" for path in (ROOT / "tests").iterdir() if (path / "__init__.py").is_file())
+    tools = sorted(f"tools/{path.name}" for path in (ROOT / "tools").iterdir() if path.is_file())
+    assert len(docs) > 10 and "unit/" in folders and "tools/compile-core" in tools  # the walks found them
+    unnamed = [name for name in docs if name not in words]
+    in_tests = {word.strip("(),;:") for word in _entry(block, "tests/").split()}
+    unnamed += [f"tests/{name}" for name in folders if name not in in_tests]
+    unnamed += [name for name in tools if name not in block and name.removeprefix("tools/") not in words]
+    assert unnamed == [], "README's Layout does not name these: " + ", ".join(unnamed)
+
+
+def _entry(block: str, top: str) -> str:
+    """The Layout's entry for the top-level folder ``top``: its line and the indented lines under it."""
+    lines = block.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(top + " "))
+    end = next((i for i in range(start + 1, len(lines)) if lines[i][:1] not in (" ", "")), len(lines))
+    return "\n".join(lines[start:end]).removeprefix(top)
