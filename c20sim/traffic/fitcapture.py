@@ -22,7 +22,7 @@ from ..wire.protocol import (
 )
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .capture import LogRecord, _read_text, parse_log
-from .exercise import LOAD_OFF, LOAD_ON
+from .programme import LOAD_OFF, LOAD_ON
 from .fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link, format_bits, turnaround_of
 from .replay import exchanges
 

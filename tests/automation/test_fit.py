@@ -13,7 +13,7 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.traffic.capture import load_frame_log
-from c20sim.traffic.exercise import simulated_capture
+from c20sim.traffic.programme import simulated_capture
 from c20sim.traffic.fit import fit, given_settings, load_capture, write_profile
 from c20sim.traffic.replay import replay
 from c20sim.wire.protocol import (
@@ -402,9 +402,9 @@ def test_no_current_read_in_a_ramp_leaves_inertia_named_and_unwritten(
 ) -> None:
     """The independent check's case: no current read fell in a speed ramp. Inertia is named with what the
     programme must add and kept at its base; it is never written with a tight uncertainty."""
-    from c20sim.traffic import exercise
+    from c20sim.traffic import programme
 
-    monkeypatch.setattr(exercise, "RAMP_POLL", (Reg.MOTOR_SPEED, Reg.BUS_VOLTAGE))  # a master that reads no current
+    monkeypatch.setattr(programme, "RAMP_POLL", (Reg.MOTOR_SPEED, Reg.BUS_VOLTAGE))  # a master that reads no current
     path = _bench_capture(tmp_path / "noramp.jsonl", drop_percent=5.0)
     base = load_profile()
     result = fit(load_capture(str(path), base), base)

@@ -17,7 +17,7 @@ from pymodbus.client import ModbusSerialClient
 
 from c20sim.cli import main
 from c20sim.traffic.capture import load_frame_log
-from c20sim.traffic.exercise import POLL
+from c20sim.traffic.programme import POLL
 from c20sim.wire.protocol import ExceptionCode, WriteSingleRequest, decode_request, encode
 from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
