@@ -32,10 +32,10 @@ from c20sim.core.clock import VirtualClock  # noqa: E402
 from c20sim.core.simulator import Simulator  # noqa: E402
 from c20sim.drive.profile import Profile, load_profile  # noqa: E402
 from c20sim.traffic.capture import load_frame_log  # noqa: E402
-from c20sim.traffic.programme import simulated_capture  # noqa: E402
 from c20sim.traffic.fit import fit, load_capture  # noqa: E402
 from c20sim.traffic.fitmodel import COMPARED, FitResult  # noqa: E402
 from c20sim.traffic.fitreport import summary, write_profile  # noqa: E402
+from c20sim.traffic.programme import simulated_capture  # noqa: E402
 from c20sim.traffic.replay import replay  # noqa: E402
 from c20sim.wire.registers import FIXED_REGISTERS, Reg  # noqa: E402
 

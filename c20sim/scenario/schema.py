@@ -157,7 +157,8 @@ def profile_schema() -> dict[str, Any]:
 
 
 def scenario_schema() -> dict[str, Any]:
-    from .timeline import CAUSE_NAMES, STEP_KEYS, TOP_KEYS
+    from .steps import CAUSE_NAMES, STEP_KEYS
+    from .timeline import TOP_KEYS
 
     raw = {"type": "integer", "minimum": 0, "maximum": 65535}
     cause = {"enum": list(CAUSE_NAMES)}

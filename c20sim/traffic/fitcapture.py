@@ -22,8 +22,8 @@ from ..wire.protocol import (
 )
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .capture import LogRecord, _read_text, parse_log
-from .programme import LOAD_OFF, LOAD_ON
 from .fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link, format_bits, turnaround_of
+from .programme import LOAD_OFF, LOAD_ON
 from .replay import exchanges
 
 #: Registers whose reads are physical quantities or the drive's state: what a fit compares.

@@ -13,8 +13,8 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.traffic.capture import load_frame_log
-from c20sim.traffic.programme import simulated_capture
 from c20sim.traffic.fit import fit, given_settings, load_capture, write_profile
+from c20sim.traffic.programme import simulated_capture
 from c20sim.traffic.replay import replay
 from c20sim.wire.protocol import (
     ReadRequest,
