@@ -256,7 +256,7 @@ def test_the_capture_is_the_frame_log_replay_reads(capture_file: Path) -> None:
 
 
 def test_pole_pairs_and_hall_codes_that_do_not_add_up() -> None:
-    from c20sim.traffic.fit import Capture, Event, _consistency
+    from c20sim.traffic.fitcapture import Capture, Event, _consistency
 
     frequency = [Event(t, "read", Reg.OUTPUT_FREQUENCY, 10000) for t in (1.0, 2.0, 3.0)]  # 100 Hz at 1500 rpm: 4
     speed = [Event(t - 0.1, "read", Reg.MOTOR_SPEED, 1500) for t in (1.0, 2.0, 3.0)]
