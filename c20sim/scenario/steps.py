@@ -1,28 +1,29 @@
-"""A scenario's steps: the keys a ``[[step]]`` table may hold, each checked once at load, and what a step is.
+"""A scenario's steps: what a step is, and the table of step kinds a ``[[step]]`` table is read by.
 
-The format's reference is docs/scenario-format.md; :mod:`c20sim.scenario.timeline` loads and plays a scenario.
+A step kind is one row (:class:`StepKind`): its key, the parser that checks the key's value once at load, its
+JSON Schema fragment, its line on the docs page, and what it does when the step is played (before the step's
+writes, after them, or, on a served simulator only, awaited). The loader, the player, the JSON Schema
+(``c20sim schema scenario``) and the docs check all iterate the rows (:class:`Kinds`); the rows themselves are
+in :mod:`c20sim.scenario.stepkinds` and :mod:`c20sim.scenario.stepchecks`. The format's reference is
+docs/scenario-format.md; :mod:`c20sim.scenario.timeline` loads and plays a scenario.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-from collections.abc import Callable, Mapping
+import dataclasses
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-from ..audit import RULES
 from ..control import causes, ops
-from ..drill import read_plan
-from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
-from ..wire.protocol import (
-    ExceptionCode,
-)
+
+if TYPE_CHECKING:
+    from ..core.simulator import Simulator
 
 T = TypeVar("T")
 
-__all__ = ["CAUSE_NAMES", "MAX_WITHIN", "STEP_KEYS", "Expect", "Outcome", "ScenarioError", "Step", "parse_step"]
+__all__ = ["Act", "Expect", "Kinds", "Outcome", "Parser", "Reading", "ScenarioError", "Served", "Step", "StepKind"]
 
 
 class ScenarioError(C20SimError):
@@ -47,7 +48,11 @@ class Expect:
 
 @dataclass(frozen=True)
 class Step:
-    """What happens at time ``at`` (seconds from the start), to ``drive`` (None: the first drive)."""
+    """What happens at time ``at`` (seconds from the start), to ``drive`` (None: the first drive).
+
+    The fields are what the shipped step kinds read; a kind with no field of its own keeps its value in
+    :attr:`more` (:meth:`value` reads either). :attr:`given` holds the keys the file gave.
+    """
 
     index: int  #: 1-based, in file order
     at: float
@@ -70,6 +75,8 @@ class Step:
     forbid_findings: tuple[str, ...] = ()  #: rules that must have found nothing ("any": no finding at all)
     #: a drill (docs/drill.md) on the master polling the served drive: its incidents, as a plan's [[drill]] tables
     drill: tuple[Mapping[str, object], ...] = ()
+    given: frozenset[str] = frozenset()  #: the keys the file gave this step
+    more: Mapping[str, object] = field(default_factory=dict)  #: values of the kinds with no field here
 
     @property
     def audited(self) -> bool:
@@ -85,216 +92,13 @@ class Step:
     def label(self) -> str:
         return f"step {self.index} (at {self.at:g} s)"
 
-
-STEP_KEYS = (
-    "at",
-    "drive",
-    "note",
-    "set",
-    "link",
-    "clear_link",
-    "fault",
-    "clear_fault",
-    "power_cycle",
-    "write",
-    "keypad",
-    "expect",
-    "expect_exception",
-    "expect_silence",
-    "within",
-    "expect_findings",
-    "forbid_findings",
-    "drill",
-)
-
-#: The longest ``within`` (model seconds).
-MAX_WITHIN = 3600.0
+    def value(self, key: str) -> object:
+        """What the step holds for ``key``: a field, or a kind's value in :attr:`more` (None if not given)."""
+        return self.more[key] if key in self.more else getattr(self, key, None)
 
 
-def parse_step(raw: object, index: int, path: str) -> Step:
-    if not isinstance(raw, dict):
-        raise ScenarioError(path, f"step {index}", "expected a table ([[step]])")
-    at = raw.get("at")
-    if isinstance(at, bool) or not isinstance(at, int | float) or not math.isfinite(at) or at < 0:
-        raise ScenarioError(path, f"step {index}, key 'at'", "give the step's time in seconds from the start, >= 0")
-    label = f"step {index} (at {at:g} s)"
-
-    def fail(key: str, message: str) -> ScenarioError:
-        return ScenarioError(path, f"{label}, key {key!r}", message)
-
-    for key in raw:
-        if key not in STEP_KEYS:
-            raise fail(key, str(ops.unknown("key", key, STEP_KEYS)))
-
-    def table(key: str) -> dict[str, Any]:
-        value = raw.get(key, {})
-        if not isinstance(value, dict):
-            raise fail(key, "expected a table, such as { supply_v = 24 }")
-        return value
-
-    def flag(key: str) -> bool:
-        value = raw.get(key, False)
-        if not isinstance(value, bool):
-            raise fail(key, "expected true or false")
-        return value
-
-    def checked(key: str, fn: Callable[[], T]) -> T:
-        """Check with control's own checker: one vocabulary, and its message, for the API and the scenarios."""
-        try:
-            return fn()
-        except ops.ControlError as exc:
-            raise fail(key, str(exc)) from None
-
-    drive = raw.get("drive")
-    if drive is not None and (isinstance(drive, bool) or not isinstance(drive, int) or not 1 <= drive <= 247):
-        raise fail("drive", "expected a drive address 1-247")
-    note = raw.get("note", "")
-    if not isinstance(note, str):
-        raise fail("note", "expected a string")
-
-    conditions = table("set")
-    if conditions:
-        checked("set", lambda: ops.check_conditions(conditions))
-    link = table("link")
-    if link:
-        checked("link", lambda: ops.check_link_faults(link))
-
-    fault_value = raw.get("fault")
-    fault: causes.FaultRequest | None = None
-    if fault_value is not None:
-        fault = checked("fault", lambda: causes.read_fault(fault_value, causes.TOML, names=list(CAUSE_NAMES)))
-
-    clear_value = raw.get("clear_fault", False)
-    release: str | None = None
-    if isinstance(clear_value, dict):
-        if set(clear_value) != {"cause"}:
-            raise fail("clear_fault", 'give true, or a cause to end, such as { cause = "undervoltage" }')
-        release = _cause(clear_value["cause"], "clear_fault", fail)
-        clear_value = True
-    elif not isinstance(clear_value, bool):
-        raise fail("clear_fault", 'expected true or false, or { cause = "undervoltage" }')
-
-    def unquoted(key: str, register: str, value: object) -> None:
-        """TOML reads ``F00.10 = 5000`` unquoted as the table F00 = { 10 = 5000 }: say to quote it."""
-        if isinstance(value, dict) and register.upper().startswith("F") and all(k.isdigit() for k in value):
-            first = sorted(value)[0]
-            raise fail(key, f'{register}: unknown key {first!r}; quote a function code, as "{register}.{first}" = N')
-
-    writes: list[tuple[str, int, int]] = []
-    for register, value in table("write").items():
-        unquoted("write", register, value)
-        address = checked("write", functools.partial(ops.register_address, register))
-        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF:
-            raise fail("write", f"{register}: expected a raw value 0-65535, got {value!r}")
-        writes.append((register, address, value))
-
-    keypad = raw.get("keypad")
-    if keypad is not None:
-        checked("keypad", lambda: ops.key_command(keypad))
-
-    expects: list[Expect] = []
-    for register, given in table("expect").items():
-        value = given
-        unquoted("expect", register, given)
-        address = checked("expect", functools.partial(ops.register_address, register))
-        tolerance: object = 0
-        if isinstance(given, dict):
-            extra = set(given) - {"value", "tolerance"}
-            if extra:
-                hint = (
-                    f'; quote a function code, as "{register}.{sorted(extra)[0]}" = N'
-                    if register.upper().startswith("F")
-                    else "; give { value = N, tolerance = N }"
-                )
-                raise fail("expect", f"{register}: unknown key {sorted(extra)[0]!r}{hint}")
-            value, tolerance = given.get("value"), given.get("tolerance", 0)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise fail("expect", f"{register}: expected a raw register value (an integer), got {value!r}")
-        if isinstance(tolerance, bool) or not isinstance(tolerance, int) or tolerance < 0:
-            raise fail("expect", f"{register}: tolerance must be a whole number >= 0, got {tolerance!r}")
-        expects.append(Expect(register, address, value, tolerance))
-
-    expect_exception = raw.get("expect_exception")
-    if expect_exception is not None:
-        codes = [int(c) for c in ExceptionCode]
-        if isinstance(expect_exception, bool) or expect_exception not in codes:
-            raise fail("expect_exception", f"expected an exception code {codes[0]}-{codes[-1]}, such as 8")
-        if not writes:
-            raise fail("expect_exception", "the step has no write to be refused; give write = { ... } too")
-    expect_silence = flag("expect_silence")
-    if expect_silence and expect_exception is not None:
-        raise fail("expect_silence", "a write cannot be both refused and unanswered; give one of the two")
-    within = raw.get("within")
-    if within is not None:
-        if (
-            isinstance(within, bool)
-            or not isinstance(within, int | float)
-            or not math.isfinite(within)
-            or not 0 < within <= MAX_WITHIN
-        ):
-            raise fail("within", f"expected seconds of model time, > 0 and <= {MAX_WITHIN:g}, such as 2.0")
-        if not expects:
-            raise fail("within", "nothing to wait for; give expect = { ... } too")
-        within = float(within)
-
-    findings: dict[str, tuple[str, ...]] = {}
-    for key, allowed in (("expect_findings", tuple(RULES)), ("forbid_findings", ("any", *RULES))):
-        given = raw.get(key, [])
-        if not isinstance(given, list) or not all(isinstance(x, str) for x in given):
-            raise fail(key, 'expected a list of the audit\'s rules, such as ["eeprom-wear"]')
-        for name in given:
-            if name not in allowed:
-                raise fail(key, str(ops.unknown("rule", name, allowed)))
-        findings[key] = tuple(given)
-    both = set(findings["expect_findings"]) & set(findings["forbid_findings"])
-    if both:
-        raise fail("forbid_findings", f"{sorted(both)[0]} is expected and forbidden at once; give one of the two")
-
-    drill: tuple[Mapping[str, object], ...] = ()
-    if "drill" in raw:
-        given = raw["drill"]
-        items = [given] if isinstance(given, (str, dict)) else given
-        if not isinstance(items, list) or not items:
-            raise fail("drill", 'expected an incident or a list of them, such as ["crc", { incident = "trip" }]')
-        drill = tuple({"incident": x} if isinstance(x, str) else dict(x) for x in items)
-        try:
-            read_plan({"drill": list(drill)}, "drill")
-        except C20SimError as exc:
-            raise fail("drill", str(exc).removeprefix("drill: ")) from None
-
-    return Step(
-        index=index,
-        at=float(at),
-        drive=drive,
-        note=note,
-        set=conditions,
-        link=link,
-        clear_link=flag("clear_link"),
-        fault=fault,
-        clear_fault=clear_value,
-        release=release,
-        power_cycle=flag("power_cycle"),
-        write=tuple(writes),
-        keypad=keypad,
-        expect=tuple(expects),
-        expect_exception=expect_exception,
-        expect_silence=expect_silence,
-        within=within,
-        expect_findings=findings["expect_findings"],
-        forbid_findings=findings["forbid_findings"],
-        drill=drill,
-    )
-
-
-#: Every cause a scenario may name; whether the profile has a latched one is checked against the simulator.
-CAUSE_NAMES = (*causes.CAUSES, *(f.value for f in FaultCause if f not in causes.PHYSICAL))
-
-
-def _cause(value: object, key: str, fail: Callable[[str, str], ScenarioError]) -> str:
-    if not isinstance(value, str) or value not in CAUSE_NAMES:
-        message = str(ops.unknown("cause", value, CAUSE_NAMES)) if isinstance(value, str) else "expected a cause's name"
-        raise fail(key, message)
-    return value
+#: The names of Step's own fields: a kind's parsed value for any other name goes to ``Step.more``.
+STEP_FIELDS = frozenset(f.name for f in dataclasses.fields(Step))
 
 
 @dataclass(frozen=True)
@@ -305,3 +109,140 @@ class Outcome:
     t: float
     ok: bool
     text: str
+
+
+class Reading:
+    """One ``[[step]]`` table being read: its keys as given, the fields read so far, and errors that name the
+    file, the step and the key."""
+
+    def __init__(self, raw: Mapping[str, Any], index: int, path: str) -> None:
+        self.raw = raw
+        self.index = index
+        self.path = path
+        self.read: dict[str, Any] = {}  #: Step fields (and new kinds' values) read so far, in table order
+
+    @property
+    def label(self) -> str:
+        at = self.read.get("at")
+        return f"step {self.index} (at {at:g} s)" if at is not None else f"step {self.index}"
+
+    def fail(self, key: str, message: str) -> ScenarioError:
+        return ScenarioError(self.path, f"{self.label}, key {key!r}", message)
+
+    def table(self, key: str, value: object) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(key, "expected a table, such as { supply_v = 24 }")
+        return value
+
+    def flag(self, key: str, value: object) -> bool:
+        if not isinstance(value, bool):
+            raise self.fail(key, "expected true or false")
+        return value
+
+    def unquoted(self, key: str, register: str, value: object) -> None:
+        """TOML reads ``F00.10 = 5000`` unquoted as the table F00 = { 10 = 5000 }: say to quote it."""
+        if isinstance(value, dict) and register.upper().startswith("F") and all(k.isdigit() for k in value):
+            first = sorted(value)[0]
+            raise self.fail(
+                key, f'{register}: unknown key {first!r}; quote a function code, as "{register}.{first}" = N'
+            )
+
+    def checked(self, key: str, fn: Callable[[], T]) -> T:
+        """Check with control's own checker: one vocabulary, and its message, for the API and the scenarios."""
+        try:
+            return fn()
+        except ops.ControlError as exc:
+            raise self.fail(key, str(exc)) from None
+
+
+#: A kind's parser: the key's value as given, and the table being read -> the Step fields it sets.
+Parser = Callable[[Any, Reading], Mapping[str, object]]
+#: What a kind does when its step is played: (step, simulator, drive address, the step's time) -> outcomes.
+Act = Callable[[Step, "Simulator", int, float], list[Outcome]]
+#: What a kind does on a served simulator, awaited after the step's writes and checks.
+Served = Callable[[Step, "Simulator"], Awaitable[Outcome]]
+
+
+@dataclass(frozen=True)
+class StepKind:
+    """One key of a ``[[step]]`` table: how it is read, shown and played.
+
+    ``act`` runs when a step that gives the key is played: before the step's writes, or after them with
+    ``after_writes`` (a check, whose outcomes are the step's); kinds that share one act run it once. ``served``
+    is awaited only on a served simulator (``serve --scenario``); ``served_only`` is run-scenario's refusal of
+    a step that gives the key.
+    """
+
+    key: str
+    parse: Parser
+    schema: Callable[[], dict[str, Any]]  #: the key's JSON Schema fragment
+    value: str  #: the docs table's "type" column
+    doc: str  #: the docs table's "meaning" column
+    act: Act | None = None
+    after_writes: bool = False
+    served: Served | None = None
+    served_only: str = ""
+    required: bool = False
+
+    def line(self) -> str:
+        """The kind's row in docs/scenario-format.md's step keys table."""
+        return f"| `{self.key}` | {self.value} | {self.doc} |"
+
+
+class Kinds:
+    """The step kinds, in the order they are read and played; a test may add one and remove it again."""
+
+    def __init__(self, rows: Iterable[StepKind]) -> None:
+        self._rows: dict[str, StepKind] = {}
+        for row in rows:
+            self.add(row)
+
+    def add(self, row: StepKind) -> None:
+        if row.key in self._rows:
+            raise ValueError(f"step kind {row.key!r}: declared twice")
+        self._rows[row.key] = row
+
+    def remove(self, key: str) -> None:
+        del self._rows[key]
+
+    def __iter__(self) -> Iterator[StepKind]:
+        return iter(list(self._rows.values()))
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._rows
+
+    def keys(self) -> tuple[str, ...]:
+        return tuple(self._rows)
+
+    def parse(self, raw: object, index: int, path: str) -> Step:
+        """A ``[[step]]`` table, read by the rows: the required ones first (``at``, which names the step in every
+        error after it), then any key no row knows, then each given key in the table's order."""
+        if not isinstance(raw, dict):
+            raise ScenarioError(path, f"step {index}", "expected a table ([[step]])")
+        reading = Reading(raw, index, path)
+        for row in self:
+            if row.required:
+                reading.read.update(row.parse(raw.get(row.key), reading))
+        for key in raw:
+            if key not in self._rows:
+                raise reading.fail(key, str(ops.unknown("key", key, self.keys())))
+        for row in self:
+            if not row.required and row.key in raw:
+                reading.read.update(row.parse(raw[row.key], reading))
+        fields = {k: v for k, v in reading.read.items() if k in STEP_FIELDS}
+        more = {k: v for k, v in reading.read.items() if k not in STEP_FIELDS}
+        return Step(index=index, **fields, given=frozenset(raw), more=more)
+
+    def schema(self) -> dict[str, Any]:
+        """The JSON Schema of a ``[[step]]`` table: each row's fragment."""
+        return {
+            "type": "object",
+            "properties": {row.key: row.schema() for row in self},
+            "required": [row.key for row in self if row.required],
+            "additionalProperties": False,
+        }
+
+    def docs_table(self) -> str:
+        """The step keys table of docs/scenario-format.md, one line a row."""
+        lines = ["| key | type | meaning |", "| --- | --- | --- |", *(row.line() for row in self)]
+        return "\n".join(lines) + "\n"

@@ -42,7 +42,8 @@ Within a step the actions run in a fixed order: ``set``, ``link``,
 ``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
 ``keypad``, then ``expect`` (polled for ``within`` seconds). Expected values
 are raw register values, as a master reads them (3008H = 480 is 48.0 V).
-The format's reference is docs/scenarios.md. Loading raises
+A step's keys are the rows of :mod:`.stepkinds` and :mod:`.stepchecks`; the format's reference is
+docs/scenario-format.md. Loading raises
 :class:`ScenarioError` naming the file, the step and the key, like a profile.
 
 :func:`run` plays a scenario in virtual time, instantly, and returns a
@@ -59,7 +60,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
-from ..control import causes, drills, liveaudit, ops
+from ..control import causes, liveaudit, ops
 from ..core.simulator import Simulator
 from ..drive.files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 from ..wire.protocol import (
@@ -73,7 +74,9 @@ from ..wire.protocol import (
     encode,
 )
 from ..wire.registers import Reg, UnknownRegister, resolve_register
-from .steps import Expect, Outcome, ScenarioError, Step, parse_step
+from .stepchecks import expectations
+from .stepkinds import parse_step, table
+from .steps import Expect, Outcome, ScenarioError, Step
 
 if TYPE_CHECKING:
     from ..core.bus import Reply
@@ -227,73 +230,16 @@ def _drive_of(step: Step, sim: Simulator) -> int:
     return step.drive if step.drive is not None else next(iter(sim.drives))
 
 
-def _act(step: Step, sim: Simulator, address: int) -> None:
-    """The step's actions before its writes: conditions, link and device faults, power."""
-    if step.set:
-        ops.set_conditions(sim, address, step.set)
-    if step.link:
-        ops.set_link_faults(sim, address, step.link)
-    if step.clear_link:
-        ops.clear_link_faults(sim, address)
-    if step.fault is not None:
-        causes.fault(sim, address, step.fault)
-    if step.release is not None:
-        causes.release(sim, address, step.release)
-    if step.clear_fault:
-        ops.clear_fault(sim, address, True)
-    if step.power_cycle:
-        ops.power_cycle(sim, address)
-
-
-def _after_writes(step: Step, sim: Simulator, address: int, t: float) -> list[Outcome]:
-    """The keypad press and the expectations, after the writes were answered."""
+def _acts(step: Step, sim: Simulator, address: int, t: float, *, after_writes: bool) -> list[Outcome]:
+    """The acts of the step's kinds (:mod:`.stepkinds`), in the table's order: those before the writes, or those
+    after them (the checks); an act two kinds share runs once."""
     out: list[Outcome] = []
-    if step.keypad is not None:
-        taken = ops.press_key(sim, address, step.keypad)
-        out.append(Outcome(step, t, taken, f"keypad {step.keypad}: {'taken' if taken else 'refused by the drive'}"))
-    return out + _expectations(step, sim, address, t) + _audited(step, sim, t)
-
-
-def _audited(step: Step, sim: Simulator, t: float) -> list[Outcome]:
-    """``expect_findings`` and ``forbid_findings``: what the live audit found by now (any drive, or the line)."""
-    if not step.audited:
-        return []
-    audit = liveaudit.of(sim)
-    if audit is None:
-        return [Outcome(step, t, False, "audit: off (serve --no-audit); no finding can be checked")]
-    found = audit.findings()
-    out: list[Outcome] = []
-    for rule in step.expect_findings:
-        hits = [f for f in found if f.rule == rule]
-        if hits:
-            out.append(Outcome(step, t, True, f"audit: {rule} found: {hits[0].where}: {hits[0].figure}"))
-        else:
-            seen = ", ".join(sorted({f.rule for f in found})) or "none"
-            out.append(Outcome(step, t, False, f"audit: no {rule} finding, expected one (findings: {seen})"))
-    for rule in step.forbid_findings:
-        hits = [f for f in found if rule in ("any", f.rule)]
-        if hits:
-            what = "; ".join(f"{f.rule} {f.where}: {f.figure}" for f in hits[:3])
-            out.append(Outcome(step, t, False, f"audit: {what}, forbidden"))
-        else:
-            out.append(Outcome(step, t, True, f"audit: no {'finding' if rule == 'any' else rule + ' finding'}"))
-    return out
-
-
-def _expectations(step: Step, sim: Simulator, address: int, t: float, since: float | None = None) -> list[Outcome]:
-    """The step's expectations read now; ``since``: the time a ``within`` step began to wait."""
-    out: list[Outcome] = []
-    for expect in step.expect:
-        info = ops.read_register(sim, address, expect.address)
-        ok = abs(info["raw"] - expect.value) <= expect.tolerance
-        within = f" +/- {expect.tolerance}" if expect.tolerance else ""
-        spec = sim.profile.registers[expect.address]
-        wanted = spec.describe(expect.value & 0xFFFF)
-        text = f"{info['register']} ({info['name']}) = {info['raw']} ({info['text']})"
-        text += f", expected {expect.value}{within} ({wanted})" if not ok else f", expected {expect.value}{within}"
-        if since is not None and step.within is not None:
-            text += f" (after {t - since:.3g} s)" if ok else f" (still after {step.within:g} s)"
-        out.append(Outcome(step, t, ok, text))
+    done: list[object] = []
+    for kind in table():
+        if kind.act is None or kind.after_writes != after_writes or kind.key not in step.given or kind.act in done:
+            continue
+        done.append(kind.act)
+        out += kind.act(step, sim, address, t)
     return out
 
 
@@ -312,7 +258,7 @@ def _poll_times(step: Step, start: float) -> list[float]:
 def _recheck(step: Step, sim: Simulator, outcomes: list[Outcome], start: float) -> list[Outcome]:
     """The step's outcomes with its expectations read again at the simulator's time."""
     address = _drive_of(step, sim)
-    fresh = _expectations(step, sim, address, sim.now(), since=start)
+    fresh = expectations(step, sim, address, sim.now(), since=start)
     return outcomes[: len(outcomes) - len(step.expect)] + fresh
 
 
@@ -358,7 +304,7 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
     """
     address = _drive_of(step, sim)
     t = sim.now()
-    _act(step, sim, address)
+    _acts(step, sim, address, t, after_writes=False)
     out = []
     for register, reg, value in step.write:
         request = WriteSingleRequest(address, reg, value)
@@ -368,7 +314,7 @@ def apply_step(step: Step, sim: Simulator) -> list[Outcome]:
         poll = ReadRequest(address, Reg.STATUS1, 1)
         reply = sim.handle(FrameEvent(FrameKind.FRAME, encode(poll), sim.now()))
         out.append(_answered(sim, step, t, "read 2100H", poll, reply))
-    return out + _after_writes(step, sim, address, t)
+    return out + _acts(step, sim, address, t, after_writes=True)
 
 
 async def apply_step_on_line(step: Step, sim: Simulator, line: Line) -> list[Outcome]:
@@ -376,7 +322,7 @@ async def apply_step_on_line(step: Step, sim: Simulator, line: Line) -> list[Out
     loop's time like a port's, served in its turn (after a reply the line holds) and awaited."""
     address = _drive_of(step, sim)
     t = sim.now()
-    _act(step, sim, address)
+    _acts(step, sim, address, t, after_writes=False)
     out = []
     for register, reg, value in step.write:
         request = WriteSingleRequest(address, reg, value)
@@ -386,7 +332,7 @@ async def apply_step_on_line(step: Step, sim: Simulator, line: Line) -> list[Out
         poll = ReadRequest(address, Reg.STATUS1, 1)
         reply = await _submit(line, encode(poll))
         out.append(_answered(sim, step, t, "read 2100H", poll, reply))
-    return out + _after_writes(step, sim, address, t)
+    return out + _acts(step, sim, address, t, after_writes=True)
 
 
 #: The longest wait for the line's answer to a scenario's write: an injected delay and its jitter (60 s each).
@@ -415,44 +361,24 @@ def _audit_for(scenario: Scenario, sim: Simulator) -> None:
         liveaudit.start(sim)
 
 
-def _no_drill_here(scenario: Scenario) -> None:
+def _served_only(scenario: Scenario) -> None:
+    """Refuse a step whose kinds play only on a served simulator (a drill needs a real master)."""
     for step in scenario.steps:
-        if step.drill:
-            raise ScenarioError(
-                scenario.path,
-                step.label,
-                "drill: a drill plays on a real master: serve --scenario FILE with the realtime clock, and a master "
-                "polling the serve (docs/drill.md)",
-            )
+        for kind in table():
+            if kind.served is not None and kind.key in step.given:
+                raise ScenarioError(scenario.path, step.label, f"{kind.key}: {kind.served_only}")
 
 
-async def _drill_step(step: Step, sim: Simulator) -> Outcome:
-    """Play the step's drill on the master polling the served drive; the outcome is its verdicts."""
-    t = sim.now()
-    service = drills.of(sim)
-    service.start({"plan": [dict(item) for item in step.drill]})
-    while (state := service.status())["state"] == "running":
-        await asyncio.sleep(0.2)
-    if state["state"] == "failed":
-        return Outcome(step, t, False, f"drill: {state['error']}")
-    report = state["report"]
-    verdicts = report["verdicts"]
-    failed = [v for v in verdicts if not v["passed"]]
-    text = f"drill: {len(verdicts) - len(failed)} of {len(verdicts)} drills passed"
-    if failed:
-        first = failed[0]
-        figures = "; ".join(c["figure"] for c in first["checks"] if not c["passed"])
-        text += f"; {first['index']} {first['incident']}: {figures}"
-    if report.get("problem"):
-        text += f"; {report['problem']}"
-    return Outcome(step, t, bool(report["passed"]) and not report.get("ended_early"), text)
+async def _served(step: Step, sim: Simulator) -> list[Outcome]:
+    """The step's kinds that play on a served simulator, awaited in the table's order."""
+    return [await kind.served(step, sim) for kind in table() if kind.served is not None and kind.key in step.given]
 
 
 def run(scenario: Scenario, sim: Simulator) -> Report:
     """Play ``scenario`` on a simulator with a virtual clock, instantly."""
     if not sim.virtual:
         raise ScenarioError(scenario.path, "", "run needs a virtual clock; use play() to follow a realtime one")
-    _no_drill_here(scenario)
+    _served_only(scenario)
     check(scenario, sim)
     _audit_for(scenario, sim)
     outcomes: list[Outcome] = []
@@ -481,7 +407,7 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
     check(scenario, sim)
     _audit_for(scenario, sim)
     if sim.virtual:
-        _no_drill_here(scenario)
+        _served_only(scenario)
     outcomes: list[Outcome] = []
     start = sim.now()
     for step in scenario.steps:
@@ -489,8 +415,7 @@ async def play(scenario: Scenario, sim: Simulator, *, line: Line | None = None, 
             await asyncio.sleep(min(0.5, wait))
         try:
             results = apply_step(step, sim) if line is None else await apply_step_on_line(step, sim, line)
-            if step.drill:
-                results.append(await _drill_step(step, sim))
+            results += await _served(step, sim)
         except ops.ControlError as exc:
             raise ScenarioError(scenario.path, step.label, str(exc)) from None
         if not _settled(step, results):
