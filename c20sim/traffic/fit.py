@@ -44,21 +44,71 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ..core.clock import VirtualClock
 from ..core.simulator import Simulator
-from ..drive.profile import DEFAULT_PROFILE, load_profile
+from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
-from ..wire.registers import BAUD_RATES
-from .fitcapture import Capture, _load_records, load_capture
+from ..wire.registers import BAUD_RATES, FIXED_REGISTERS
+from .fitcapture import Capture, _consistency, _load_records, load_capture
 from .fitlink import LINKS
-from .fitmodel import FitResult, Fitted, given_settings
+from .fitmodel import FitResult, Fitted, given_settings, simulate, with_values
 from .fitreport import summary, write_profile, write_report
-from .fitsolve import fit
+from .fitsolve import Problem, compared_reads, solve, turnaround, unrevealed
 from .replay import replay
 
 __all__ = ["Capture", "FitResult", "Fitted", "add_fit_command", "fit", "load_capture", "write_profile"]
+
+
+def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | None = None) -> FitResult:
+    """Fit the parameters the capture reveals; the rest stay as in ``base``. The pipeline: the capture (read by
+    :func:`load_capture`, with its link model) -> the compared reads and what they can reveal -> the drive model
+    played along them -> the least squares -> the fitted profile and the report's figures."""
+    try:
+        import numpy  # noqa: F401 - the solve's
+        import scipy.optimize  # noqa: F401
+    except ImportError:
+        raise C20SimError(
+            "c20sim fit needs scipy, which the simulator itself does not: pip install 'c20sim[fit]'"
+        ) from None
+    started = time.perf_counter()
+    compared, events = compared_reads(capture)
+    problem = Problem.of(capture, base, compared, events)
+    solution = solve(problem, unrevealed(capture, compared), progress or (lambda text: None))
+    # the fitted profile holds only the identified values and the link's turnaround; it is what "after" shows
+    final = with_values(problem.base, {f.parameter.name: f.value for f in solution.fitted if f.identified})
+    found = turnaround(capture, problem.base)
+    if found is not None:
+        final = with_values(final, {"protocol.turnaround_ms": found.value})
+    after, states = solution.after, solution.states
+    if final != solution.profile:
+        after, states = simulate(final, capture, events, solution.load)
+        problem.evaluations += 1
+    notes = solution.notes
+    if capture.settings:
+        words = ", ".join(
+            f"{FIXED_REGISTERS[a].name} {FIXED_REGISTERS[a].describe(v)}" for a, v in sorted(capture.settings.items())
+        )
+        notes.append(f"the drive's settings, read at the start and given to the model: {words}")
+    notes += _consistency(capture)
+    return FitResult(
+        capture,
+        problem.base,
+        solution.fitted,
+        found,
+        solution.load_fit,
+        problem.series(solution.before),
+        problem.series(after),
+        sum(1 for event, value in states if value != event.value),
+        len(states),
+        problem.evaluations,
+        time.perf_counter() - started,
+        notes,
+        final,
+    )
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

@@ -199,6 +199,18 @@ def time_the_link(master: Master) -> None:
             master.transact(ReadRequest(master.address, Reg.SET_FREQUENCY, 8))
 
 
+@dataclass
+class _Polling:
+    """The programme's polling as it goes: the steady rate, the values last read, silences in a row, reads made."""
+
+    period: float
+    last: dict[int, int] = dataclasses.field(default_factory=dict)
+    silent: int = 0
+    reads: int = 0
+    poll: Iterator[int] = dataclasses.field(default_factory=lambda: _cycle(POLL))
+    ramp_poll: Iterator[int] = dataclasses.field(default_factory=lambda: _cycle(RAMP_POLL))
+
+
 def run_programme(
     master: Master,
     steps: Sequence[Step],
@@ -212,18 +224,13 @@ def run_programme(
     A refusal, silence (:data:`SILENCES_IN_A_ROW` in a row) or a trip stops the drive and raises
     C20SimError in one line; KeyboardInterrupt stops it and raises :class:`Interrupted`.
     """
-    period = 1.0 / rate
-    reads = 0
-    silent = 0
-    last: dict[int, int] = {}
-    poll, ramp_poll = _cycle(POLL), _cycle(RAMP_POLL)
+    polling = _Polling(1.0 / rate)
     started = False
     steps = list(steps)
     setpoint = 0  #: the speed set before the step being run
     repeated: set[int] = set()
     try:
         for index, step in enumerate(steps):
-            in_ramp = 0  #: current reads answered while this step ramps
             if step.prompt and confirm is not None:
                 confirm(step.prompt)
             if step.mark:
@@ -233,44 +240,8 @@ def run_programme(
                 _again(master, functools.partial(master.write, address, value))  # the same value again: harmless
                 started = started or address == Reg.COMMAND
                 setpoint = value if address == Reg.SPEED_SETPOINT else setpoint
-            begin = master.clock.now()
-            end = begin + step.hold
-            k = 0
-            ramp_due = begin
-            while True:
-                now = master.clock.now()
-                if now >= end and not (step.until_stopped and last.get(Reg.STATUS1) != STATUS_STOPPED):
-                    break
-                if step.until_stopped and now >= end + step.hold + 10.0:
-                    raise C20SimError("the drive did not stop within its ramp and 10 s more")
-                ramping = now < begin + step.ramp  # the current and speed every RAMP_PERIOD while the speed ramps
-                due = begin + k * period
-                if ramping:
-                    if ramp_due > now:
-                        master.clock.sleep(ramp_due - now)
-                    ramp_due = max(ramp_due, now) + RAMP_PERIOD
-                    k = math.floor((now - begin) / period)  # the steady rate picks up where the ramp ends
-                elif due > now:
-                    master.clock.sleep(due - now)
-                else:
-                    k = max(k, math.floor((now - begin) / period))  # late: go on at the rate, no burst
-                k += 1
-                address = next(ramp_poll) if ramping else next(poll)
-                try:
-                    last[address] = master.read(address)
-                    silent = 0
-                except DriveSilent:
-                    silent += 1
-                    if silent >= SILENCES_IN_A_ROW:
-                        raise
-                    continue
-                reads += 1
-                in_ramp += ramping and address == Reg.OUTPUT_CURRENT
-                if address == Reg.FAULT_CODE and last[address]:
-                    name = master.registers[Reg.FAULT_CODE].describe(last[address])
-                    raise C20SimError(f"the drive tripped: fault {name} in step '{step.say}'")
-                if progress is not None:
-                    progress(index, len(steps), step, master.clock.now() - begin, step.hold, last)
+            report = functools.partial(progress, index, len(steps)) if progress is not None else None
+            in_ramp = _hold(master, step, polling, report)
             if step.ramp and in_ramp < 2 and before and setpoint and index not in repeated:
                 # the ramp's reads were lost (a reply lost costs the timeout): back to the speed before, and again
                 repeated |= {index + 1, index + 2}
@@ -285,7 +256,53 @@ def run_programme(
         if started:
             raise C20SimError(f"{exc}; {_stop(master)}") from None
         raise
-    return reads
+    return polling.reads
+
+
+def _hold(master: Master, step: Step, polling: _Polling, progress: Callable[..., None] | None) -> int:
+    """Poll through ``step``'s hold (and, ``until_stopped``, until the drive reads stopped): the current and speed
+    every :data:`RAMP_PERIOD` while the speed ramps, :data:`POLL` in turn at the steady rate after. Returns the
+    current reads answered while the step ramped."""
+    last, period = polling.last, polling.period
+    in_ramp = 0
+    begin = master.clock.now()
+    end = begin + step.hold
+    k = 0
+    ramp_due = begin
+    while True:
+        now = master.clock.now()
+        if now >= end and not (step.until_stopped and last.get(Reg.STATUS1) != STATUS_STOPPED):
+            return in_ramp
+        if step.until_stopped and now >= end + step.hold + 10.0:
+            raise C20SimError("the drive did not stop within its ramp and 10 s more")
+        ramping = now < begin + step.ramp
+        due = begin + k * period
+        if ramping:
+            if ramp_due > now:
+                master.clock.sleep(ramp_due - now)
+            ramp_due = max(ramp_due, now) + RAMP_PERIOD
+            k = math.floor((now - begin) / period)  # the steady rate picks up where the ramp ends
+        elif due > now:
+            master.clock.sleep(due - now)
+        else:
+            k = max(k, math.floor((now - begin) / period))  # late: go on at the rate, no burst
+        k += 1
+        address = next(polling.ramp_poll) if ramping else next(polling.poll)
+        try:
+            last[address] = master.read(address)
+            polling.silent = 0
+        except DriveSilent:
+            polling.silent += 1
+            if polling.silent >= SILENCES_IN_A_ROW:
+                raise
+            continue
+        polling.reads += 1
+        in_ramp += ramping and address == Reg.OUTPUT_CURRENT
+        if address == Reg.FAULT_CODE and last[address]:
+            name = master.registers[Reg.FAULT_CODE].describe(last[address])
+            raise C20SimError(f"the drive tripped: fault {name} in step '{step.say}'")
+        if progress is not None:
+            progress(step, master.clock.now() - begin, step.hold, last)
 
 
 def simulated_capture(
