@@ -109,6 +109,7 @@ class Outcome:
     t: float
     ok: bool
     text: str
+    key: str = ""  #: the step kind whose act made it ("expect": an expectation a ``within`` step reads again)
 
 
 class Reading:

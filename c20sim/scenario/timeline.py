@@ -53,6 +53,7 @@ docs/scenario-format.md. Loading raises
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import tomllib
 from collections.abc import Mapping
@@ -239,13 +240,13 @@ def _acts(step: Step, sim: Simulator, address: int, t: float, *, after_writes: b
         if kind.act is None or kind.after_writes != after_writes or kind.key not in step.given or kind.act in done:
             continue
         done.append(kind.act)
-        out += kind.act(step, sim, address, t)
+        out += [o if o.key else dataclasses.replace(o, key=kind.key) for o in kind.act(step, sim, address, t)]
     return out
 
 
 def _settled(step: Step, outcomes: list[Outcome]) -> bool:
-    """True unless the step waits (``within``) and its expectations, the last outcomes, do not all hold yet."""
-    return step.within is None or all(o.ok for o in outcomes[len(outcomes) - len(step.expect) :])
+    """True unless the step waits (``within``) and its expectations do not all hold yet."""
+    return step.within is None or all(o.ok for o in outcomes if o.key == "expect")
 
 
 def _poll_times(step: Step, start: float) -> list[float]:
@@ -256,10 +257,10 @@ def _poll_times(step: Step, start: float) -> list[float]:
 
 
 def _recheck(step: Step, sim: Simulator, outcomes: list[Outcome], start: float) -> list[Outcome]:
-    """The step's outcomes with its expectations read again at the simulator's time."""
+    """The step's outcomes with its expectations read again at the simulator's time, each in its place."""
     address = _drive_of(step, sim)
-    fresh = expectations(step, sim, address, sim.now(), since=start)
-    return outcomes[: len(outcomes) - len(step.expect)] + fresh
+    fresh = iter(expectations(step, sim, address, sim.now(), since=start))
+    return [dataclasses.replace(next(fresh), key="expect") if o.key == "expect" else o for o in outcomes]
 
 
 def _written(
