@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from ..audit import RULES
 from ..control import liveaudit, ops
 from ..wire.protocol import ExceptionCode
-from .steps import Expect, Outcome, Reading, Step, StepKind
+from .steps import Expect, Outcome, Reading, Step, StepKind, missing_register
 
 if TYPE_CHECKING:
     from ..core.simulator import Simulator
@@ -162,6 +162,7 @@ CHECKS = (
         "what registers must read",
         expectations,
         after_writes=True,
+        against=lambda step, sim: missing_register(((e.register, e.address) for e in step.expect), sim),
     ),
     StepKind(
         "expect_exception",

@@ -18,7 +18,7 @@ from ..drill import INCIDENTS, read_plan
 from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
 from .stepchecks import CHECKS
-from .steps import Kinds, Outcome, Reading, Step, StepKind
+from .steps import Kinds, Outcome, Reading, Step, StepKind, missing_register
 
 if TYPE_CHECKING:
     from ..core.simulator import Simulator
@@ -188,6 +188,21 @@ async def _play_drill(step: Step, sim: Simulator) -> Outcome:
     return Outcome(step, t, bool(report["passed"]) and not report.get("ended_early"), text)
 
 
+# --- The checks against the simulator, before anything plays.
+
+
+def _drive_here(step: Step, sim: Simulator) -> str | None:
+    if step.drive is not None and step.drive not in sim.drives:
+        return f"no drive at address {step.drive}; drives: {', '.join(map(str, sim.drives))}"
+    return None
+
+
+def _cause_here(name: str | None, sim: Simulator) -> str | None:
+    if name is not None and name not in causes.cause_names(sim.profile):
+        return f"the profile {sim.profile.name} has no cause {name!r}"
+    return None
+
+
 # --- The schema fragments that are more than a line.
 
 
@@ -239,6 +254,7 @@ ACTIONS = (
         lambda: {"type": "integer", "minimum": 1, "maximum": 247, "description": "default: the first drive"},
         "address 1-247",
         "the drive the step acts on (default: the first)",
+        against=_drive_here,
     ),
     StepKind("note", _note, lambda: {"type": "string"}, "string", "shown in the report"),
     StepKind(
@@ -272,6 +288,7 @@ ACTIONS = (
         "`{ cause = NAME }`, `{ code = N, persistent = BOOL }` or `N`",
         "bring a fault's cause about, or latch a fault code",
         _bring_fault,
+        against=lambda step, sim: _cause_here(step.cause, sim),
     ),
     StepKind(
         "clear_fault",
@@ -280,6 +297,7 @@ ACTIONS = (
         "`true` or `{ cause = NAME }`",
         "end the cause (if given) and press fault reset",
         _end_fault,
+        against=lambda step, sim: _cause_here(step.release, sim),
     ),
     StepKind("power_cycle", _flag("power_cycle"), _boolean, "boolean", "switch the drive off and on", _power_cycle),
     StepKind(
@@ -292,6 +310,7 @@ ACTIONS = (
         },
         "table `REGISTER = raw`",
         "a master's single-register writes (0x06), in order",  # played by the player, as a master's frames
+        against=lambda step, sim: missing_register((w[:2] for w in step.write), sim),
     ),
     StepKind(
         "keypad",

@@ -17,13 +17,27 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from ..control import causes, ops
 from ..wire.errors import C20SimError
+from ..wire.registers import UnknownRegister, resolve_register
 
 if TYPE_CHECKING:
     from ..core.simulator import Simulator
 
 T = TypeVar("T")
 
-__all__ = ["Act", "Expect", "Kinds", "Outcome", "Parser", "Reading", "ScenarioError", "Served", "Step", "StepKind"]
+__all__ = [
+    "Act",
+    "Against",
+    "Expect",
+    "Kinds",
+    "Outcome",
+    "Parser",
+    "Reading",
+    "ScenarioError",
+    "Served",
+    "Step",
+    "StepKind",
+    "missing_register",
+]
 
 
 class ScenarioError(C20SimError):
@@ -162,6 +176,21 @@ Parser = Callable[[Any, Reading], Mapping[str, object]]
 Act = Callable[[Step, "Simulator", int, float], list[Outcome]]
 #: What a kind does on a served simulator, awaited after the step's writes and checks.
 Served = Callable[[Step, "Simulator"], Awaitable[Outcome]]
+#: A kind's check against the simulator it is to play on, before it plays: the problem in words, or None.
+Against = Callable[[Step, "Simulator"], str | None]
+
+
+def missing_register(items: Iterable[tuple[str, int]], sim: Simulator) -> str | None:
+    """The first (register as written, address) the simulator's profile lacks, in the register vocabulary's own
+    words with its did-you-mean (2100 is decimal: 2100H?); None if it has them all."""
+    registers = sim.profile.registers
+    for register, address in items:
+        if address not in registers:
+            try:
+                resolve_register(register, registers, f"the profile {sim.profile.name}")
+            except UnknownRegister as exc:
+                return str(exc)
+    return None
 
 
 @dataclass(frozen=True)
@@ -171,7 +200,8 @@ class StepKind:
     ``act`` runs when a step that gives the key is played: before the step's writes, or after them with
     ``after_writes`` (a check, whose outcomes are the step's); kinds that share one act run it once. ``served``
     is awaited only on a served simulator (``serve --scenario``); ``served_only`` is run-scenario's refusal of
-    a step that gives the key.
+    a step that gives the key. ``against`` checks the key against the simulator (its drives, registers and
+    causes) before anything plays.
     """
 
     key: str
@@ -184,6 +214,7 @@ class StepKind:
     served: Served | None = None
     served_only: str = ""
     required: bool = False
+    against: Against | None = None
 
     def line(self) -> str:
         """The kind's row in docs/scenario-format.md's step keys table."""

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TypeVar
 
-from ..control import causes, liveaudit, ops
+from ..control import liveaudit, ops
 from ..core.simulator import Simulator
 from ..drive.files import MAX_DEPTH, FileReadError, read_text, toml_depth, too_deep
 from ..wire.protocol import (
@@ -74,7 +74,7 @@ from ..wire.protocol import (
     decode_response,
     encode,
 )
-from ..wire.registers import Reg, UnknownRegister, resolve_register
+from ..wire.registers import Reg
 from .stepchecks import expectations
 from .stepkinds import parse_step, table
 from .steps import Expect, Outcome, ScenarioError, Step
@@ -199,32 +199,14 @@ class Report:
 
 
 def check(scenario: Scenario, sim: Simulator) -> None:
-    """Raise ScenarioError if a step names a drive or register the simulator lacks."""
-    registers = sim.profile.registers
-    names = causes.cause_names(sim.profile)
+    """Raise ScenarioError if a step names a drive, register or cause the simulator lacks (each step kind's
+    ``against``)."""
     for step in scenario.steps:
-        cause = step.fault.cause if step.fault is not None else None
-        for key, name in (("fault", cause), ("clear_fault", step.release)):
-            if name is not None and name not in names:
-                raise ScenarioError(
-                    scenario.path, f"{step.label}, key {key!r}", f"the profile {sim.profile.name} has no cause {name!r}"
-                )
-        if step.drive is not None and step.drive not in sim.drives:
-            raise ScenarioError(
-                scenario.path,
-                f"{step.label}, key 'drive'",
-                f"no drive at address {step.drive}; drives: {', '.join(map(str, sim.drives))}",
-            )
-        for key, items in (
-            ("write", [w[:2] for w in step.write]),
-            ("expect", [(e.register, e.address) for e in step.expect]),
-        ):
-            for register, address in items:
-                if address not in registers:
-                    try:  # the vocabulary's own words, with its did-you-mean (2100 is decimal: 2100H?)
-                        resolve_register(register, registers, f"the profile {sim.profile.name}")
-                    except UnknownRegister as exc:
-                        raise ScenarioError(scenario.path, f"{step.label}, key {key!r}", str(exc)) from None
+        for kind in table():
+            if kind.against is not None and kind.key in step.given:
+                problem = kind.against(step, sim)
+                if problem is not None:
+                    raise ScenarioError(scenario.path, f"{step.label}, key {kind.key!r}", problem)
 
 
 def _drive_of(step: Step, sim: Simulator) -> int:

@@ -116,3 +116,46 @@ def test_a_removed_step_kind_is_gone_everywhere() -> None:
     assert f"`{KEY}`" not in step_keys_docs(SCENARIO_DOCS.read_text(encoding="utf-8"))
     with pytest.raises(ValueError, match=r"^step kind 'at': declared twice$"):
         stepkinds.table().add(next(iter(stepkinds.table())))
+
+
+async def _ping(step: Step, sim: Simulator) -> Outcome:
+    return Outcome(step, sim.now(), True, f"ping {step.value('ping')}: answered on the served drive")
+
+
+PING = StepKind(
+    "ping",
+    lambda value, reading: {"ping": reading.checked("ping", lambda: ops.integer("ping", value, 1, 9))},
+    lambda: {"type": "integer", "minimum": 1, "maximum": 9},
+    "1-9",
+    "a test's throwaway step kind that plays only on a served drive",
+    served=_ping,
+    served_only="a ping needs a served drive: serve --scenario FILE",
+    against=lambda step, sim: None if len(sim.drives) == 1 else "a ping wants one drive on the bus",
+)
+
+
+@pytest.fixture
+def with_ping() -> Iterator[None]:
+    table = stepkinds.table()
+    table.add(PING)
+    try:
+        yield
+    finally:
+        table.remove("ping")
+
+
+async def test_a_new_served_step_kind_plays_only_on_a_served_drive(with_ping: None) -> None:
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.scenario.timeline import play
+
+    data = {"name": "ping", "step": [{"at": 0.0, "ping": 3}]}
+    with pytest.raises(ScenarioError) as refused:  # run-scenario: virtual time, no master
+        run(parse_scenario(data, "ping.toml"), Simulator(load_profile(), (1,), clock=VirtualClock()))
+    assert str(refused.value) == "ping.toml: step 1 (at 0 s): ping: a ping needs a served drive: serve --scenario FILE"
+    report = await play(parse_scenario(data, "ping.toml"), Simulator(load_profile(), (1,), clock=RealtimeClock()))
+    assert [(o.ok, o.text) for o in report.outcomes] == [(True, "ping 3: answered on the served drive")]
+    with pytest.raises(ScenarioError) as two:  # its check against the simulator, before anything plays
+        await play(parse_scenario(data, "ping.toml"), Simulator(load_profile(), (1, 2), clock=RealtimeClock()))
+    assert str(two.value) == "ping.toml: step 1 (at 0 s), key 'ping': a ping wants one drive on the bus"
+    with pytest.raises(ScenarioError, match=r"^ping\.toml: step 1 \(at 0 s\), key 'ping': ping: 12 is outside 1-9$"):
+        parse_scenario({"step": [{"at": 0.0, "ping": 12}]}, "ping.toml")
