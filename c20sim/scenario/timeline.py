@@ -38,13 +38,15 @@ an eventual state: the registers are read every :data:`POLL` seconds of
 model time until they all match, or fail after 2 s with the last value seen;
 time has then moved on, and a later step whose time has passed runs at once.
 
-Within a step the actions run in a fixed order: ``set``, ``link``,
-``clear_link``, ``fault``, ``clear_fault``, ``power_cycle``, ``write``,
-``keypad``, then ``expect`` (polled for ``within`` seconds). Expected values
-are raw register values, as a master reads them (3008H = 480 is 48.0 V).
-A step's keys are the rows of :mod:`.stepkinds` and :mod:`.stepchecks`; the format's reference is
-docs/scenario-format.md. Loading raises
-:class:`ScenarioError` naming the file, the step and the key, like a profile.
+Within a step the actions run in the order of the step kinds' table
+(:data:`c20sim.scenario.stepkinds.TABLE`): ``set``, ``link``, ``clear_link``,
+``fault``, ``clear_fault``, ``power_cycle``, then the ``write``s, then
+``keypad``, ``expect`` (polled for ``within`` seconds) and the audit's
+findings; a ``drill`` is awaited last. Expected values are raw register
+values, as a master reads them (3008H = 480 is 48.0 V). A step's keys are the
+rows of :mod:`.stepkinds` and :mod:`.stepchecks`; the format's reference is
+docs/scenario-format.md. Loading raises :class:`ScenarioError` naming the
+file, the step and the key, like a profile.
 
 :func:`run` plays a scenario in virtual time, instantly, and returns a
 :class:`Report`; :func:`play` follows a served simulator's clock.
