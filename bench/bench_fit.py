@@ -2,7 +2,7 @@
 
 The capture is the identification programme (speed steps, a load change, a
 stop) run on c20sim in virtual time by the same master ``c20sim exercise``
-uses (:func:`c20sim.traffic.exercise.simulated_capture`), with each hold long
+uses (:func:`c20sim.traffic.programme.simulated_capture`), with each hold long
 enough that the whole lasts an hour, on a drive the fit does not see (inertia,
 friction, Kt, supply resistance, turnaround, the thermal constants changed,
 read noise on). The fit
@@ -32,10 +32,10 @@ from c20sim.core.clock import VirtualClock  # noqa: E402
 from c20sim.core.simulator import Simulator  # noqa: E402
 from c20sim.drive.profile import Profile, load_profile  # noqa: E402
 from c20sim.traffic.capture import load_frame_log  # noqa: E402
-from c20sim.traffic.exercise import simulated_capture  # noqa: E402
 from c20sim.traffic.fit import fit, load_capture  # noqa: E402
 from c20sim.traffic.fitmodel import COMPARED, FitResult  # noqa: E402
 from c20sim.traffic.fitreport import summary, write_profile  # noqa: E402
+from c20sim.traffic.programme import simulated_capture  # noqa: E402
 from c20sim.traffic.replay import replay  # noqa: E402
 from c20sim.wire.registers import FIXED_REGISTERS, Reg  # noqa: E402
 

@@ -22,10 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..audit import RULES
-from ..control import causes, ops
-from ..control.schemas import conditions_schema, link_schema
-from ..drill import INCIDENTS
+from ..control import causes
 from ..drive.profile import (
     _FAULT_KEYS,
     _PARAM_KEYS,
@@ -43,7 +40,7 @@ from ..drive.profile import (
 from ..wire.errors import C20SimError
 from ..wire.registers import Access
 
-__all__ = ["KINDS", "add_schema_command", "build", "shipped", "shipped_path"]
+__all__ = ["KINDS", "add_schema_command", "build", "shipped", "shipped_path", "step_keys_docs"]
 
 DRAFT = "http://json-schema.org/draft-07/schema#"
 KINDS = ("profile", "scenario")
@@ -157,131 +154,11 @@ def profile_schema() -> dict[str, Any]:
 
 
 def scenario_schema() -> dict[str, Any]:
-    from .timeline import CAUSE_NAMES, STEP_KEYS, TOP_KEYS
+    """The scenario format: its top-level keys, and a step as the step kinds' rows make it (:mod:`.stepkinds`)."""
+    from .stepkinds import CAUSE_NAMES, table
+    from .timeline import TOP_KEYS
 
-    raw = {"type": "integer", "minimum": 0, "maximum": 65535}
-    cause = {"enum": list(CAUSE_NAMES)}
-    step: dict[str, Any] = {
-        "type": "object",
-        "properties": {
-            "at": {"type": "number", "minimum": 0, "description": "seconds from the start; steps in time order"},
-            "drive": {"type": "integer", "minimum": 1, "maximum": 247, "description": "default: the first drive"},
-            "note": {"type": "string"},
-            "set": {**conditions_schema(), "description": "conditions: a value, or a generator for a continuous one"},
-            "link": {**link_schema(), "description": "link faults of the step's drive"},
-            "clear_link": {"type": "boolean"},
-            "fault": {
-                "oneOf": [
-                    {
-                        "type": "object",
-                        "properties": {"cause": cause},
-                        "required": ["cause"],
-                        "additionalProperties": False,
-                    },
-                    {
-                        "type": "object",
-                        "properties": {
-                            "code": {"type": "integer", "minimum": 1, "maximum": 255},
-                            "persistent": {"type": "boolean"},
-                        },
-                        "required": ["code"],
-                        "additionalProperties": False,
-                    },
-                    {"type": "integer", "minimum": 1, "maximum": 255},
-                ],
-                "description": "a fault's cause brought about, or a fault code latched",
-            },
-            "clear_fault": {
-                "oneOf": [
-                    {"type": "boolean"},
-                    {
-                        "type": "object",
-                        "properties": {"cause": cause},
-                        "required": ["cause"],
-                        "additionalProperties": False,
-                    },
-                ]
-            },
-            "power_cycle": {"type": "boolean"},
-            "write": {
-                "type": "object",
-                "additionalProperties": raw,
-                "description": "registers a master writes (setpoint, 2001H, 0x2001, 8193, F00.10, status1 ...) = raw value",
-            },
-            "keypad": {"oneOf": [{"enum": list(ops.KEYS)}, {"type": "integer", "minimum": 1, "maximum": 8}]},
-            "expect_exception": {
-                "type": "integer",
-                "minimum": 1,
-                "maximum": 8,
-                "description": "every write of the step must be refused with this exception code",
-            },
-            "expect_silence": {
-                "type": "boolean",
-                "description": "the step's writes (or a read of 2100H) must get no reply",
-            },
-            "expect_findings": {
-                "type": "array",
-                "items": {"enum": list(RULES)},
-                "uniqueItems": True,
-                "description": "the audit's rules that must have found something by this step (docs/audit.md)",
-            },
-            "forbid_findings": {
-                "type": "array",
-                "items": {"enum": ["any", *RULES]},
-                "uniqueItems": True,
-                "description": 'rules that must have found nothing by this step; "any": no finding at all',
-            },
-            "drill": {
-                "description": "a drill on the master polling the served drive (docs/drill.md): an incident, or a "
-                'list of incidents by name or as tables ({ incident = "trip", hold = 1.0 })',
-                "oneOf": [
-                    {"enum": list(INCIDENTS)},
-                    {"type": "object", "required": ["incident"], "properties": {"incident": {"enum": list(INCIDENTS)}}},
-                    {
-                        "type": "array",
-                        "minItems": 1,
-                        "items": {
-                            "oneOf": [
-                                {"enum": list(INCIDENTS)},
-                                {
-                                    "type": "object",
-                                    "required": ["incident"],
-                                    "properties": {"incident": {"enum": list(INCIDENTS)}},
-                                },
-                            ]
-                        },
-                    },
-                ],
-            },
-            "within": {
-                "type": "number",
-                "exclusiveMinimum": 0,
-                "maximum": 3600,
-                "description": "seconds of model time the expectations may take to hold (polled every 10 ms)",
-            },
-            "expect": {
-                "type": "object",
-                "additionalProperties": {
-                    "oneOf": [
-                        {"type": "integer"},
-                        {
-                            "type": "object",
-                            "properties": {
-                                "value": {"type": "integer"},
-                                "tolerance": {"type": "integer", "minimum": 0},
-                            },
-                            "required": ["value"],
-                            "additionalProperties": False,
-                        },
-                    ]
-                },
-                "description": "raw values registers (speed, 3006H, motor_speed ...) must read, optionally within a tolerance",
-            },
-        },
-        "required": ["at"],
-        "additionalProperties": False,
-    }
-    assert set(step["properties"]) == set(STEP_KEYS)
+    step = table().schema()
     props: dict[str, Any] = {
         "name": {"type": "string"},
         "description": {"type": "string"},
@@ -347,7 +224,26 @@ def add_schema_command(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     parser.set_defaults(func=cmd_schema)
 
 
-if __name__ == "__main__":  # python -m c20sim.scenario.schema: write the shipped files
+#: The markers around docs/scenario-format.md's step keys table, which the step kinds' rows write.
+STEP_KEYS_BEGIN = "<!-- step keys: written from the step kinds' rows by python -m c20sim.scenario.schema -->\n"
+STEP_KEYS_END = "<!-- end of step keys -->\n"
+SCENARIO_DOCS = Path(__file__).resolve().parents[2] / "docs" / "scenario-format.md"
+
+
+def step_keys_docs(text: str) -> str:
+    """``text`` (docs/scenario-format.md) with its step keys table as the step kinds' rows make it now."""
+    from .stepkinds import table
+
+    head, begin, rest = text.partition(STEP_KEYS_BEGIN)
+    _, end, tail = rest.partition(STEP_KEYS_END)
+    if not begin or not end:
+        raise C20SimError(f"the scenario docs have no step keys table between {STEP_KEYS_BEGIN.strip()} and its end")
+    return head + begin + table().docs_table() + end + tail
+
+
+if __name__ == "__main__":  # python -m c20sim.scenario.schema: write the shipped files, and the docs' step keys
     SCHEMA_DIR.mkdir(exist_ok=True)
     for each in KINDS:
         shipped_path(each).write_text(render(each), encoding="utf-8")
+    if SCENARIO_DOCS.exists():  # in a checkout
+        SCENARIO_DOCS.write_text(step_keys_docs(SCENARIO_DOCS.read_text(encoding="utf-8")), encoding="utf-8")

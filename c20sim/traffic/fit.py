@@ -43,320 +43,51 @@ fitted too and reported, not written (it belongs to the bench, not the drive).
 from __future__ import annotations
 
 import argparse
-import bisect
-import dataclasses
-import functools
-import itertools
-import math
-import statistics
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from ..core.clock import VirtualClock
 from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
-from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
-from .fitcapture import Capture, Event, _consistency, _held_speeds, _load_records, _units, load_capture
+from ..wire.registers import BAUD_RATES, FIXED_REGISTERS
+from .fitcapture import Capture, _consistency, _load_records, load_capture
 from .fitlink import LINKS
-from .fitmodel import COMPARED, PARAMETERS, STATES, FitResult, Fitted, Parameter, given_settings, simulate, with_values
+from .fitmodel import FitResult, Fitted, given_settings, simulate, with_values
 from .fitreport import summary, write_profile, write_report
+from .fitsolve import Problem, compared_reads, solve, turnaround, unrevealed
 from .replay import replay
 
 __all__ = ["Capture", "FitResult", "Fitted", "add_fit_command", "fit", "load_capture", "write_profile"]
 
 
-#: second keeps its transients, the seconds after each change; what is dropped are reads of a steady drive).
-MAX_FIT_READS = 2500
-
-#: Seconds after a write or a load change whose reads are always kept when a long capture is thinned.
-TRANSIENT = 5.0
-
-#: A fitted value is kept when its standard uncertainty is below this fraction of it.
-IDENTIFIABLE = 0.25
-
-#: Current reads in speed ramps a fit needs before it fits the inertia.
-MIN_RAMP_READS = 3
-
-#: The temperature must move this much (K) over the capture for the thermal parameters to be fitted.
-THERMAL_RISE = 1.5
-
-
-# --- The fit.
-
-
-def _thin(reads: list[Event], limit: int, changes: Sequence[float]) -> list[Event]:
-    """At most ``limit`` of ``reads``: first those in the :data:`TRANSIENT` seconds after a change (a write, a
-    load mark: the ramps, where inertia shows), then the steady ones, evenly."""
-    if len(reads) <= limit:
-        return reads
-    moving: list[Event] = []
-    steady: list[Event] = []
-    i = 0
-    for read in reads:
-        while i + 1 < len(changes) and changes[i + 1] <= read.t:
-            i += 1
-        near = bool(changes) and changes[i] <= read.t < changes[i] + TRANSIENT
-        (moving if near else steady).append(read)
-    moving = _evenly(moving, max(limit * 3 // 4, limit - len(steady)))  # a long capture's holds keep a quarter
-    kept = {id(e) for e in moving} | {id(e) for e in _evenly(steady, limit - len(moving))}
-    return [e for e in reads if id(e) in kept]
-
-
-def _evenly(reads: list[Event], count: int) -> list[Event]:
-    if count <= 0:
-        return []
-    if len(reads) <= count:
-        return reads
-    stride = len(reads) / count
-    return [reads[int(i * stride)] for i in range(count)]
-
-
-def _current_reads_in_ramps(capture: Capture) -> int:
-    """Current reads (3004H) taken inside a speed ramp: after the write that set the speed going, with the speed
-    read before and after it still short of the speed asked (by 3 % of it, 50 rpm at least) and changing. A read
-    at a ramp's very end, where the current falls from the ramp's to the hold's within a step, is no inertia's."""
-    speed = capture.reads.get(Reg.MOTOR_SPEED, [])
-    times = [e.t for e in speed]
-    asked: list[tuple[float, float]] = []  #: (time, the speed the drive is to reach)
-    setpoint, running = 0.0, False
-    for event in capture.events:
-        if event.kind != "write":
-            continue
-        if event.address == Reg.SPEED_SETPOINT:
-            setpoint = float(event.value)
-        elif event.address == Reg.COMMAND:
-            running = event.value in (1, 2)
-        else:
-            continue
-        asked.append((event.t, setpoint if running else 0.0))
-    starts = [t for t, _ in asked]
-    count = 0
-    for read in capture.reads.get(Reg.OUTPUT_CURRENT, []):
-        i = bisect.bisect_right(starts, read.t) - 1
-        j = bisect.bisect_left(times, read.t)
-        if i < 0 or not 0 < j < len(speed) or speed[j - 1].t < starts[i]:
-            continue
-        target = asked[i][1]
-        before, after = speed[j - 1].value, speed[j].value
-        short = max(50.0, 0.03 * target)
-        if abs(target - before) > short and abs(target - after) > short and abs(after - before) > 30:
-            count += 1
-    return count
-
-
-def _sigma(address: int, capture: Capture) -> float:
-    """A compared quantity's read uncertainty: its resolution, and for the speed the spread of steady reads."""
-    resolution = COMPARED[address][2]
-    sigma = resolution / math.sqrt(12.0)
-    if address == Reg.MOTOR_SPEED:
-        values = [e.value for e in capture.reads.get(address, ()) if e.value]
-        steps = [abs(b - a) for a, b in itertools.pairwise(values) if abs(b - a) < 50]
-        if len(steps) > 10:
-            sigma = max(sigma, statistics.median(steps) / math.sqrt(2.0))
-    return sigma
-
-
-def _turnaround(capture: Capture) -> Fitted | None:
-    """protocol.turnaround_ms: what the capture's link leaves of each transaction's time (:mod:`.fitlink`)."""
-    if capture.turnaround is None:
-        return None
-    value, sigma, _ = capture.turnaround
-    param = Parameter("protocol", "turnaround_ms", "ms", "answered requests with their times")
-    return Fitted(param, 0.0, max(0.0, value * 1000.0), sigma * 1000.0, True, "")
-
-
-def fit(
-    capture: Capture,
-    base: Profile,
-    *,
-    progress: Callable[[str], None] | None = None,
-) -> FitResult:
-    """Fit the parameters the capture reveals; the rest stay as in ``base``."""
+def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | None = None) -> FitResult:
+    """Fit the parameters the capture reveals; the rest stay as in ``base``. The pipeline: the capture (read by
+    :func:`load_capture`, with its link model) -> the compared reads and what they can reveal -> the drive model
+    played along them -> the least squares -> the fitted profile and the report's figures."""
     try:
-        import numpy as np
-        from scipy.optimize import least_squares
+        import numpy  # noqa: F401 - the solve's
+        import scipy.optimize  # noqa: F401
     except ImportError:
         raise C20SimError(
             "c20sim fit needs scipy, which the simulator itself does not: pip install 'c20sim[fit]'"
         ) from None
-
     started = time.perf_counter()
-    say = progress or (lambda text: None)
-    notes: list[str] = []
-    changes = [e.t for e in capture.events if e.kind != "read"]
-    compared = {a: _thin(capture.reads[a], MAX_FIT_READS, changes) for a in COMPARED if a in capture.reads}
-    chosen = {id(e) for reads in compared.values() for e in reads}
-    events = [e for e in capture.events if e.kind != "read" or id(e) in chosen or e.address in STATES]
-    sigmas = {a: _sigma(a, capture) for a in compared}
-
-    running = any(e.value in (1, 2) for e in capture.reads.get(Reg.STATUS1, ())) or any(
-        e.value for e in capture.reads.get(Reg.MOTOR_SPEED, ())
-    )
-    temps = [_units(e) for e in capture.reads.get(Reg.TEMPERATURE, [])]
-    rise = (max(temps) - min(temps)) if temps else 0.0
-    speeds = _held_speeds(capture)
-    reasons: dict[str, str] = {}
-    if Reg.OUTPUT_VOLTAGE not in compared or not running:
-        reasons["motor.kt_nm_per_a"] = "no reads of the output voltage (3003H) while running"
-    if Reg.OUTPUT_CURRENT not in compared or not running:
-        for key in ("inertia_kg_m2", "friction_nm", "viscous_nm_per_krpm"):
-            reasons[f"motor.{key}"] = "no reads of the current (3004H) while running"
-    elif len(speeds) < 2:
-        reasons["motor.viscous_nm_per_krpm"] = "the capture holds one speed only: friction and viscous are one sum"
-    if Reg.BUS_VOLTAGE not in compared:
-        reasons["supply.voltage_v"] = reasons["supply.source_resistance_ohm"] = "no reads of the bus voltage (3008H)"
-    elif not capture.loads:
-        reasons["supply.source_resistance_ohm"] = (
-            "no load change in the capture: the bus sags too little to measure (exercise --load-change)"
-        )
-    if rise < THERMAL_RISE:
-        why = f"the temperature moved {rise:.1f} K only: a longer capture with a load is needed"
-        reasons["thermal.time_constant_s"] = reasons["thermal.resistance_k_per_w"] = why
-    in_ramps = _current_reads_in_ramps(capture)
-    if "motor.inertia_kg_m2" not in reasons and in_ramps < MIN_RAMP_READS:
-        reasons["motor.inertia_kg_m2"] = (
-            f"{in_ramps} current read(s) (3004H) fell in a speed ramp, and inertia shows only there: the programme "
-            f"must read the current while the speed changes (at least {MIN_RAMP_READS}; c20sim exercise times its "
-            "reads into the ramps: a higher --rate, or longer ramps, 2003H/2004H)"
-        )
-    start_values = {p.name: p.get(base) for p in PARAMETERS}
-    if temps:
-        base = with_values(base, {"thermal.ambient_c": temps[0]})  # the drive's temperature when the capture began
-    fit_load = capture.loads > 0
-    recorded = {a: np.array([_units(e) for e in reads]) for a, reads in compared.items()}
-    weights = {a: 1.0 / (sigmas[a] * math.sqrt(len(reads))) for a, reads in compared.items()}
-    # the robust loss's scale: three standard deviations of one read, in the weighted residuals' units
-    f_scale = 3.0 / math.sqrt(statistics.median(len(reads) for reads in compared.values()))
-    evaluations = [0]
-    load_scale = 0.25 * base.motor.kt_nm_per_a * base.motor.rated_current_a
-    count = sum(len(reads) for reads in compared.values())
-    rejected: dict[str, Fitted] = {}
-    before_values: dict[int, list[float]] | None = None
-    for _ in range(3):  # a parameter found too uncertain is fixed at its base, and the rest fitted again without it
-        free = [p for p in PARAMETERS if p.name not in reasons and p.name not in rejected]
-        names = [p.name for p in free]
-        # Each parameter moves as a multiple of its base value (1 = the base), within the profile format's range
-        # and a factor of 50 either way; a base value of 0 (no viscous friction) starts at 0 on a scale of its range.
-        x0: list[float] = []
-        scales: list[float] = []
-        lower: list[float] = []
-        upper: list[float] = []
-        for p in free:
-            low, high = p.bounds(base)
-            start = start_values[p.name]
-            if start > 0:
-                scale, low, high = start, max(low, start / 50.0), min(high, start * 50.0)
-            else:
-                scale = (high - low) / 1000.0 or 1.0
-            x0.append(start / scale)
-            scales.append(scale)
-            lower.append(low / scale)
-            upper.append(high / scale)
-        if fit_load:
-            x0.append(1.0)
-            lower.append(0.0)
-            upper.append(20.0)
-
-        def model(
-            x: Sequence[float], names: list[str] = names, scales: list[float] = scales
-        ) -> tuple[Profile, float, dict[int, list[float]], list[tuple[Event, int]]]:
-            values = {n: float(v) * s for n, v, s in zip(names, x, scales, strict=False)}
-            profile = with_values(base, values)
-            load = float(x[-1]) * load_scale if fit_load else 0.0
-            evaluations[0] += 1
-            got, states = simulate(profile, capture, events, load)
-            return profile, load, got, states
-
-        def residuals(x: Sequence[float], model: Callable[..., Any] = model) -> Any:
-            try:
-                _, _, got, _ = model(x)
-                parts = [(np.array(got[a]) - recorded[a]) * weights[a] for a in compared]
-                out = np.concatenate(parts)
-            except (ArithmeticError, ValueError):  # a trial value the model cannot run with (a NaN in its state)
-                out = np.full(count, np.nan)
-            return np.where(np.isfinite(out), out, 1e3)  # far from any fit: the least squares step back
-
-        if before_values is None:
-            say(
-                f"fitting {len(names)} parameter(s){' and the load' if fit_load else ''} to "
-                f"{sum(map(len, compared.values()))} reads"
-            )
-            _, _, before_values, _ = model(x0)
-        if x0:
-            # a robust loss: a read that is late, lost or an outlier weighs as one, and rejects no parameter
-            # first the squared loss, from the base (far from the drive, every read is "off": a robust loss there
-            # flattens the very differences that lead to it), then the robust loss from where that ended
-            solve = functools.partial(
-                least_squares, residuals, bounds=(lower, upper), method="trf", x_scale="jac", diff_step=1e-3
-            )
-            start = solve(x0, max_nfev=60).x
-            result = solve(start, max_nfev=40, loss="soft_l1", f_scale=f_scale)
-            if result.status == 0:
-                notes.append("the least squares stopped at their limit of model runs before they converged")
-            x, fun, jac = result.x, result.fun, result.jac
-        else:  # nothing to fit: the comparison and the turnaround only
-            x, fun, jac = np.array([]), residuals(x0), np.zeros((0, 0))
-        profile_x, load, after_values, states = model(x)
-        # Standard uncertainties from the Jacobian at the solution. Each quantity's residuals are weighted by
-        # 1 / (sigma sqrt(n)): its reads count as one read's worth of information, not n. Averaging many reads does
-        # not take away the rounding of a steady value (a bus that sits at 47.43 V reads 47.4 every time), so the
-        # honest uncertainty is what one read at the register's resolution allows, times the misfit where worse.
-        # The misfit as the robust loss weighs it (scipy's jac is the loss's too): a read far off (late, an
-        # outlier) counts as one read 3 sigma off, not as its square, and cannot make every parameter too uncertain.
-        robust = f_scale**2 * 2.0 * (np.sqrt(1.0 + (np.asarray(fun) / f_scale) ** 2) - 1.0)  # soft_l1's rho
-        spread = max(1.0, float(np.sum(robust)) / max(1, len(compared)))
-        try:
-            covariance = np.linalg.pinv(jac.T @ jac) * spread if len(x) else np.zeros((0, 0))
-            sigma_x = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-        except np.linalg.LinAlgError:
-            sigma_x = np.full(len(x), np.inf)
-        found: dict[str, Fitted] = {}
-        for i, parameter in enumerate(free):
-            base_value = start_values[parameter.name]
-            value, sigma = float(x[i]) * scales[i], float(sigma_x[i]) * scales[i]
-            column = float(np.abs(jac[:, i]).max()) if jac.size else 0.0
-            if column == 0.0:
-                why = "nothing in the capture moves it"
-                found[parameter.name] = Fitted(parameter, base_value, base_value, math.inf, False, why)
-            elif not sigma < IDENTIFIABLE * abs(value):
-                why = f"fitted {value:.4g} +-{sigma:.2g}: too uncertain; it needs {parameter.needs}"
-                found[parameter.name] = Fitted(parameter, base_value, base_value, sigma, False, why)
-            else:
-                found[parameter.name] = Fitted(parameter, base_value, value, sigma, True)
-        dropped = {name: f for name, f in found.items() if not f.identified}
-        if not dropped:
-            break
-        rejected |= dropped
-    fitted: list[Fitted] = []
-    for parameter in PARAMETERS:
-        base_value = start_values[parameter.name]
-        if parameter.name in reasons:
-            fitted.append(Fitted(parameter, base_value, base_value, math.inf, False, reasons[parameter.name]))
-        else:
-            fitted.append(found.get(parameter.name) or rejected[parameter.name])
-    assert before_values is not None
-    load_fit = (load, float(sigma_x[-1]) * load_scale) if fit_load else None
-    # the fitted profile holds only the identified values; it is what "after" shows
-    final = with_values(base, {f.parameter.name: f.value for f in fitted if f.identified})
-    turnaround = _turnaround(capture)
-    if turnaround is not None:
-        turnaround = dataclasses.replace(turnaround, base=base.protocol.turnaround_ms)
-        final = with_values(final, {"protocol.turnaround_ms": turnaround.value})
-    if final != profile_x:
-        after_values, states = simulate(final, capture, events, load)
-        evaluations[0] += 1
-    differ = sum(1 for event, value in states if value != event.value)
-
-    def series(values: dict[int, list[float]]) -> dict[int, tuple[list[float], list[float], list[float]]]:
-        return {
-            a: ([e.t for e in compared[a]], [float(v) for v in recorded[a]], [float(v) for v in values[a]])
-            for a in compared
-        }
-
+    compared, events = compared_reads(capture)
+    problem = Problem.of(capture, base, compared, events)
+    solution = solve(problem, unrevealed(capture, compared), progress or (lambda text: None))
+    # the fitted profile holds only the identified values and the link's turnaround; it is what "after" shows
+    final = with_values(problem.base, {f.parameter.name: f.value for f in solution.fitted if f.identified})
+    found = turnaround(capture, problem.base)
+    if found is not None:
+        final = with_values(final, {"protocol.turnaround_ms": found.value})
+    after, states = solution.after, solution.states
+    if final != solution.profile:
+        after, states = simulate(final, capture, events, solution.load)
+        problem.evaluations += 1
+    notes = solution.notes
     if capture.settings:
         words = ", ".join(
             f"{FIXED_REGISTERS[a].name} {FIXED_REGISTERS[a].describe(v)}" for a, v in sorted(capture.settings.items())
@@ -365,15 +96,15 @@ def fit(
     notes += _consistency(capture)
     return FitResult(
         capture,
-        base,
-        fitted,
-        turnaround,
-        load_fit,
-        series(before_values),
-        series(after_values),
-        differ,
+        problem.base,
+        solution.fitted,
+        found,
+        solution.load_fit,
+        problem.series(solution.before),
+        problem.series(after),
+        sum(1 for event, value in states if value != event.value),
         len(states),
-        evaluations[0],
+        problem.evaluations,
         time.perf_counter() - started,
         notes,
         final,

@@ -14,6 +14,8 @@ from ..wire.protocol import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
+    Request,
+    Response,
     WriteMultipleRequest,
     WriteSingleRequest,
     crc_ok,
@@ -22,9 +24,9 @@ from ..wire.protocol import (
 )
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .capture import LogRecord, _read_text, parse_log
-from .exercise import LOAD_OFF, LOAD_ON
 from .fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link, format_bits, turnaround_of
-from .replay import exchanges
+from .programme import LOAD_OFF, LOAD_ON
+from .replay import Exchange, exchanges
 
 #: Registers whose reads are physical quantities or the drive's state: what a fit compares.
 PHYSICAL = frozenset(range(0x3000, 0x3012)) | {Reg.STATUS1, Reg.STATUS2, Reg.FAULT_CODE}
@@ -122,8 +124,47 @@ def load_capture(
     if not any(r.direction == "rx" for r in records):
         raise C20SimError(f"{path}: no frame from the master (dir rx): not a capture of a master and a drive")
     found, _ = exchanges(records)
-    registers = profile.registers
+    answered = _answered(found, profile, path)
+    if address is None:
+        address = max(answered, key=lambda a: answered[a]) if answered else 1
+    header = _header(records, path)
+    port, line_baud, bits = header if header is not None else ("", _profile_baud(profile), SHEET_CHAR_BITS)
+    line_baud = baud or line_baud
+    timings = _timings(records, address)
+    if link is not None:
+        model, why = LINKS[link], "as --link says"
+    else:
+        candidates = PORT_LINKS[port] if port else tuple(LINKS)
+        model, why = choose_link(timings, candidates, line_baud, bits, path)
+    turnaround = turnaround_of(timings, model, line_baud, bits) if len(timings) >= 5 else None
+    net = turnaround[0] if turnaround is not None else 0.0
+    replies = {id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx"}
+    capture = Capture(path, address, [], {}, timings, 0, {}, 0.0, model, why, line_baud, bits, turnaround)
     t0 = found[0].record.t
+    for exchange in found:
+        record = exchange.record
+        t = record.t - t0
+        reply_t = replies.get(id(record))
+        if reply_t is not None and exchange.reply:
+            # the drive took the request when the link had carried it: its record's time, and what the
+            # transaction took beyond the link's arithmetic and the turnaround (a queue behind other masters, a
+            # transaction held up); the link's own part is the same for every request, and left out
+            fixed = model.fixed(len(record.data), len(exchange.reply), line_baud, bits)
+            t += max(0.0, reply_t - record.t - fixed - net)
+        _add_exchange(capture, exchange, t, record.t - t0)
+    if not capture.reads:
+        raise C20SimError(
+            f"{path}: no answered reads of physical quantities (3000H-3011H, 2100H-2102H) from drive {address}: "
+            "nothing to fit; make a capture with: c20sim exercise PORT --out FILE"
+        )
+    capture.events.sort(key=lambda e: e.t)  # stable: a request's reads stay in their order
+    capture.duration = capture.events[-1].t if capture.events else 0.0
+    return capture
+
+
+def _answered(found: list[Exchange], profile: Profile, path: str) -> dict[int, int]:
+    """The requests answered, by drive; C20SimError if most requests are nothing a C20 answers."""
+    registers = profile.registers
     answered: dict[int, int] = {}
     foreign: list[str] = []
     requests = 0
@@ -149,97 +190,71 @@ def load_capture(
             f"{path}: not a C20's traffic: {len(foreign)} of {requests} requests are nothing a C20 answers "
             f"(first: {foreign[0]}); is it another device's log?"
         )
-    if address is None:
-        address = max(answered, key=lambda a: answered[a]) if answered else 1
-    header = _header(records, path)
-    port, line_baud, bits = header if header is not None else ("", _profile_baud(profile), SHEET_CHAR_BITS)
-    line_baud = baud or line_baud
-    timings = _timings(records, address)
-    if link is not None:
-        model, why = LINKS[link], "as --link says"
-    else:
-        candidates = PORT_LINKS[port] if port else tuple(LINKS)
-        model, why = choose_link(timings, candidates, line_baud, bits, path)
-    turnaround = turnaround_of(timings, model, line_baud, bits) if len(timings) >= 5 else None
-    net = turnaround[0] if turnaround is not None else 0.0
-    replies = {id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx"}
-    events: list[Event] = []
-    reads: dict[int, list[Event]] = {}
-    settings: dict[int, int] = {}
-    loads = 0
-    for exchange in found:
-        record = exchange.record
-        t = record.t - t0
-        if not record.data:
-            if record.kind == "mark" and record.note in (LOAD_ON, LOAD_OFF):
-                events.append(Event(t, "load", value=int(record.note == LOAD_ON), line=record.line))
-                loads += record.note == LOAD_ON
-            continue
-        try:
-            request = decode_request(record.data)
-        except ValueError:
-            continue
-        if request.slave == address and not exchange.reply and isinstance(request, WriteSingleRequest):
-            # its reply was lost, not always its request: the drive most likely took it (a master asks again with
-            # the same value, which changes nothing); the baud is refused below, when answered
-            if request.register != Reg.BAUD:
-                events.append(Event(t, "write", request.register, request.value, record.line))
-            continue
-        if request.slave != address or not exchange.reply or not crc_ok(exchange.reply):
-            continue
-        try:
-            response = decode_response(exchange.reply)
-        except ValueError:
-            continue
-        if isinstance(response, ExceptionResponse):
-            continue
-        reply_t = replies.get(id(record))
-        if reply_t is not None:
-            # the drive took the request when the link had carried it: its record's time, and what the
-            # transaction took beyond the link's arithmetic and the turnaround (a queue behind other masters, a
-            # transaction held up); the link's own part is the same for every request, and left out
-            fixed = model.fixed(len(record.data), len(exchange.reply), line_baud, bits)
-            t += max(0.0, reply_t - record.t - fixed - net)
-        if isinstance(request, WriteSingleRequest):
-            if request.register == Reg.BAUD:
-                baud = BAUD_RATES[request.value] if request.value < len(BAUD_RATES) else request.value
+    return answered
+
+
+def _add_exchange(capture: Capture, exchange: Exchange, t: float, sent: float) -> None:
+    """What one exchange adds to the capture's events: a load mark, the drive's writes, its reads. ``t``: when
+    the drive took the request; ``sent``: when the master sent it (a mark's and an unanswered write's time)."""
+    record = exchange.record
+    if not record.data:
+        if record.kind == "mark" and record.note in (LOAD_ON, LOAD_OFF):
+            capture.events.append(Event(sent, "load", value=int(record.note == LOAD_ON), line=record.line))
+            capture.loads += record.note == LOAD_ON
+        return
+    try:
+        request = decode_request(record.data)
+    except ValueError:
+        return
+    if request.slave == capture.address and not exchange.reply and isinstance(request, WriteSingleRequest):
+        # its reply was lost, not always its request: the drive most likely took it (a master asks again with
+        # the same value, which changes nothing); the baud is refused below, when answered
+        if request.register != Reg.BAUD:
+            capture.events.append(Event(sent, "write", request.register, request.value, record.line))
+        return
+    if request.slave != capture.address or not exchange.reply or not crc_ok(exchange.reply):
+        return
+    try:
+        response = decode_response(exchange.reply)
+    except ValueError:
+        return
+    if not isinstance(response, ExceptionResponse):
+        _add_answered(capture, request, response, t, record.line)
+
+
+def _add_answered(capture: Capture, request: Request, response: Response, t: float, line: int) -> None:
+    """An answered request's writes and reads; a baud change or another device's ID refuses the capture."""
+    path = capture.path
+    if isinstance(request, WriteSingleRequest):
+        if request.register == Reg.BAUD:
+            baud = BAUD_RATES[request.value] if request.value < len(BAUD_RATES) else request.value
+            raise C20SimError(
+                f"{path}: line {line}: the master changes the baud (2009H = {baud} baud) mid-capture; "
+                "a fit needs one baud all through: record again without the change"
+            )
+        capture.events.append(Event(t, "write", request.register, request.value, line))
+    elif isinstance(request, WriteMultipleRequest):
+        if request.start <= Reg.BAUD < request.start + len(request.values):
+            raise C20SimError(
+                f"{path}: line {line}: the master changes the baud (2009H) mid-capture; "
+                "a fit needs one baud all through: record again without the change"
+            )
+        for offset, value in enumerate(request.values):
+            capture.events.append(Event(t, "write", request.start + offset, value, line))
+    elif isinstance(request, ReadRequest) and isinstance(response, ReadResponse):
+        for offset, value in enumerate(response.values):
+            where = request.start + offset
+            if where == Reg.DRIVE_ID and value != face.DRIVE_ID:
                 raise C20SimError(
-                    f"{path}: line {record.line}: the master changes the baud (2009H = {baud} baud) mid-capture; "
-                    "a fit needs one baud all through: record again without the change"
+                    f"{path}: line {line}: the drive ID (2103H) reads 0x{value:04X}, a C20 reads "
+                    f"0x{face.DRIVE_ID:04X}: another device's log"
                 )
-            events.append(Event(t, "write", request.register, request.value, record.line))
-        elif isinstance(request, WriteMultipleRequest):
-            if request.start <= Reg.BAUD < request.start + len(request.values):
-                raise C20SimError(
-                    f"{path}: line {record.line}: the master changes the baud (2009H) mid-capture; "
-                    "a fit needs one baud all through: record again without the change"
-                )
-            for offset, value in enumerate(request.values):
-                events.append(Event(t, "write", request.start + offset, value, record.line))
-        elif isinstance(request, ReadRequest) and isinstance(response, ReadResponse):
-            for offset, value in enumerate(response.values):
-                where = request.start + offset
-                if where == Reg.DRIVE_ID and value != face.DRIVE_ID:
-                    raise C20SimError(
-                        f"{path}: line {record.line}: the drive ID (2103H) reads 0x{value:04X}, a C20 reads "
-                        f"0x{face.DRIVE_ID:04X}: another device's log"
-                    )
-                if where in PHYSICAL:
-                    event = Event(t, "read", where, value, record.line)
-                    events.append(event)
-                    reads.setdefault(where, []).append(event)
-                elif where in (Reg.POLE_PAIRS, Reg.ACCEL_TIME, Reg.DECEL_TIME):
-                    settings.setdefault(where, value)
-    if not reads:
-        raise C20SimError(
-            f"{path}: no answered reads of physical quantities (3000H-3011H, 2100H-2102H) from drive {address}: "
-            "nothing to fit; make a capture with: c20sim exercise PORT --out FILE"
-        )
-    events.sort(key=lambda e: e.t)  # stable: a request's reads stay in their order
-    duration = events[-1].t if events else 0.0
-    return Capture(
-        path, address, events, reads, timings, loads, settings, duration, model, why, line_baud, bits, turnaround
-    )
+            if where in PHYSICAL:
+                event = Event(t, "read", where, value, line)
+                capture.events.append(event)
+                capture.reads.setdefault(where, []).append(event)
+            elif where in (Reg.POLE_PAIRS, Reg.ACCEL_TIME, Reg.DECEL_TIME):
+                capture.settings.setdefault(where, value)
 
 
 def _profile_baud(profile: Profile) -> int:

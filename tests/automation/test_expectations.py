@@ -89,6 +89,18 @@ def test_within_fails_with_the_last_value_seen() -> None:
     )
 
 
+def test_within_waits_for_its_expectations_beside_the_audits_findings() -> None:
+    """The audit's outcomes come after the expectations': the wait reads the expectations again, not the last
+    outcomes, and keeps the audit's (it once took the audit's for an expectation, stopped at once, and dropped it)."""
+    outcomes = play(
+        START, {"at": 0.1, "within": 2.0, "expect": {"motor_speed": 1500}, "forbid_findings": ["eeprom-wear"]}
+    )
+    assert outcomes[2:] == [
+        (2, True, "3006H (motor speed) = 1500 (1500 rpm), expected 1500 (after 0.19 s)"),
+        (2, True, "audit: no eeprom-wear finding"),
+    ]
+
+
 def test_a_later_step_whose_time_has_passed_runs_when_the_wait_ends() -> None:
     sim = Simulator(load_profile())
     scenario = parse_scenario(

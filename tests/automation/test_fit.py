@@ -13,8 +13,8 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
 from c20sim.traffic.capture import load_frame_log
-from c20sim.traffic.exercise import simulated_capture
 from c20sim.traffic.fit import fit, given_settings, load_capture, write_profile
+from c20sim.traffic.programme import simulated_capture
 from c20sim.traffic.replay import replay
 from c20sim.wire.protocol import (
     ReadRequest,
@@ -256,7 +256,7 @@ def test_the_capture_is_the_frame_log_replay_reads(capture_file: Path) -> None:
 
 
 def test_pole_pairs_and_hall_codes_that_do_not_add_up() -> None:
-    from c20sim.traffic.fit import Capture, Event, _consistency
+    from c20sim.traffic.fitcapture import Capture, Event, _consistency
 
     frequency = [Event(t, "read", Reg.OUTPUT_FREQUENCY, 10000) for t in (1.0, 2.0, 3.0)]  # 100 Hz at 1500 rpm: 4
     speed = [Event(t - 0.1, "read", Reg.MOTOR_SPEED, 1500) for t in (1.0, 2.0, 3.0)]
@@ -402,9 +402,9 @@ def test_no_current_read_in_a_ramp_leaves_inertia_named_and_unwritten(
 ) -> None:
     """The independent check's case: no current read fell in a speed ramp. Inertia is named with what the
     programme must add and kept at its base; it is never written with a tight uncertainty."""
-    from c20sim.traffic import exercise
+    from c20sim.traffic import programme
 
-    monkeypatch.setattr(exercise, "RAMP_POLL", (Reg.MOTOR_SPEED, Reg.BUS_VOLTAGE))  # a master that reads no current
+    monkeypatch.setattr(programme, "RAMP_POLL", (Reg.MOTOR_SPEED, Reg.BUS_VOLTAGE))  # a master that reads no current
     path = _bench_capture(tmp_path / "noramp.jsonl", drop_percent=5.0)
     base = load_profile()
     result = fit(load_capture(str(path), base), base)

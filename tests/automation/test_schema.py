@@ -15,7 +15,7 @@ import jsonschema
 import pytest
 
 from c20sim.drive.profile import parse_profile
-from c20sim.scenario.schema import KINDS, build, render, shipped, shipped_path
+from c20sim.scenario.schema import KINDS, SCENARIO_DOCS, build, render, shipped, shipped_path, step_keys_docs
 from c20sim.scenario.timeline import parse_scenario
 from c20sim.wire.errors import C20SimError
 
@@ -185,6 +185,11 @@ def test_the_scenario_page_names_every_key_condition_and_link_fault() -> None:
     keys = set(schema["properties"]) | set(step) | set(step["set"]["properties"]) | set(step["link"]["properties"])
     missing = sorted(k for k in keys if f"`{k}`" not in text and f"[[{k}]]" not in text)
     assert missing == []
+
+
+def test_the_step_keys_table_is_the_step_kinds_rows() -> None:
+    text = SCENARIO_DOCS.read_text(encoding="utf-8")
+    assert step_keys_docs(text) == text, f"{SCENARIO_DOCS}'s step keys are stale: run python -m c20sim.scenario.schema"
 
 
 def test_the_api_page_names_every_route() -> None:

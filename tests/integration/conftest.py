@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import shutil
+import signal
 import struct
-from collections.abc import AsyncIterator, Awaitable, Callable
+import subprocess
+import sys
+import urllib.request
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 from pymodbus import FramerType
@@ -127,3 +133,51 @@ def need(tool: str) -> str:
     if path is None:
         pytest.skip(f"{tool} is not installed (apt-get install {tool}); .ci/run installs it")
     return path
+
+
+# --- c20sim as a user runs it: a command in a child process.
+
+
+def c20sim_command(*args: str) -> list[str]:
+    """The command line of ``c20sim ARGS`` with this interpreter."""
+    return [sys.executable, "-m", "c20sim", *args]
+
+
+def c20sim_run(*args: str, cwd: Path, timeout: float = 30) -> subprocess.CompletedProcess[str]:
+    """``c20sim ARGS`` run to its end in ``cwd``, its output captured."""
+    return subprocess.run(c20sim_command(*args), capture_output=True, text=True, timeout=timeout, check=False, cwd=cwd)
+
+
+def one_line(done: subprocess.CompletedProcess[str], code: int = 2) -> str:
+    """The one line a refused command says on stderr (exit ``code``, 2 for a bad input), with no traceback."""
+    assert done.returncode == code, (done.returncode, done.stderr)
+    assert "Traceback" not in done.stderr, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    return lines[0]
+
+
+@pytest.fixture
+def procs() -> Iterator[list[subprocess.Popen[str]]]:
+    """The child processes a test starts: killed (if still running) and waited for after it."""
+    started: list[subprocess.Popen[str]] = []
+    yield started
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+
+
+def stop(proc: subprocess.Popen[str]) -> tuple[str, str]:
+    """SIGTERM, as a service manager stops it: it must exit 0; its stdout and stderr."""
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    return out, err
+
+
+def get(url: str) -> dict[str, object]:
+    """A GET of the control API, as JSON."""
+    with urllib.request.urlopen(url, timeout=10) as response:
+        data: dict[str, object] = json.load(response)
+    return data

@@ -7,26 +7,12 @@ to integer``). Then inputs that used to end in a traceback and exit 1.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from c20sim.drive.profile import profile_path
-
-
-def c20sim(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    command = [sys.executable, "-m", "c20sim", *args]
-    return subprocess.run(command, capture_output=True, text=True, timeout=30, check=False, cwd=cwd)
-
-
-def one_line(done: subprocess.CompletedProcess[str]) -> str:
-    assert done.returncode == 2, (done.returncode, done.stderr)
-    assert "Traceback" not in done.stderr, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1, done.stderr
-    return lines[0]
+from tests.integration.conftest import c20sim_run, one_line
 
 
 @pytest.fixture
@@ -75,4 +61,4 @@ def files(tmp_path: Path) -> Path:
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(files: Path, args: list[str], expected: str) -> None:
-    assert one_line(c20sim(*args, cwd=files)).startswith(expected)
+    assert one_line(c20sim_run(*args, cwd=files)).startswith(expected)

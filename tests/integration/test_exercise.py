@@ -6,7 +6,6 @@ import asyncio
 import json
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,15 +16,11 @@ from pymodbus.client import ModbusSerialClient
 
 from c20sim.cli import main
 from c20sim.traffic.capture import load_frame_log
-from c20sim.traffic.exercise import POLL
+from c20sim.traffic.programme import POLL
 from c20sim.wire.protocol import ExceptionCode, WriteSingleRequest, decode_request, encode
 from c20sim.wire.registers import Reg
 from tests.conftest import wait_for_ready_file
-from tests.integration.conftest import ServeFactory
-
-
-def c20sim(*args: str) -> list[str]:
-    return [sys.executable, "-m", "c20sim", *args]
+from tests.integration.conftest import ServeFactory, c20sim_command
 
 
 @pytest.fixture
@@ -33,7 +28,7 @@ def served(tmp_path: Path) -> Iterator[dict[str, str]]:
     """``c20sim serve`` in real time on a pty, RTU over TCP and Modbus TCP."""
     ready = tmp_path / "ready.json"
     args = ("--pty", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0", "--ready-file", str(ready))
-    proc = subprocess.Popen(c20sim("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(c20sim_command("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         yield wait_for_ready_file(ready, proc)
     finally:
@@ -42,7 +37,7 @@ def served(tmp_path: Path) -> Iterator[dict[str, str]]:
 
 
 def exercise(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(c20sim("exercise", *args), capture_output=True, text=True, timeout=60, check=False)
+    return subprocess.run(c20sim_command("exercise", *args), capture_output=True, text=True, timeout=60, check=False)
 
 
 def test_read_and_write_by_name_in_units_on_every_transport(served: dict[str, str]) -> None:
@@ -135,7 +130,10 @@ def test_the_programme_makes_a_capture_fit_accepts(served: dict[str, str], tmp_p
         first_two = [start for i, start in reads if i > step][:2]
         assert sorted(first_two) == [0x3004, 0x3006], first_two
     fitted = subprocess.run(
-        c20sim("fit", str(out), "--out", str(tmp_path / "mydrive.toml")), capture_output=True, text=True, check=False
+        c20sim_command("fit", str(out), "--out", str(tmp_path / "mydrive.toml")),
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert fitted.returncode == 0, fitted.stderr
     assert "motor.kt_nm_per_a" in fitted.stdout and (tmp_path / "mydrive.toml").exists()
@@ -205,7 +203,7 @@ def test_ctrl_c_stops_the_drive_first(served: dict[str, str], tmp_path: Path) ->
     out = tmp_path / "capture.jsonl"
     args = ("--out", str(out), "--hold", "30", "--rate", "20")
     proc = subprocess.Popen(
-        c20sim("exercise", served["pty"], *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        c20sim_command("exercise", served["pty"], *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     run = encode(WriteSingleRequest(1, 0x2000, 1)).hex(" ").upper()
     deadline = time.monotonic() + 20
@@ -235,14 +233,14 @@ def test_ctrl_c_stops_the_drive_first(served: dict[str, str], tmp_path: Path) ->
 def test_the_load_change_is_asked_for_and_marked(served: dict[str, str], tmp_path: Path) -> None:
     out = tmp_path / "capture.jsonl"
     args = (served["pty"], "--out", str(out), "--hold", "0.3", "--rate", "20", "--speeds", "1500", "--load-change")
-    result = subprocess.run(c20sim("exercise", *args), input="\n\n", capture_output=True, text=True, timeout=60)
+    result = subprocess.run(c20sim_command("exercise", *args), input="\n\n", capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert "apply the load now, then press Enter (Ctrl-C stops the drive)" in result.stdout
     assert "take the load off now, then press Enter" in result.stdout
     marks = [r for r in load_frame_log(str(out)) if r.kind == "mark"]
     assert [(m.note, m.data) for m in marks] == [("load-on", b""), ("load-off", b"")]
     # nobody answers (stdin closed): the drive is stopped, and the programme says why
-    result = subprocess.run(c20sim("exercise", *args), input="", capture_output=True, text=True, timeout=60)
+    result = subprocess.run(c20sim_command("exercise", *args), input="", capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stderr == (
         "c20sim: no answer to 'apply the load now' (stdin closed); the drive was told to stop (2000H = 5)\n"

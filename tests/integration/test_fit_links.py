@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,16 +16,13 @@ from c20sim.traffic.fit import fit, load_capture
 from c20sim.traffic.fitreport import summary
 from c20sim.wire.errors import C20SimError
 from tests.conftest import wait_for_ready_file
+from tests.integration.conftest import c20sim_command
 
 pytestmark = pytest.mark.serial  # a turnaround fitted from real-time captures: .ci/run runs it alone
 
 TURNAROUND_MS = 3.2  # the shipped profile says 2.0
 #: the drive's physics, changed from the shipped (0.127, 0.0003, 0.02): what fit must find on every link
 PHYSICS = {"motor.kt_nm_per_a": 0.140, "motor.inertia_kg_m2": 4.5e-4, "motor.friction_nm": 0.030}
-
-
-def c20sim(*args: str) -> list[str]:
-    return [sys.executable, "-m", "c20sim", *args]
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +42,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
     ready = folder / "ready.json"
     args = ("--pty", "--line-timing", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0", "--no-audit")
     proc = subprocess.Popen(
-        c20sim("serve", *args, "--profile", str(truth), "--ready-file", str(ready)),
+        c20sim_command("serve", *args, "--profile", str(truth), "--ready-file", str(ready)),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -71,7 +67,7 @@ def test_the_turnaround_comes_back_on_each_link(
 ) -> None:
     out = tmp_path / "capture.jsonl"
     done = subprocess.run(
-        c20sim(
+        c20sim_command(
             "exercise",
             scheme + served[port],
             "--out",

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import socket
 import subprocess
-import sys
 import urllib.request
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -25,41 +22,18 @@ from pymodbus.exceptions import ModbusException
 
 from c20sim.wire.protocol import WriteSingleRequest, encode
 from tests.conftest import wait_for_ready_file
-
-
-def c20sim(*args: str) -> list[str]:
-    return [sys.executable, "-m", "c20sim", *args]
-
-
-@pytest.fixture
-def procs() -> Iterator[list[subprocess.Popen[str]]]:
-    started: list[subprocess.Popen[str]] = []
-    yield started
-    for proc in started:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
+from tests.integration.conftest import c20sim_command, get, stop
 
 
 def serve(procs: list[subprocess.Popen[str]], ready: Path, *args: str) -> tuple[subprocess.Popen[str], dict[str, str]]:
     proc = subprocess.Popen(
-        c20sim("serve", *args, "--ready-file", str(ready)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        c20sim_command("serve", *args, "--ready-file", str(ready)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     procs.append(proc)
     return proc, wait_for_ready_file(ready, proc)
-
-
-def stop(proc: subprocess.Popen[str]) -> tuple[str, str]:
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=20)
-    assert proc.returncode == 0, err
-    return out, err
-
-
-def get(url: str) -> dict[str, object]:
-    with urllib.request.urlopen(url, timeout=10) as response:
-        data: dict[str, object] = json.load(response)
-    return data
 
 
 def test_an_rtu_master_at_the_modbus_tcp_port_is_told_where_rtu_over_tcp_is(
@@ -137,14 +111,16 @@ def test_exercise_at_an_address_where_no_drive_answers_blames_the_address_and_li
     _, info = serve(procs, tmp_path / "ready.json", "--tcp", "127.0.0.1:0", "--modbus-tcp", "127.0.0.1:0")
     where = f"{scheme}://{info['tcp' if scheme == 'tcp' else 'modbus_tcp']}"
     for words in (["--address", "7", "read", "speed"], ["read", "speed", "--address", "7"]):
-        done = subprocess.run(c20sim("exercise", where, *words), capture_output=True, text=True, timeout=60)
+        done = subprocess.run(c20sim_command("exercise", where, *words), capture_output=True, text=True, timeout=60)
         assert (done.returncode, done.stdout, done.stderr) == (
             2,
             "",
             f"c20sim: {where}: no drive answered at address 7 within 0.5 s; check --address (the drive's 2008H, "
             "1 as shipped) and the link (the port)\n",
         )
-    done = subprocess.run(c20sim("exercise", where, "--address", "1", "read", "speed"), capture_output=True, text=True)
+    done = subprocess.run(
+        c20sim_command("exercise", where, "--address", "1", "read", "speed"), capture_output=True, text=True
+    )
     assert (done.returncode, done.stdout) == (0, "3006H motor speed: 0 rpm\n")
 
 
@@ -154,7 +130,7 @@ def test_exercise_on_a_serial_line_with_no_drive_names_the_baud(tmp_path: Path) 
     try:
         path = os.ttyname(slave)
         done = subprocess.run(
-            c20sim("exercise", path, "--address", "7", "--timeout", "0.2", "read", "speed"),
+            c20sim_command("exercise", path, "--address", "7", "--timeout", "0.2", "read", "speed"),
             capture_output=True,
             text=True,
             timeout=60,
@@ -230,7 +206,9 @@ def test_audit_refuses_a_fifo_as_replay_and_decode_do(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     said = {}
     for command in (["audit", str(fifo)], ["replay", str(fifo)], ["decode", "-f", str(fifo)]):
-        done = subprocess.run(c20sim(*command), capture_output=True, text=True, timeout=30)  # never waits for a writer
+        done = subprocess.run(
+            c20sim_command(*command), capture_output=True, text=True, timeout=30
+        )  # never waits for a writer
         assert (done.returncode, done.stdout) == (2, ""), command
         said[command[0]] = done.stderr
     assert said["audit"] == (
@@ -252,7 +230,7 @@ def test_audit_reads_a_pipe_on_stdin(tmp_path: Path) -> None:
     line = json.dumps({"t": 0.0, "dir": "rx", "hex": "01 03 21 00 00 01 8E 36"}) + "\n"
     reply = json.dumps({"t": 0.01, "dir": "tx", "hex": "01 03 02 00 03 F8 45"}) + "\n"
     proc = subprocess.Popen(
-        c20sim("audit", "-"), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        c20sim_command("audit", "-"), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     out, err = proc.communicate(line + reply, timeout=30)
     assert (proc.returncode, out, err) == (

@@ -10,26 +10,12 @@ reading without O_NONBLOCK, so the test's timeout is the check that none does.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from c20sim.drive.files import LIMITS, MAX_DEPTH
-
-
-def c20sim(*args: str, cwd: Path, timeout: float = 30) -> subprocess.CompletedProcess[str]:
-    command = [sys.executable, "-m", "c20sim", *args]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False, cwd=cwd)
-
-
-def one_line(done: subprocess.CompletedProcess[str], code: int = 2) -> str:
-    assert done.returncode == code, (done.returncode, done.stderr)
-    assert "Traceback" not in done.stderr, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1, done.stderr
-    return lines[0]
+from tests.integration.conftest import c20sim_run, one_line
 
 
 @pytest.fixture
@@ -64,7 +50,7 @@ CASES = {
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_a_fifo_or_a_device_is_refused_in_one_line(hostile: Path, case: str, file: str) -> None:
     args, start = CASES[case]
-    line = one_line(c20sim(*(a.format(f=file) for a in args), cwd=hostile))
+    line = one_line(c20sim_run(*(a.format(f=file) for a in args), cwd=hostile))
     assert line.startswith(start.format(f=file)), line
     kind = "a FIFO (named pipe)" if file == "fifo" else "a character device"
     assert f"is {kind}, not a regular file" in line, line
@@ -73,13 +59,13 @@ def test_a_fifo_or_a_device_is_refused_in_one_line(hostile: Path, case: str, fil
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_a_huge_sparse_file_is_refused_by_its_size(hostile: Path, case: str) -> None:
     args, start = CASES[case]
-    line = one_line(c20sim(*(a.format(f="sparse") for a in args), cwd=hostile))
+    line = one_line(c20sim_run(*(a.format(f="sparse") for a in args), cwd=hostile))
     assert line.startswith(start.format(f="sparse")), line
     assert "bigger than" in line or "more than 64 MiB" in line, line
 
 
 def test_run_scenario_names_the_file_and_goes_on(hostile: Path) -> None:
-    done = c20sim("run-scenario", "fifo", "zero", "sparse", "deep.toml", cwd=hostile)
+    done = c20sim_run("run-scenario", "fifo", "zero", "sparse", "deep.toml", cwd=hostile)
     assert done.returncode != 0
     assert "Traceback" not in done.stdout + done.stderr
     out = done.stdout + done.stderr
@@ -91,7 +77,7 @@ def test_run_scenario_names_the_file_and_goes_on(hostile: Path) -> None:
 @pytest.mark.parametrize("case", ["profile", "profiles-show", "serve-scenario"])
 def test_deep_toml_is_one_line(hostile: Path, case: str, file: str) -> None:
     args, start = CASES[case]
-    line = one_line(c20sim(*(a.format(f=file) for a in args), cwd=hostile))
+    line = one_line(c20sim_run(*(a.format(f=file) for a in args), cwd=hostile))
     assert line.startswith(start.format(f=file)), line
     assert f"nested deeper than {MAX_DEPTH} levels" in line, line
 
@@ -99,11 +85,11 @@ def test_deep_toml_is_one_line(hostile: Path, case: str, file: str) -> None:
 @pytest.mark.parametrize("case", ["replay", "decode"])
 def test_deep_jsonl_is_one_line(hostile: Path, case: str) -> None:
     args, _start = CASES[case]
-    line = one_line(c20sim(*(a.format(f="deep.jsonl") for a in args), cwd=hostile))
+    line = one_line(c20sim_run(*(a.format(f="deep.jsonl") for a in args), cwd=hostile))
     assert line.startswith("c20sim: deep.jsonl: line 1: nested deeper than"), line
 
 
 def test_a_file_just_over_its_bound_is_refused(tmp_path: Path) -> None:
     (tmp_path / "big.toml").write_text("#" * LIMITS["profile"] + "\n")
-    line = one_line(c20sim("profiles", "show", "big.toml", cwd=tmp_path))
+    line = one_line(c20sim_run("profiles", "show", "big.toml", cwd=tmp_path))
     assert line == "c20sim: big.toml: bigger than 1 MiB, too big for a profile; is it the right file?"

@@ -6,11 +6,7 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
-import sys
-import urllib.request
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,44 +17,18 @@ from pymodbus.exceptions import ModbusIOException
 from c20sim.cli import DEFAULT_MODBUS_TCP, DEFAULT_TCP
 from c20sim.testing import C20Sim
 from tests.conftest import DEFAULT_PORT_TAKEN, wait_for_ready_file
-
-
-def c20sim(*args: str) -> list[str]:
-    return [sys.executable, "-m", "c20sim", *args]
-
-
-@pytest.fixture
-def procs() -> Iterator[list[subprocess.Popen[str]]]:
-    started: list[subprocess.Popen[str]] = []
-    yield started
-    for proc in started:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
+from tests.integration.conftest import c20sim_command, get, stop
 
 
 def serve(procs: list[subprocess.Popen[str]], *args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(c20sim("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(c20sim_command("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     procs.append(proc)
     return proc
-
-
-def stop(proc: subprocess.Popen[str]) -> tuple[str, str]:
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=20)
-    assert proc.returncode == 0, err
-    return out, err
 
 
 def host_port(text: str) -> tuple[str, int]:
     host, port = text.rsplit(":", 1)
     return host, int(port)
-
-
-def get(url: str) -> dict[str, object]:
-    with urllib.request.urlopen(url, timeout=10) as response:
-        data: dict[str, object] = json.load(response)
-    return data
 
 
 @pytest.mark.serial  # the default ports: no other test may hold them meanwhile
@@ -218,7 +188,7 @@ def test_the_frame_log_keeps_the_mbap_frames_and_decode_and_replay_read_them(
     assert api == expected
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert [{k: v for k, v in f.items() if k in expected[0]} for f in logged] == expected
-    decoded = subprocess.run(c20sim("decode", "-f", str(log)), capture_output=True, text=True, timeout=60)
+    decoded = subprocess.run(c20sim_command("decode", "-f", str(log)), capture_output=True, text=True, timeout=60)
     assert (decoded.returncode, decoded.stderr) == (0, "")
     words = [line for line in decoded.stdout.splitlines() if not re.match(r"^ *\d+\.\d{6} (rx|tx) ", line)]
     assert words == [
@@ -231,7 +201,7 @@ def test_the_frame_log_keeps_the_mbap_frames_and_decode_and_replay_read_them(
         f"  modbus tcp: transaction {second}, unit 9; not on the line: the gateway's own answer",
         "  gateway: exception 0x0B to function 0x03: gateway target device failed to respond",
     ]
-    replayed = subprocess.run(c20sim("replay", str(log)), capture_output=True, text=True, timeout=60)
+    replayed = subprocess.run(c20sim_command("replay", str(log)), capture_output=True, text=True, timeout=60)
     assert (replayed.returncode, replayed.stderr) == (0, "")
     assert replayed.stdout.splitlines()[-1] == "2 replayed: every reply matches"
 

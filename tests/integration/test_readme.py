@@ -76,16 +76,6 @@ def place() -> Iterator[Place]:
     shutil.rmtree(folder, ignore_errors=True)
 
 
-@pytest.fixture
-def started() -> Iterator[list[subprocess.Popen[str]]]:
-    procs: list[subprocess.Popen[str]] = []
-    yield procs
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-
-
 def test_set_up_command_1_opens_what_the_master_lines_use() -> None:
     """Set-up command 1 opens a fixed pty link and both TCP ports; every master line uses one of them."""
     assert setup_options() == ["--link", "/tmp/ttyC20", "--tcp", "127.0.0.1:5020", "--modbus-tcp", "127.0.0.1:1502"]
@@ -118,7 +108,7 @@ def run_master_lines(place: Place, runs: Callable[[], None]) -> None:
 
 
 @pytest.mark.skipif(MBPOLL is None, reason="mbpoll is not installed (apt-get install mbpoll); .ci/run installs it")
-def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, started: list[subprocess.Popen[str]]) -> None:
+def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, procs: list[subprocess.Popen[str]]) -> None:
     """Set-up command 1's simulator, then every mbpoll line of the README in order, as written."""
     ready = place.folder / "served.json"
     argv = [sys.executable, "-m", "c20sim", "serve", *shlex.split(place.local(shlex.join(setup_options())))]
@@ -128,7 +118,7 @@ def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, started: l
         stderr=subprocess.PIPE,
         text=True,
     )
-    started.append(proc)
+    procs.append(proc)
     info = wait_for_ready_file(ready, proc)
     assert info["pty"] == str(place.link)
     place.ports = {"5020": info["tcp"].rsplit(":", 1)[1], "1502": info["modbus_tcp"].rsplit(":", 1)[1]}
@@ -149,7 +139,7 @@ def test_the_readme_master_lines_drive_the_set_up_drive(place: Place, started: l
 
 
 @pytest.mark.parametrize("line", lines_starting("c20sim serve"))
-def test_every_serve_line_of_the_readme_serves(line: str, place: Place, started: list[subprocess.Popen[str]]) -> None:
+def test_every_serve_line_of_the_readme_serves(line: str, place: Place, procs: list[subprocess.Popen[str]]) -> None:
     """Each ``c20sim serve`` line of the README opens what it names, and only that (the ready file), each endpoint
     answers a master for each drive, the clock is the one asked for (a virtual one moved by ``ctl advance`` as the
     README says), and it stops cleanly with nothing on stderr (a serial port that is not here: one line)."""
@@ -166,7 +156,7 @@ def test_every_serve_line_of_the_readme_serves(line: str, place: Place, started:
     proc = subprocess.Popen(
         [sys.executable, "-m", "c20sim", *words[1:]], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
-    started.append(proc)
+    procs.append(proc)
     info = wait_for_ready_file(ready, proc)
     asked = {"pty": "--pty" in words, "tcp": "--tcp" in words, "modbus_tcp": "--modbus-tcp" in words}
     asked["control"] = "--control" in words
@@ -353,13 +343,13 @@ def test_the_tours_dashboard_lines(line: str, place: Place) -> None:
 
 
 @pytest.mark.skipif(TMUX is None, reason="needs tmux (.ci/run installs it)")
-def test_the_tours_attach_lines(place: Place, started: list[subprocess.Popen[str]]) -> None:
+def test_the_tours_attach_lines(place: Place, procs: list[subprocess.Popen[str]]) -> None:
     """The tour's first serve line, then its ``dashboard --attach ready.json`` and ``web --attach ready.json`` on it:
     the dashboard shows the serve's endpoints and leaves the serve running; the page answers."""
     [serve_line] = [line for line in lines_starting("c20sim serve --pty --link")]
     words = shlex.split(place.local(serve_line), comments=True)
     proc = subprocess.Popen([sys.executable, "-m", *words], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    started.append(proc)
+    procs.append(proc)
     info = wait_for_ready_file(place.folder / "ready.json", proc)
     [attach] = lines_starting("c20sim dashboard --attach ready.json")
     pane = Pane(place.local(python_c20sim(attach.split("#")[0].strip())), place.folder)
@@ -378,7 +368,7 @@ def test_the_tours_attach_lines(place: Place, started: list[subprocess.Popen[str
         stderr=subprocess.PIPE,
         text=True,
     )
-    started.append(web)
+    procs.append(web)
     assert web.stdout is not None
     said = web.stdout.readline()
     assert said.startswith(f"c20sim web ready: http://{page}"), said + (web.stderr.read() if web.poll() else "")

@@ -6,8 +6,6 @@ import json
 import signal
 import socket
 import subprocess
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -15,32 +13,19 @@ from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
 from tests.conftest import wait_for_ready_file
-
-
-def c20sim(*args: str) -> list[str]:
-    return [sys.executable, "-m", "c20sim", *args]
-
-
-@pytest.fixture
-def started(tmp_path: Path) -> Iterator[list[subprocess.Popen[str]]]:
-    procs: list[subprocess.Popen[str]] = []
-    yield procs
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
+from tests.integration.conftest import c20sim_command
 
 
 def start(procs: list[subprocess.Popen[str]], *args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(c20sim("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(c20sim_command("serve", *args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     procs.append(proc)
     return proc
 
 
-def test_ready_file_link_frame_log_and_sigterm(tmp_path: Path, started: list[subprocess.Popen[str]]) -> None:
+def test_ready_file_link_frame_log_and_sigterm(tmp_path: Path, procs: list[subprocess.Popen[str]]) -> None:
     ready, link, log = tmp_path / "ready.json", tmp_path / "ttyC20", tmp_path / "frames.jsonl"
     proc = start(
-        started,
+        procs,
         "--tcp",
         "127.0.0.1:0",
         "--modbus-tcp",
@@ -81,9 +66,9 @@ def test_ready_file_link_frame_log_and_sigterm(tmp_path: Path, started: list[sub
     ]
 
 
-def test_sigint_stops_cleanly(tmp_path: Path, started: list[subprocess.Popen[str]]) -> None:
+def test_sigint_stops_cleanly(tmp_path: Path, procs: list[subprocess.Popen[str]]) -> None:
     ready = tmp_path / "ready.json"
-    proc = start(started, "--tcp", "127.0.0.1:0", "--ready-file", str(ready))
+    proc = start(procs, "--tcp", "127.0.0.1:0", "--ready-file", str(ready))
     wait_for_ready_file(ready, proc)
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=10)
@@ -91,7 +76,7 @@ def test_sigint_stops_cleanly(tmp_path: Path, started: list[subprocess.Popen[str
 
 
 def run_error(*args: str) -> tuple[int, str]:
-    result = subprocess.run(c20sim("serve", *args), capture_output=True, text=True, timeout=20, check=False)
+    result = subprocess.run(c20sim_command("serve", *args), capture_output=True, text=True, timeout=20, check=False)
     return result.returncode, result.stderr
 
 
@@ -148,10 +133,10 @@ def test_bad_options_exit_2_with_one_line(args: list[str], message: str) -> None
 
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT])
 def test_each_stop_signal_removes_link_and_ready_file(
-    tmp_path: Path, started: list[subprocess.Popen[str]], sig: signal.Signals
+    tmp_path: Path, procs: list[subprocess.Popen[str]], sig: signal.Signals
 ) -> None:
     ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
-    proc = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))
+    proc = start(procs, "--pty", "--link", str(link), "--ready-file", str(ready))
     wait_for_ready_file(ready, proc)
     assert link.is_symlink()
     proc.send_signal(sig)
@@ -161,12 +146,12 @@ def test_each_stop_signal_removes_link_and_ready_file(
     assert not ready.exists()
 
 
-def test_a_held_link_is_refused_naming_its_holder(tmp_path: Path, started: list[subprocess.Popen[str]]) -> None:
+def test_a_held_link_is_refused_naming_its_holder(tmp_path: Path, procs: list[subprocess.Popen[str]]) -> None:
     ready, link = tmp_path / "ready.json", tmp_path / "ttyC20"
-    first = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))
+    first = start(procs, "--pty", "--link", str(link), "--ready-file", str(ready))
     wait_for_ready_file(ready, first)
     target = link.readlink()
-    second = start(started, "--pty", "--link", str(link))
+    second = start(procs, "--pty", "--link", str(link))
     _, err = second.communicate(timeout=10)
     assert (second.returncode, err) == (
         2,
@@ -175,6 +160,6 @@ def test_a_held_link_is_refused_naming_its_holder(tmp_path: Path, started: list[
     assert link.readlink() == target  # the first one's link is left alone
     first.send_signal(signal.SIGTERM)
     assert first.wait(timeout=10) == 0
-    third = start(started, "--pty", "--link", str(link), "--ready-file", str(ready))  # free again once it ended
+    third = start(procs, "--pty", "--link", str(link), "--ready-file", str(ready))  # free again once it ended
     wait_for_ready_file(ready, third)
     assert link.readlink() != target or link.exists()
