@@ -27,11 +27,11 @@ from rich.text import Text
 from textual import on
 from textual.app import App, ComposeResult, ScreenStackError, SystemCommand
 from textual.binding import Binding, BindingType
-from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.reactive import reactive
-from textual.screen import ModalScreen, Screen
-from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
+from textual.screen import Screen
+from textual.widgets import Footer, OptionList, Static, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
 from ..control import routes
@@ -43,6 +43,7 @@ from .audit import AuditPanel
 from .drill import DrillPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .registers import RegistersPanel
+from .screens import HelpScreen, SaveLogScreen
 from .status import STATUS_STYLES, DriveStatus, TrendPlot
 from .widgets import (
     ConditionsPanel,
@@ -72,82 +73,6 @@ TABS = {
     "audit": "f7",
     "drill": "f8",
 }
-
-HELP = """\
-# c20sim dashboard
-
-A virtual ZBLD.C20 drive on the bench. Point any Modbus RTU master at the
-endpoints in the top line; the drive answers there while you watch it here.
-
-## Keypad (works as on the drive)
-
-| key | |
-|---|---|
-| `f` / `r` | RUN forward / reverse (only with the keypad run channel, F00.01 = 0) |
-| `j` / `J` | JOG forward / reverse; press again to release |
-| `s` | STOP (from any channel) |
-| `x` | RESET a fault (refused while its cause is still there) |
-| `m` | run channel: keypad -> terminals -> communication (F00.01) |
-| `S` | speed source: keypad -> AI1 -> AI2 -> Modbus -> multi-speed -> dial switch (F00.02) |
-| `+` / `-` | keypad speed reference, 1.00 Hz a press (F00.10; used with the keypad speed source) |
-| `P` | power cycle |
-| `D` | restore default parameters (200FH = 1; only while stopped) |
-
-## Views
-
-| key | |
-|---|---|
-| `F2` | frame log: `space` pause, `a` drive, `n` function, `e` errors only, `w` save, `Del` clear |
-| `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
-| `F4` | device faults: one key each, the cause switched on or off (a letter: a physical cause, the drive trips by its model; a digit: a fault held on, the model has no physics for it); RESET (`x`, or a master's 2000H = 7) clears a fault once its cause is off; `z` clears all |
-| `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
-| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code); `/` finds one by any name (speed, motor speed, 3006H, 12294, F00.10) |
-| `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
-| `F8` | drill: the incidents and their last verdicts; `g` plays the selected one on the master polling the serve, `A` the standard plan, `C` stops (docs/drill.md) |
-| `[` / `]` | previous / next drive |
-| `t` / `T` | virtual clock only: time +1 s / +10 s |
-| `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
-| `ctrl+p` | the command palette: every action by name |
-| `?` | this help; `q` quits |
-"""
-
-
-class HelpScreen(ModalScreen[None]):
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
-
-    def compose(self) -> ComposeResult:
-        with VerticalScroll(id="help"):
-            yield Markdown(HELP)
-
-    def on_mount(self) -> None:
-        self.query_one("#help").focus()  # up/down, page up/down and the wheel scroll it
-
-    def action_dismiss(self, result: None = None) -> None:  # type: ignore[override]
-        self.dismiss(result)
-
-
-class SaveLogScreen(ModalScreen[str | None]):
-    """Ask where to save the frame log."""
-
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "Cancel")]
-
-    def __init__(self, default: str) -> None:
-        super().__init__()
-        self.default = default
-
-    def compose(self) -> ComposeResult:
-        with Vertical(id="save"):
-            yield Label("Save the frames shown (with their filter) to:")
-            yield Input(self.default, id="save-path")
-            yield Label("Enter saves, Escape cancels", classes="hint")
-
-    @on(Input.Submitted)
-    def _submit(self, event: Input.Submitted) -> None:
-        event.stop()
-        self.dismiss(event.value.strip() or None)
-
-    def action_cancel(self) -> None:
-        self.dismiss(None)
 
 
 class MainScreen(Screen[None]):
