@@ -39,14 +39,11 @@ from ..control.client import RemoteOps
 from ..control.ops import ControlError
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS
-from .audit import AuditPanel
-from .drill import DrillPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
-from .registers import RegistersPanel
 from .screens import HelpScreen, SaveLogScreen
 from .status import STATUS_STYLES, DriveStatus, TrendPlot
+from .tabs import tabs
 from .widgets import (
-    ConditionsPanel,
     DeviceFaultsPanel,
     FrameLog,
     LinkFaultsPanel,
@@ -63,16 +60,6 @@ T = TypeVar("T")
 #: server and the dashboard at most that.
 STREAM_BUFFER = 40
 FRAME_HZ = 5
-
-TABS = {
-    "frames": "f2",
-    "conditions": "f3",
-    "faults": "f4",
-    "link": "f5",
-    "registers": "f6",
-    "audit": "f7",
-    "drill": "f8",
-}
 
 
 class MainScreen(Screen[None]):
@@ -95,21 +82,11 @@ class MainScreen(Screen[None]):
                 yield TrendPlot("speed", "rpm", m.rated_speed_rpm, id="plot-speed")
                 yield TrendPlot("current", "A", p.current_limit_a, digits=2, id="plot-current")
                 yield TrendPlot("bus", "V", s.overvoltage_v, digits=1, id="plot-bus")
-        with TabbedContent(id="tabs", initial="frames"):
-            with TabPane("Frames F2", id="frames"):
-                yield FrameLog(list(bench.addresses), id="framelog")
-            with TabPane("Conditions F3", id="conditions"):
-                yield ConditionsPanel(bench, id="conditions-panel")
-            with TabPane("Device faults F4", id="faults"):
-                yield DeviceFaultsPanel(bench, id="faults-panel")
-            with TabPane("Link faults F5", id="link"):
-                yield LinkFaultsPanel(bench, id="link-panel")
-            with TabPane("Registers F6", id="registers"):
-                yield RegistersPanel(bench, id="registers-panel")
-            with TabPane("Audit F7", id="audit"):
-                yield AuditPanel(bench, id="audit-panel")
-            with TabPane("Drill F8", id="drill"):
-                yield DrillPanel(bench, id="drill-panel")
+        rows = list(tabs())
+        with TabbedContent(id="tabs", initial=rows[0].id):
+            for tab in rows:
+                with TabPane(tab.label, id=tab.id):
+                    yield tab.panel(bench, id=tab.panel_id)
         yield Footer()
 
     def on_mount(self) -> None:
@@ -145,7 +122,6 @@ class Dashboard(App[int]):
         Binding("T", "advance(10)", "+10s", show=False),
         Binding("left_square_bracket", "drive(-1)", "Prev drive", show=False),
         Binding("right_square_bracket", "drive(1)", "Next drive", show=False),
-        *[Binding(key, f"tab('{tab}')", tab.capitalize(), show=False) for tab, key in TABS.items()],
         Binding("question_mark", "help", "Help"),
         Binding("q", "quit", "Quit"),
     ]
@@ -154,6 +130,8 @@ class Dashboard(App[int]):
 
     def __init__(self, remote: RemoteOps, *, refresh_hz: float = 5.0) -> None:
         super().__init__()
+        for tab in tabs():  # one key per tab row, bound when the dashboard is made
+            self.bind(tab.key, f"tab('{tab.id}')", description=tab.title, show=False)
         self.remote = remote
         self.bench = Workbench(remote)
         self.refresh_hz = refresh_hz
@@ -354,19 +332,9 @@ class Dashboard(App[int]):
                 if self._drive_labels.get(address) != label.plain + str(status):
                     self._drive_labels[address] = label.plain + str(status)
                     drives.replace_option_prompt_at_index(index, label)
-        active = screen.query_one(TabbedContent).active  # only the panel on show is kept up to date
-        if active == "conditions":
-            screen.query_one(ConditionsPanel).show()
-        elif active == "faults":
-            screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
-        elif active == "link":
-            screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
-        elif active == "registers":
-            screen.query_one(RegistersPanel).show()
-        elif active == "audit":
-            screen.query_one(AuditPanel).show()
-        elif active == "drill":
-            screen.query_one(DrillPanel).show()
+        active = tabs().get(screen.query_one(TabbedContent).active)  # only the panel on show is kept up to date
+        if active is not None and active.refresh is not None:
+            active.refresh(screen.query_one(f"#{active.panel_id}"), self.selected)
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -454,10 +422,10 @@ class Dashboard(App[int]):
     def watch_selected(self, address: int) -> None:
         with contextlib.suppress(NoMatches, LookupError):  # push the drive down to the panels that act on it
             screen = self.get_screen_main()
-            screen.query_one(ConditionsPanel).selected = address
-            screen.query_one(DeviceFaultsPanel).selected = address
-            screen.query_one(LinkFaultsPanel).selected = address
-            screen.query_one(RegistersPanel).selected = address
+            for tab in tabs():
+                if tab.follows_drive:
+                    panel: Any = screen.query_one(f"#{tab.panel_id}")
+                    panel.selected = address
         if self.views:
             self._show()
 
@@ -477,17 +445,8 @@ class Dashboard(App[int]):
             self._focus_tab(event.pane.id)
 
     def _focus_tab(self, tab: str) -> None:
-        screen = self.get_screen_main()
-        target = {
-            "frames": FrameLog,
-            "conditions": "#cond-supply",
-            "faults": DeviceFaultsPanel,
-            "link": LinkFaultsPanel,
-            "registers": "#reg-table",
-            "audit": "#audit-table",
-            "drill": "#drill-table",
-        }[tab]
-        screen.query_one(target).focus()  # type: ignore[call-overload]
+        row = tabs()[tab]
+        self.get_screen_main().query_one(row.focus or f"#{row.panel_id}").focus()
 
     def action_pause(self) -> None:
         """The realtime clock: pause it, or resume it (the model stands still meanwhile; the wire still answers)."""

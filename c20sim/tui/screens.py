@@ -11,9 +11,12 @@ from textual.containers import Vertical, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Input, Label, Markdown
 
-__all__ = ["HELP", "HelpScreen", "SaveLogScreen"]
+from .tabs import tabs
 
-HELP = """\
+__all__ = ["HelpScreen", "SaveLogScreen", "help_text"]
+
+#: The help screen around its "Views" lines (one per tab row, :mod:`c20sim.tui.tabs`).
+HELP_HEAD = """\
 # c20sim dashboard
 
 A virtual ZBLD.C20 drive on the bench. Point any Modbus RTU master at the
@@ -37,13 +40,8 @@ endpoints in the top line; the drive answers there while you watch it here.
 
 | key | |
 |---|---|
-| `F2` | frame log: `space` pause, `a` drive, `n` function, `e` errors only, `w` save, `Del` clear |
-| `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
-| `F4` | device faults: one key each, the cause switched on or off (a letter: a physical cause, the drive trips by its model; a digit: a fault held on, the model has no physics for it); RESET (`x`, or a master's 2000H = 7) clears a fault once its cause is off; `z` clears all |
-| `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
-| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code); `/` finds one by any name (speed, motor speed, 3006H, 12294, F00.10) |
-| `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
-| `F8` | drill: the incidents and their last verdicts; `g` plays the selected one on the master polling the serve, `A` the standard plan, `C` stops (docs/drill.md) |
+"""
+HELP_TAIL = """\
 | `[` / `]` | previous / next drive |
 | `t` / `T` | virtual clock only: time +1 s / +10 s |
 | `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
@@ -52,12 +50,17 @@ endpoints in the top line; the drive answers there while you watch it here.
 """
 
 
+def help_text() -> str:
+    """The help screen's Markdown: the keypad, then a line per tab, then the other keys."""
+    return HELP_HEAD + "".join(f"{tab.help_line}\n" for tab in tabs()) + HELP_TAIL
+
+
 class HelpScreen(ModalScreen[None]):
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(id="help"):
-            yield Markdown(HELP)
+            yield Markdown(help_text())
 
     def on_mount(self) -> None:
         self.query_one("#help").focus()  # up/down, page up/down and the wheel scroll it
