@@ -25,10 +25,8 @@ import hmac
 import ipaddress
 import json
 import logging
-import math
 import secrets
 import sys
-from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
@@ -42,6 +40,21 @@ from ..transport.wallclock import WALL_OFFSET
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
 from . import causes, httpguard, liveaudit, ops, routes
+from .httpbody import MAX_DIGITS, _refuse_long_numbers, _TooLong
+from .httpstream import (
+    CHUNK,
+    DEFAULT_BUFFER,
+    DEFAULT_FRAME_HZ,
+    DEFAULT_HZ,
+    FRAME_HZ,
+    MAX_STREAMS,
+    STREAM_BUFFER,
+    STREAM_HZ,
+    STREAM_QUERY,
+    StreamClient,
+    _drain,
+    _serve_stream,
+)
 from .openapi import document
 from .ops import ControlError, unknown
 
@@ -49,25 +62,9 @@ log = logging.getLogger(__name__)
 
 __all__ = ["ROUTES", "ControlApi", "is_loopback", "make_app", "new_token", "snapshot"]
 
-#: The telemetry rates a stream client may ask for (``?hz=``), and the default.
-STREAM_HZ = (0.1, 50.0)
-DEFAULT_HZ = 5.0
-#: A stream client's frame buffer (``?buffer=``): at most this many frames wait for it; older ones are skipped.
-STREAM_BUFFER = (1, 10_000)
-DEFAULT_BUFFER = 1000
-#: Stream readers at once: each costs a buffer and a sender; beyond this the answer is 503.
-MAX_STREAMS = 32
-#: The query parameters of ``GET /stream``.
-STREAM_QUERY = ("hz", "frame_hz", "buffer", "frames", "token")
-#: Frame batches a second a client may ask for (``?frame_hz=``), and the default: a busy bus costs a reader at
-#: most ``buffer`` frames a batch.
-FRAME_HZ = (0.1, 100.0)
-DEFAULT_FRAME_HZ = 20.0
 #: GET /metrics answers made within this many seconds of each other are one (a scrape every second or slower
 #: is always fresh; four scrapers at once cost one).
 METRICS_CACHE = 0.5
-#: Frames put in words per turn of the loop: a big batch is cut so that a request waits for no more than one chunk.
-CHUNK = 32
 
 
 def is_loopback(host: str) -> bool:
@@ -116,20 +113,6 @@ def snapshot(sim: Simulator) -> dict[str, Any]:
         "audit": None if audit is None else audit.summary(),
         "notices": list(sim.notices),
     }
-
-
-class StreamClient:
-    """One stream reader: a bounded buffer of frames (the oldest skipped when full) and a wake-up."""
-
-    def __init__(self, buffer: int) -> None:
-        self.frames: deque[tuple[int, FrameRecord]] = deque(maxlen=buffer)
-        self.wake = asyncio.Event()
-        self.sent = -1  #: the seq of the last frame sent (or skipped past)
-
-    def push(self, seq: int, record: FrameRecord) -> None:
-        self.frames.append((seq, record))  # a full deque drops its oldest: that is the skip
-        if not self.wake.is_set():
-            self.wake.set()
 
 
 # --- The HTTP API.
@@ -542,90 +525,6 @@ def make_app(api: ControlApi, table: routes.Table | None = None) -> web.Applicat
             raise ValueError(f"route {row.key} ({row.name}): no operation and no handler of the API's own")
         app.router.add_route(row.method, row.path, own[row.name] if row.call is None else generic(row))
     return app
-
-
-async def _drain(ws: web.WebSocketResponse) -> None:
-    async for _message in ws:
-        pass
-
-
-async def _serve_stream(
-    api: ControlApi,
-    ws: web.WebSocketResponse,
-    client: StreamClient,
-    period: float,
-    frame_period: float,
-    reader: asyncio.Future[Any],
-) -> None:
-    """Send telemetry every ``period`` and the frames as they come, until the client goes or the API closes.
-
-    Sending waits for the client (a full socket holds this task only); meanwhile its frame buffer fills and
-    the oldest frames are skipped, counted in the next message's ``missed``.
-    """
-    loop = asyncio.get_running_loop()
-    due = frames_due = loop.time()
-    while not ws.closed and not reader.done() and not api.closing:
-        now = loop.time()
-        if now >= due:
-            await ws.send_str(json.dumps(api.snapshot()))
-            due = _next_beat(due, period, loop.time())
-            continue
-        if client.frames and now >= frames_due:
-            await _send_frames(ws, client)
-            frames_due = _next_beat(frames_due, frame_period, loop.time())
-            continue
-        waits: list[asyncio.Future[Any]] = [reader]
-        if client.frames:  # frames wait for their beat: more of them coming need not wake this task
-            wake_at = min(due, frames_due)
-        else:
-            wake_at = due
-            client.wake.clear()
-            waits.append(asyncio.ensure_future(client.wake.wait()))
-        await asyncio.wait(waits, timeout=max(0.0, wake_at - now), return_when=asyncio.FIRST_COMPLETED)
-        for wait in waits[1:]:
-            wait.cancel()
-
-
-def _next_beat(last: float, period: float, now: float) -> float:
-    """The first beat after ``now`` of a clock that ticked at ``last`` every ``period``: telemetry and frames asked
-    for at the same rate go out together (one redraw for a viewer), and a late tick is not made up for."""
-    return last + period * (math.floor((now - last) / period) + 1)
-
-
-async def _send_frames(ws: web.WebSocketResponse, client: StreamClient) -> None:
-    """The frames waiting, in words, as one message; ``missed``: how many were skipped since the last one."""
-    batch: list[tuple[int, FrameRecord]] = []
-    while client.frames:
-        batch.append(client.frames.popleft())
-    missed = batch[0][0] - client.sent - 1
-    client.sent = batch[-1][0]
-    records: list[dict[str, Any]] = []
-    for start in range(0, len(batch), CHUNK):
-        if start:
-            await asyncio.sleep(0)  # let a request in between chunks
-        records += [{"seq": seq, **record.as_dict(WALL_OFFSET)} for seq, record in batch[start : start + CHUNK]]
-    await ws.send_str(json.dumps({"type": "frames", "missed": max(0, missed), "frames": records}))
-
-
-#: The most digits a JSON integer of a request may have: every value the API takes fits in far fewer.
-MAX_DIGITS = 30
-
-
-class _TooLong:
-    """A JSON integer of more than :data:`MAX_DIGITS` digits, as parsed: its length only."""
-
-    def __init__(self, digits: int) -> None:
-        self.digits = digits
-
-
-def _refuse_long_numbers(value: object, key: str = "") -> None:
-    """400 naming the key of a number of thousands of digits (never a 500 from a float conversion)."""
-    if isinstance(value, _TooLong):
-        where = f"{key}: " if key else ""
-        raise ControlError(f"{where}a number of {value.digits} digits; no value here has more than {MAX_DIGITS}")
-    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
-    for name, item in items:
-        _refuse_long_numbers(item, f"{key}.{name}" if key else str(name))
 
 
 #: The control surface's rows by ``METHOD path`` (:mod:`c20sim.control.routes`), as this module serves them.
