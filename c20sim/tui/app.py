@@ -516,6 +516,10 @@ class Dashboard(App[int]):
             )
         yield SystemCommand("Restore defaults", "200FH = 1 (only while stopped)", self.action_restore_defaults)
         yield SystemCommand("Save frame log", "write the frames shown to a file", self.action_save_log)
+        for tab in tabs():
+            yield SystemCommand(
+                f"View: {tab.title} ({tab.key.upper()})", tab.help.split(":")[0], lambda t=tab.id: self.action_tab(t)
+            )
         for switch in self.bench.device_switches:
             yield SystemCommand(f"Device fault: {switch.label}", switch.how, lambda k=switch.key: self._device_fault(k))
         for key, (code, name) in self.bench.forced.items():

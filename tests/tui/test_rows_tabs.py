@@ -1,5 +1,6 @@
 """A dashboard tab is one row (:mod:`c20sim.tui.tabs`): a throwaway row, added here and nowhere else, reaches the
-tab bar, its key, the panel refresh and drive selection, the help screen, the key list and the docs check.
+tab bar, its key, the panel refresh and drive selection, the help screen, the key list, the command palette and the
+docs check.
 
 The docs check lives here too: docs/dashboard.md's "Views" table names every tab row, key and title."""
 
@@ -112,6 +113,12 @@ async def test_a_new_tab_row_reaches_every_front_end(scratch: Tab) -> None:
 
             await pilot.press("f2")  # and back
             assert tabbed.active == "frames"
+
+            commands = {c.title: c for c in app.get_system_commands(app.screen)}  # the command palette
+            assert commands["View: Scratch (F9)"].help == "scratch"
+            assert commands["View: Frames (F2)"].help == "frame log"
+            commands["View: Scratch (F9)"].callback()
+            assert tabbed.active == "scratch"
     assert help_text().count("`F9`") == 1
     assert undocumented(tabs(), DOCS.read_text()) == ["F9 Scratch"]  # the docs check sees the row, undocumented
 
