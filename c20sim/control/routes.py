@@ -1,19 +1,27 @@
 """The control surface, one row per operation: method, path, the function that does it, its fields, its doc.
 
 Every front end is derived from :data:`TABLE`: the aiohttp app
-(:mod:`c20sim.control.http` serves a row with one generic handler unless it
-names its own), the OpenAPI document (:mod:`c20sim.control.openapi`), the
-remote client and the dashboard's operations (:mod:`c20sim.control.client`,
-:class:`LocalOps`), ``c20sim ctl`` (:mod:`c20sim.control.ctl`) and the MCP tools of
-``c20sim mcp`` (:mod:`c20sim.mcpserver`). Nothing
-else writes a path or a field list. A new operation is its function plus one
-row: ``call(sim, **path parameters, **fields)`` returns the JSON answer.
+(:mod:`c20sim.control.http` serves a row with an operation by one handler,
+and the API's own rows by their kind), the OpenAPI document
+(:mod:`c20sim.control.openapi`), the remote client and the dashboard's
+operations (:mod:`c20sim.control.client`), ``c20sim ctl``
+(:mod:`c20sim.control.ctl`) and the MCP tools of ``c20sim mcp``
+(:mod:`c20sim.mcpserver`). Nothing else writes a path or a field list.
 
-A row's fields are checked here, the same way for every caller: an unknown
-field names the known ones, a missing one says what to send; the values are
-then checked by the operation itself (:mod:`c20sim.control.ops`). A row with
-``whole`` takes the request body as one value (the conditions, the link
-faults, a fault request) and leaves its checking to the operation.
+The rows are declared by family, each with the functions that answer them:
+a drive's (:mod:`.routes_drive`), the link faults' (:mod:`.routes_link`),
+the clock's (:mod:`.routes_clock`), the frame log's, the audit's and the
+drill's (:mod:`.routes_records`) and the API's own (:mod:`.routes_service`);
+this module gathers them in the order ``GET /`` lists them. A new operation
+is its function plus one row in its family: ``call(sim, **path parameters,
+**fields)`` returns the JSON answer.
+
+A row's fields are checked by :func:`~c20sim.control.routing.invoke`, the
+same way for every caller: an unknown field names the known ones, a missing
+one says what to send; the values are then checked by the operation itself
+(:mod:`c20sim.control.ops`). A row with ``whole`` takes the request body as
+one value (the conditions, the link faults, a fault request) and leaves its
+checking to the operation.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The routes the API serves itself: the index, the telemetry, the profile, the stream, the metrics, the health and
-the OpenAPI document (:mod:`c20sim.control.http` has their handlers)."""
+the OpenAPI document (their handlers: :mod:`c20sim.control.httpserved`, :mod:`c20sim.control.httpstream`)."""
 
 from __future__ import annotations
 
