@@ -10,6 +10,10 @@ everything done to a drive is one API call through the
 :class:`~c20sim.control.client.RemoteOps`. A refused call (or a server gone)
 is shown as a notification, never a traceback. Closing the dashboard leaves
 the server alone: ``c20sim dashboard`` stops the one it started itself.
+
+The tabs below the plots are the rows of :mod:`c20sim.tui.tabs`: the tab bar,
+the keys that switch to them, the panel kept up to date, the drive pushed down
+to the panels that act on one, the focus, the help and the palette iterate them.
 """
 
 from __future__ import annotations
