@@ -3,8 +3,13 @@
 - :mod:`.ops`: the checked operations (conditions, faults by code, keypad,
   link faults, time, registers, frames), the only vocabulary;
 - :mod:`.causes`: device faults as physical causes, levels from the profile;
-- :mod:`.http`: the operations as a JSON API (the only aiohttp importer;
-  import it only to serve the API);
+- :mod:`.routes`: the control surface, one row per operation (:mod:`.routing`
+  the row type; the rows by family in ``routes_*.py``);
+- :mod:`.http`: the operations as a JSON API, a row served by its kind
+  (``httpbody``, ``httpserved``, ``httpstream``; with ``httpguard`` the API's
+  aiohttp servers: import them only to serve the API);
+- :mod:`.client`: the one HTTP client of the API (the dashboard's
+  operations, ``c20sim ctl``, the MCP tools);
 - :mod:`.ctl`: ``c20sim ctl``, the API from a shell.
 
 The operations are re-exported here: ``from c20sim import control`` then

@@ -22,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import http.client
 import json
-import socket
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -41,7 +40,7 @@ from .ops import ControlError
 #: the process list shows), to a dashboard's ``--attach`` (``c20sim web`` sets it for its dashboards).
 TOKEN_ENV = "C20SIM_CONTROL_TOKEN"
 
-__all__ = ["TOKEN_ENV", "ControlClient", "RemoteOps", "attach_target"]
+__all__ = ["TOKEN_ENV", "ControlClient", "Refused", "RemoteOps", "Unreachable", "attach_target"]
 
 #: Seconds a call may take before the server counts as unreachable.
 TIMEOUT = 5.0
@@ -76,8 +75,30 @@ def attach_target(target: str, token: str | None = None) -> tuple[str, str | Non
     return data["control"], token if token is not None else (found if isinstance(found, str) else None)
 
 
+class Unreachable(ControlError):
+    """The API did not answer as the API (status 503): ``stage`` says how. ``"connect"``: nothing accepted the
+    connection; ``"timeout"``: connected, no answer in time; ``"reply"``: something answered, not in HTTP (or the
+    connection broke); ``"not json"``: an HTTP answer that is not JSON where JSON was asked for. ``cause``: the
+    error as raised."""
+
+    def __init__(self, message: str, stage: str, cause: BaseException | None = None) -> None:
+        super().__init__(message, status=503)
+        self.stage = stage
+        self.cause = cause
+
+
+class Refused(ControlError):
+    """An error answer of the API (4xx/5xx): its status, and ``said``, the server's own sentence (its JSON
+    ``error``, else the answer's text, else the status's reason)."""
+
+    def __init__(self, message: str, status: int, said: str) -> None:
+        super().__init__(message, status=status)
+        self.said = said
+
+
 class ControlClient:
-    """Blocking JSON calls to the control API at ``url`` (``http://HOST:PORT``)."""
+    """Blocking JSON calls to the control API at ``url`` (``http://HOST:PORT``), over one kept-alive connection:
+    the one HTTP client of the API (the dashboard's operations, ``c20sim ctl``, ``c20sim mcp``)."""
 
     def __init__(self, url: str, token: str | None = None, timeout: float = TIMEOUT) -> None:
         parts = urlsplit(url)
@@ -86,7 +107,7 @@ class ControlClient:
         self.url = url.rstrip("/")
         self.token = token
         self._host, self._port = parts.hostname, parts.port or 80
-        self._timeout = timeout
+        self.timeout = timeout
         self._conn: http.client.HTTPConnection | None = None
 
     def headers(self) -> dict[str, str]:
@@ -100,51 +121,69 @@ class ControlClient:
             self._conn.close()
             self._conn = None
 
-    def _exchange(self, method: str, path: str, body: object = None) -> tuple[int, bytes, str]:
-        """One request: the status, the body and its media type (``application/json``, ``text/plain``, ...)."""
+    def _exchange(self, method: str, path: str, body: object = None) -> tuple[int, bytes, str, str]:
+        """One request: the status, the body, its media type (``application/json``, ``text/plain``, ...) and the
+        status's reason. A state change is always sent as JSON, even without a body (the API takes no other)."""
         data = None if body is None else json.dumps(body).encode()
         headers = self.headers()
-        if data is not None:
+        if data is not None or method != "GET":
             headers["Content-Type"] = "application/json"
         for attempt in (1, 2):  # a kept-alive connection the server closed is opened again, once
+            fresh = self._conn is None
             if self._conn is None:
-                self._conn = http.client.HTTPConnection(self._host, self._port, timeout=self._timeout)
+                self._conn = http.client.HTTPConnection(self._host, self._port, timeout=self.timeout)
+            try:
+                if fresh:
+                    self._conn.connect()
+            except OSError as exc:
+                self.close()
+                if attempt == 2 or isinstance(exc, TimeoutError):
+                    raise self._unreachable(exc, "connect") from None
+                continue
             try:
                 self._conn.request(method, path, body=data, headers=headers)
                 response = self._conn.getresponse()
-                return response.status, response.read(), response.headers.get_content_type()
+                raw = response.read()
+                return response.status, raw, response.headers.get_content_type(), response.reason
             except (OSError, http.client.HTTPException) as exc:
                 self.close()
-                if attempt == 2 or isinstance(exc, socket.timeout):
-                    raise ControlError(f"the control API at {self.url} does not answer: {exc}", status=503) from None
+                stage = "timeout" if isinstance(exc, TimeoutError) else "reply"
+                if attempt == 2 or stage == "timeout":
+                    raise self._unreachable(exc, stage) from None
         raise AssertionError("unreachable")
 
-    def call(self, method: str, path: str, body: object = None) -> Any:
-        """One call; the decoded JSON reply, or ControlError with the server's message."""
-        status, raw, _ = self._exchange(method, path, body)
-        return self._decoded(method, path, status, raw)
+    def _unreachable(self, exc: BaseException, stage: str) -> Unreachable:
+        return Unreachable(f"the control API at {self.url} does not answer: {exc}", stage, exc)
+
+    def call(self, method: str, path: str, body: object = None, *, strict: bool = False) -> Any:
+        """One call; the decoded JSON reply, or :class:`Refused` with the server's message. ``strict``: an answer
+        that is not JSON is :class:`Unreachable` (``"not json"``), not None."""
+        status, raw, _, reason = self._exchange(method, path, body)
+        return self._decoded(method, path, status, raw, reason, strict)
 
     def answer(self, method: str, path: str, body: object = None) -> Any:
         """As :meth:`call`, for any route: the decoded JSON reply, or the reply's text where it is not JSON
         (``GET /profile``'s TOML, ``GET /metrics``)."""
-        status, raw, media = self._exchange(method, path, body)
+        status, raw, media, reason = self._exchange(method, path, body)
         if status < 400 and media != "application/json":
             return raw.decode("utf-8", errors="replace")
-        return self._decoded(method, path, status, raw)
+        return self._decoded(method, path, status, raw, reason, False)
 
-    @staticmethod
-    def _decoded(method: str, path: str, status: int, raw: bytes) -> Any:
+    def _decoded(self, method: str, path: str, status: int, raw: bytes, reason: str, strict: bool) -> Any:
         try:
             data = json.loads(raw) if raw else None
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            if strict and status < 400:
+                raise Unreachable(f"{self.url}: its answer to {method} {path} is not JSON", "not json") from None
             data = None
         if status >= 400:
             message = data.get("error") if isinstance(data, dict) else None
-            raise ControlError(str(message or f"{method} {path}: HTTP {status}"), status=status)
+            said = str(message or raw.decode("utf-8", errors="replace").strip() or reason)
+            raise Refused(str(message or f"{method} {path}: HTTP {status}"), status, said)
         return data
 
     def text(self, path: str) -> str:
-        status, raw, _ = self._exchange("GET", path)
+        status, raw, _, _ = self._exchange("GET", path)
         if status >= 400:
             raise ControlError(f"GET {path}: HTTP {status}", status=status)
         return raw.decode("utf-8")

@@ -1,6 +1,7 @@
 """``c20sim ctl``: the control API from a shell, with the standard library only.
 
-Every action is an operation of the route table (:mod:`c20sim.control.routes`),
+Its calls go through the API's one HTTP client (:class:`~c20sim.control.client.ControlClient`), over one
+kept-alive connection per action. Every action is an operation of the route table (:mod:`c20sim.control.routes`),
 its arguments made from the row's fields; an error answer is
 one line on stderr and exit 2, as for every other command. An action that
 changes something (set, fault, clear, key, advance, ...) prints one line in
@@ -18,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import http.client
 import json
 import os
 import sys
@@ -30,6 +30,7 @@ from ..drive.files import FileReadError, read_bytes
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS, Command, RunChannel
 from . import routes
+from .client import ControlClient, Refused, Unreachable
 
 __all__ = ["add_ctl_command", "call", "render", "rounded"]
 
@@ -50,7 +51,7 @@ def _ctl_url(args: argparse.Namespace) -> tuple[str, str | None]:
         given = str(args.url).rstrip("/")
         try:
             parts = urlsplit(given)
-            valid = parts.scheme in ("http", "https") and bool(parts.hostname) and parts.port is not None
+            valid = parts.scheme == "http" and bool(parts.hostname) and parts.port is not None
         except ValueError:
             valid = False
         if not valid:
@@ -76,45 +77,43 @@ def _ctl_url(args: argparse.Namespace) -> tuple[str, str | None]:
 
 
 def call(
-    url: str, method: str, path: str, data: object = None, timeout: float = 10.0, *, token: str | None = None
+    url: str,
+    method: str,
+    path: str,
+    data: object = None,
+    timeout: float = 10.0,
+    *,
+    token: str | None = None,
+    client: ControlClient | None = None,
 ) -> Any:
-    """One API request with urllib; a 4xx/5xx answer, or an answer that is not the API's, raises C20SimError
-    with one sentence saying what is wrong."""
-    import urllib.error
-    import urllib.request
-
-    payload = json.dumps(data).encode() if data is not None else None
-    request = urllib.request.Request(url + path, data=payload, method=method)
-    if method != "GET":  # the API takes state changes only as JSON, even without a body
-        request.add_header("Content-Type", "application/json")
-    if token is not None:
-        request.add_header("Authorization", f"Bearer {token}")
-    not_api = f"{url}: not c20sim's control API"
+    """One API request through :class:`~c20sim.control.client.ControlClient` (``client``'s kept-alive connection,
+    or one of its own); a 4xx/5xx answer, or an answer that is not the API's, raises C20SimError with one sentence
+    saying what is wrong."""
+    own = client is None
+    api = ControlClient(url, token, timeout) if client is None else client
     try:
-        with urllib.request.urlopen(request, timeout=timeout) as response:
-            body = response.read()
-        return json.loads(body or b"null")
-    except json.JSONDecodeError:
-        raise C20SimError(
-            f"{not_api} (its answer to {method} {path} is not JSON); check --url or --ready-file"
-        ) from None
-    except TimeoutError:
-        raise C20SimError(
+        return api.call(method, path, data, strict=True)
+    except Refused as exc:
+        raise C20SimError(f"{method} {path}: {exc.status}: {exc.said}") from None
+    except Unreachable as exc:
+        raise C20SimError(_unreachable(url, method, path, api.timeout, exc)) from None
+    finally:
+        if own:
+            api.close()
+
+
+def _unreachable(url: str, method: str, path: str, timeout: float, exc: Unreachable) -> str:
+    """What ctl says of an API that did not answer as the API."""
+    not_api = f"{url}: not c20sim's control API"
+    if exc.stage == "connect":
+        return f"{url}: cannot reach the control API ({exc.cause}); is c20sim serve --control running?"
+    if exc.stage == "not json":
+        return f"{not_api} (its answer to {method} {path} is not JSON); check --url or --ready-file"
+    if exc.stage == "timeout":
+        return (
             f"{not_api}, or it is stuck: no answer to {method} {path} within {timeout:g} s; check --url or --ready-file"
-        ) from None
-    except (http.client.HTTPException, ConnectionError) as exc:
-        raise C20SimError(f"{not_api} ({type(exc).__name__}: {exc}); check --url or --ready-file") from None
-    except urllib.error.HTTPError as exc:
-        text = exc.read().decode(errors="replace")
-        try:
-            message = json.loads(text)["error"]
-        except (ValueError, KeyError, TypeError):
-            message = text.strip() or exc.reason
-        raise C20SimError(f"{method} {path}: {exc.code}: {message}") from None
-    except urllib.error.URLError as exc:
-        raise C20SimError(
-            f"{url}: cannot reach the control API ({exc.reason}); is c20sim serve --control running?"
-        ) from None
+        )
+    return f"{not_api} ({type(exc.cause).__name__}: {exc.cause}); check --url or --ready-file"
 
 
 def _pairs(words: list[str], example: str = "supply_v=30") -> dict[str, object]:
@@ -470,12 +469,16 @@ def _changes(action: str) -> bool:
 
 def cmd_ctl(args: argparse.Namespace) -> int:
     url, token = _ctl_target(args)
-    api = functools.partial(call, url, token=token)
+    client = ControlClient(url, token, timeout=10.0)  # one kept-alive connection for the action's calls
+    api = functools.partial(call, url, client=client)
     action: str = args.action
-    if action in SHAPED:
-        result = _shaped_call(api, action, args)
-    else:
-        result = _derived_call(api, _choose(_actions()[action], args), args)
+    try:
+        if action in SHAPED:
+            result = _shaped_call(api, action, args)
+        else:
+            result = _derived_call(api, _choose(_actions()[action], args), args)
+    finally:
+        client.close()
     if action == "frames" and args.format != "json" and not args.json:
         _write(_frame_lines(result["frames"]))
         return 0

@@ -10,6 +10,10 @@ everything done to a drive is one API call through the
 :class:`~c20sim.control.client.RemoteOps`. A refused call (or a server gone)
 is shown as a notification, never a traceback. Closing the dashboard leaves
 the server alone: ``c20sim dashboard`` stops the one it started itself.
+
+The tabs below the plots are the rows of :mod:`c20sim.tui.tabs`: the tab bar,
+the keys that switch to them, the panel kept up to date, the drive pushed down
+to the panels that act on one, the focus, the help and the palette iterate them.
 """
 
 from __future__ import annotations
@@ -27,11 +31,11 @@ from rich.text import Text
 from textual import on
 from textual.app import App, ComposeResult, ScreenStackError, SystemCommand
 from textual.binding import Binding, BindingType
-from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.reactive import reactive
-from textual.screen import ModalScreen, Screen
-from textual.widgets import Footer, Input, Label, Markdown, OptionList, Static, TabbedContent, TabPane
+from textual.screen import Screen
+from textual.widgets import Footer, OptionList, Static, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
 from ..control import routes
@@ -39,13 +43,11 @@ from ..control.client import RemoteOps
 from ..control.ops import ControlError
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS
-from .audit import AuditPanel
-from .drill import DrillPanel
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
-from .registers import RegistersPanel
+from .screens import HelpScreen, SaveLogScreen
 from .status import STATUS_STYLES, DriveStatus, TrendPlot
+from .tabs import tabs
 from .widgets import (
-    ConditionsPanel,
     DeviceFaultsPanel,
     FrameLog,
     LinkFaultsPanel,
@@ -62,92 +64,6 @@ T = TypeVar("T")
 #: server and the dashboard at most that.
 STREAM_BUFFER = 40
 FRAME_HZ = 5
-
-TABS = {
-    "frames": "f2",
-    "conditions": "f3",
-    "faults": "f4",
-    "link": "f5",
-    "registers": "f6",
-    "audit": "f7",
-    "drill": "f8",
-}
-
-HELP = """\
-# c20sim dashboard
-
-A virtual ZBLD.C20 drive on the bench. Point any Modbus RTU master at the
-endpoints in the top line; the drive answers there while you watch it here.
-
-## Keypad (works as on the drive)
-
-| key | |
-|---|---|
-| `f` / `r` | RUN forward / reverse (only with the keypad run channel, F00.01 = 0) |
-| `j` / `J` | JOG forward / reverse; press again to release |
-| `s` | STOP (from any channel) |
-| `x` | RESET a fault (refused while its cause is still there) |
-| `m` | run channel: keypad -> terminals -> communication (F00.01) |
-| `S` | speed source: keypad -> AI1 -> AI2 -> Modbus -> multi-speed -> dial switch (F00.02) |
-| `+` / `-` | keypad speed reference, 1.00 Hz a press (F00.10; used with the keypad speed source) |
-| `P` | power cycle |
-| `D` | restore default parameters (200FH = 1; only while stopped) |
-
-## Views
-
-| key | |
-|---|---|
-| `F2` | frame log: `space` pause, `a` drive, `n` function, `e` errors only, `w` save, `Del` clear |
-| `F3` | conditions: supply, load, ambient, AI1/AI2, input terminals (Enter applies, up/down step) |
-| `F4` | device faults: one key each, the cause switched on or off (a letter: a physical cause, the drive trips by its model; a digit: a fault held on, the model has no physics for it); RESET (`x`, or a master's 2000H = 7) clears a fault once its cause is off; `z` clears all |
-| `F5` | link faults: one key each, on the selected drive's link or the whole bus (`b`) |
-| `F6` | registers: every register and function code, live, with the drive's traffic counters; Enter edits one by a master's rules (a refusal names its exception code); `/` finds one by any name (speed, motor speed, 3006H, 12294, F00.10) |
-| `F7` | audit: what the masters would do wrong on a real RS485 line, worst first, and the line-demand gauge (docs/audit.md) |
-| `F8` | drill: the incidents and their last verdicts; `g` plays the selected one on the master polling the serve, `A` the standard plan, `C` stops (docs/drill.md) |
-| `[` / `]` | previous / next drive |
-| `t` / `T` | virtual clock only: time +1 s / +10 s |
-| `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
-| `ctrl+p` | the command palette: every action by name |
-| `?` | this help; `q` quits |
-"""
-
-
-class HelpScreen(ModalScreen[None]):
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
-
-    def compose(self) -> ComposeResult:
-        with VerticalScroll(id="help"):
-            yield Markdown(HELP)
-
-    def on_mount(self) -> None:
-        self.query_one("#help").focus()  # up/down, page up/down and the wheel scroll it
-
-    def action_dismiss(self, result: None = None) -> None:  # type: ignore[override]
-        self.dismiss(result)
-
-
-class SaveLogScreen(ModalScreen[str | None]):
-    """Ask where to save the frame log."""
-
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "Cancel")]
-
-    def __init__(self, default: str) -> None:
-        super().__init__()
-        self.default = default
-
-    def compose(self) -> ComposeResult:
-        with Vertical(id="save"):
-            yield Label("Save the frames shown (with their filter) to:")
-            yield Input(self.default, id="save-path")
-            yield Label("Enter saves, Escape cancels", classes="hint")
-
-    @on(Input.Submitted)
-    def _submit(self, event: Input.Submitted) -> None:
-        event.stop()
-        self.dismiss(event.value.strip() or None)
-
-    def action_cancel(self) -> None:
-        self.dismiss(None)
 
 
 class MainScreen(Screen[None]):
@@ -170,21 +86,11 @@ class MainScreen(Screen[None]):
                 yield TrendPlot("speed", "rpm", m.rated_speed_rpm, id="plot-speed")
                 yield TrendPlot("current", "A", p.current_limit_a, digits=2, id="plot-current")
                 yield TrendPlot("bus", "V", s.overvoltage_v, digits=1, id="plot-bus")
-        with TabbedContent(id="tabs", initial="frames"):
-            with TabPane("Frames F2", id="frames"):
-                yield FrameLog(list(bench.addresses), id="framelog")
-            with TabPane("Conditions F3", id="conditions"):
-                yield ConditionsPanel(bench, id="conditions-panel")
-            with TabPane("Device faults F4", id="faults"):
-                yield DeviceFaultsPanel(bench, id="faults-panel")
-            with TabPane("Link faults F5", id="link"):
-                yield LinkFaultsPanel(bench, id="link-panel")
-            with TabPane("Registers F6", id="registers"):
-                yield RegistersPanel(bench, id="registers-panel")
-            with TabPane("Audit F7", id="audit"):
-                yield AuditPanel(bench, id="audit-panel")
-            with TabPane("Drill F8", id="drill"):
-                yield DrillPanel(bench, id="drill-panel")
+        rows = list(tabs())
+        with TabbedContent(id="tabs", initial=rows[0].id):
+            for tab in rows:
+                with TabPane(tab.label, id=tab.id):
+                    yield tab.panel(bench, id=tab.panel_id)
         yield Footer()
 
     def on_mount(self) -> None:
@@ -220,7 +126,6 @@ class Dashboard(App[int]):
         Binding("T", "advance(10)", "+10s", show=False),
         Binding("left_square_bracket", "drive(-1)", "Prev drive", show=False),
         Binding("right_square_bracket", "drive(1)", "Next drive", show=False),
-        *[Binding(key, f"tab('{tab}')", tab.capitalize(), show=False) for tab, key in TABS.items()],
         Binding("question_mark", "help", "Help"),
         Binding("q", "quit", "Quit"),
     ]
@@ -229,6 +134,8 @@ class Dashboard(App[int]):
 
     def __init__(self, remote: RemoteOps, *, refresh_hz: float = 5.0) -> None:
         super().__init__()
+        for tab in tabs():  # one key per tab row, bound when the dashboard is made
+            self.bind(tab.key, f"tab('{tab.id}')", description=tab.title, show=False)
         self.remote = remote
         self.bench = Workbench(remote)
         self.refresh_hz = refresh_hz
@@ -429,19 +336,9 @@ class Dashboard(App[int]):
                 if self._drive_labels.get(address) != label.plain + str(status):
                     self._drive_labels[address] = label.plain + str(status)
                     drives.replace_option_prompt_at_index(index, label)
-        active = screen.query_one(TabbedContent).active  # only the panel on show is kept up to date
-        if active == "conditions":
-            screen.query_one(ConditionsPanel).show()
-        elif active == "faults":
-            screen.query_one(DeviceFaultsPanel).refresh_marks(self.selected)
-        elif active == "link":
-            screen.query_one(LinkFaultsPanel).refresh_marks(self.selected)
-        elif active == "registers":
-            screen.query_one(RegistersPanel).show()
-        elif active == "audit":
-            screen.query_one(AuditPanel).show()
-        elif active == "drill":
-            screen.query_one(DrillPanel).show()
+        active = tabs().get(screen.query_one(TabbedContent).active)  # only the panel on show is kept up to date
+        if active is not None and active.refresh is not None:
+            active.refresh(screen.query_one(f"#{active.panel_id}"), self.selected)
 
     def get_screen_main(self) -> MainScreen:
         for screen in self.screen_stack:
@@ -529,10 +426,10 @@ class Dashboard(App[int]):
     def watch_selected(self, address: int) -> None:
         with contextlib.suppress(NoMatches, LookupError):  # push the drive down to the panels that act on it
             screen = self.get_screen_main()
-            screen.query_one(ConditionsPanel).selected = address
-            screen.query_one(DeviceFaultsPanel).selected = address
-            screen.query_one(LinkFaultsPanel).selected = address
-            screen.query_one(RegistersPanel).selected = address
+            for tab in tabs():
+                if tab.follows_drive:
+                    panel: Any = screen.query_one(f"#{tab.panel_id}")
+                    panel.selected = address
         if self.views:
             self._show()
 
@@ -552,17 +449,8 @@ class Dashboard(App[int]):
             self._focus_tab(event.pane.id)
 
     def _focus_tab(self, tab: str) -> None:
-        screen = self.get_screen_main()
-        target = {
-            "frames": FrameLog,
-            "conditions": "#cond-supply",
-            "faults": DeviceFaultsPanel,
-            "link": LinkFaultsPanel,
-            "registers": "#reg-table",
-            "audit": "#audit-table",
-            "drill": "#drill-table",
-        }[tab]
-        screen.query_one(target).focus()  # type: ignore[call-overload]
+        row = tabs()[tab]
+        self.get_screen_main().query_one(row.focus or f"#{row.panel_id}").focus()
 
     def action_pause(self) -> None:
         """The realtime clock: pause it, or resume it (the model stands still meanwhile; the wire still answers)."""
@@ -632,6 +520,10 @@ class Dashboard(App[int]):
             )
         yield SystemCommand("Restore defaults", "200FH = 1 (only while stopped)", self.action_restore_defaults)
         yield SystemCommand("Save frame log", "write the frames shown to a file", self.action_save_log)
+        for tab in tabs():
+            yield SystemCommand(
+                f"View: {tab.title} ({tab.key.upper()})", tab.help.split(":")[0], lambda t=tab.id: self.action_tab(t)
+            )
         for switch in self.bench.device_switches:
             yield SystemCommand(f"Device fault: {switch.label}", switch.how, lambda k=switch.key: self._device_fault(k))
         for key, (code, name) in self.bench.forced.items():

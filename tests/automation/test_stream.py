@@ -172,7 +172,7 @@ def test_a_reader_that_never_reads_does_not_slow_the_wire(served: Served) -> Non
 
 
 async def test_stream_readers_are_bounded(served: Served, session: aiohttp.ClientSession) -> None:
-    from c20sim.control.http import MAX_STREAMS
+    from c20sim.control.httpstream import MAX_STREAMS
 
     readers = [await session.ws_connect(f"{served.url}/stream?frames=0") for _ in range(MAX_STREAMS)]
     try:
@@ -214,6 +214,6 @@ def test_closing_the_api_does_not_wait_for_a_reader_that_never_reads(served: Ser
     [(0.0, 0.05, 0.2), (0.0, 0.2, 0.4), (0.0, 0.61, 0.8), (1.0, 1.0, 1.2)],
 )
 def test_the_stream_keeps_its_beat(last: float, now: float, expected: float) -> None:
-    from c20sim.control.http import _next_beat
+    from c20sim.control.httpstream import _next_beat
 
     assert _next_beat(last, 0.2, now) == pytest.approx(expected)

@@ -12,7 +12,7 @@ import pytest
 from textual.pilot import Pilot
 from textual.widgets import RichLog
 
-from c20sim.control import http
+from c20sim.control import httpstream
 from c20sim.tui import Dashboard, widgets
 from c20sim.tui.widgets import FrameLog
 from c20sim.wire.protocol import RtuFramer
@@ -80,7 +80,7 @@ def test_main_screen_running(snap_compare: Any, served: Served) -> None:
 
 def test_frame_log(snap_compare: Any, served2: Served, monkeypatch: pytest.MonkeyPatch) -> None:
     # frames show the time of day: fixed here (the server's wall offset 0, so "wall" is the line's time)
-    monkeypatch.setattr(http, "WALL_OFFSET", 0.0)
+    monkeypatch.setattr(httpstream, "WALL_OFFSET", 0.0)
     monkeypatch.setattr(widgets, "time_of_day", lambda wall: f"10:00:{wall:06.3f}")
 
     async def frames_with_errors(pilot: Pilot[Any]) -> None:
