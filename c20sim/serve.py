@@ -25,7 +25,8 @@ from typing import IO, TYPE_CHECKING, Any, Protocol, TypeVar
 from .core.simulator import Simulator
 from .transport.framelog import FrameLog
 from .transport.line import Line
-from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
+from .transport.modbustcp import ModbusTcpServer
+from .transport.tcp import RtuOverTcpServer, parse_host_port
 from .wire.errors import C20SimError
 from .wire.protocol import char_bits
 
