@@ -40,15 +40,21 @@ from .drive.model import Telemetry
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .drivehandle import DriveHandle
 from .serve import ServeOptions, Server
+from .transport.rows import find, rows
 from .wire.errors import C20SimError
 from .wire.protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
 
-__all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start"]
+__all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start", "transports"]
 
 T = TypeVar("T")
 
-#: Transports the fixture can open; ``tcp`` is RTU over TCP.
-TRANSPORTS = ("tcp", "pty", "modbus-tcp")
+
+def transports() -> tuple[str, ...]:
+    """The transports the handle can open (the rows with a ``fixture`` value: c20sim.transport.rows); ``tcp`` is
+    RTU over TCP."""
+    return tuple(row.name for row in rows() if row.fixture is not None)
+
+
 #: Clocks the marker can ask for.
 CLOCKS = ("virtual", "realtime")
 #: Frames shown in an assertion's message.
@@ -120,10 +126,11 @@ def format_frames(records: Sequence[FrameRecord], limit: int = SHOWN_FRAMES) -> 
 class C20Sim:
     """A running simulator: its ports, its clock, its drives, and assertions on its frame log.
 
-    ``host``/``port`` are the endpoint of the TCP transport asked for: RTU over TCP for ``transport="tcp"``,
+    ``host``/``port`` are the endpoint of the network transport asked for: RTU over TCP for ``transport="tcp"``,
     Modbus TCP for ``transport="modbus-tcp"`` (with both, the first one listed). ``tcp_port`` is the RTU-over-TCP
     port, ``modbus_tcp_port`` the Modbus TCP port and ``pty`` the virtual serial port's path; each is None unless
-    that transport was asked for. Methods that take ``drive`` act on the first drive when it is None.
+    that transport was asked for. ``endpoints`` has every transport's address by its ready-file key, as
+    ``serve --ready-file`` writes them. Methods that take ``drive`` act on the first drive when it is None.
     """
 
     def __init__(
@@ -141,13 +148,20 @@ class C20Sim:
         self.profile: Profile = server.sim.profile
         self.addresses: tuple[int, ...] = tuple(server.sim.drives)
         ends = server.endpoints
-        self.pty: str | None = ends.pty.path if ends.pty is not None else None
+        #: every transport's address by its ready-file key (a path, or HOST:PORT)
+        self.endpoints: dict[str, str] = ends.addresses()
+        self.pty: str | None = ends.address("pty")
         self.tcp_port: int | None = ends.tcp.port if ends.tcp is not None else None
         self.modbus_tcp_port: int | None = ends.modbus_tcp.port if ends.modbus_tcp is not None else None
-        by_name = {"tcp": ends.tcp, "modbus-tcp": ends.modbus_tcp}
-        first = next((by_name[t] for t in transports if by_name.get(t) is not None), None)
+        names = [row.name for row in ends.rows.values() if row.network]
+        listening = dict(zip(names, ends.network(), strict=True))
+        first = next((listening[t] for t in transports if t in listening), None)
         self.host: str | None = first.host if first is not None else None
         self.port: int | None = first.port if first is not None else None
+        #: what the masters' connections carry: ``rtu`` where any transport asked for carries RTU frames, else
+        #: ``mbap`` (what the drill's standard plan plays, as serve's)
+        models = {row.model for t in transports if (row := find(t)) is not None}
+        self.model = "rtu" if "rtu" in models or not models else "mbap"
 
     @classmethod
     def start(
@@ -348,7 +362,7 @@ class C20Sim:
         from .drill import read_plan, standard_plan
         from .drillrun import RunOptions, load_plan, play
 
-        served = "modbus-tcp" if self.port is None and self.pty is None else "tcp"
+        served = "modbus-tcp" if self.model == "mbap" else "tcp"
         if plan is None:
             chosen = standard_plan(seed, served)
         elif isinstance(plan, (str, os.PathLike)) and os.path.isfile(plan):
@@ -487,15 +501,16 @@ def _written(request: object) -> dict[int, int]:
 
 
 def _transports(value: object) -> tuple[str, ...]:
+    known = transports()
     if isinstance(value, str):
         names: tuple[object, ...] = (value,)
     elif isinstance(value, Iterable):
         names = tuple(value)
     else:
-        raise C20SimError(f"c20sim: transport {value!r}: give a name or a sequence of {', '.join(TRANSPORTS)}")
+        raise C20SimError(f"c20sim: transport {value!r}: give a name or a sequence of {', '.join(known)}")
     for name in names:
-        if name not in TRANSPORTS:
-            raise C20SimError(f"c20sim: unknown transport {name!r}; use one or more of {', '.join(TRANSPORTS)}")
+        if name not in known:
+            raise C20SimError(f"c20sim: unknown transport {name!r}; use one or more of {', '.join(known)}")
     if not names:
         raise C20SimError("c20sim: give at least one transport")
     return tuple(str(name) for name in names)
@@ -559,12 +574,10 @@ def start(settings: Settings) -> C20Sim:
     """Start a simulator for ``settings`` in a background thread; :meth:`C20Sim.close` stops it."""
     profile = settings.profile if isinstance(settings.profile, Profile) else load_profile(settings.profile)
     sim = Simulator(profile, settings.drives, clock=make_clock(settings.clock, settings.speed), seed=settings.seed)
-    options = ServeOptions(
-        pty="pty" in settings.transport,
-        tcp="127.0.0.1:0" if "tcp" in settings.transport else None,
-        modbus_tcp="127.0.0.1:0" if "modbus-tcp" in settings.transport else None,
-        bus_timing=settings.bus_timing,
-    )
+    given: dict[str, Any] = {
+        row.options[0].dest: row.fixture for row in rows() if row.name in settings.transport and row.fixture is not None
+    }
+    options = ServeOptions(**given, bus_timing=settings.bus_timing)
     thread = _LoopThread()
 
     async def serve() -> Server:
