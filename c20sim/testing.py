@@ -49,10 +49,15 @@ __all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start", "tran
 T = TypeVar("T")
 
 
+#: The transport the handle opens unless asked otherwise: RTU over TCP on port 0.
+DEFAULT_TRANSPORT = "tcp"
+
+
 def transports() -> tuple[str, ...]:
-    """The transports the handle can open (the rows with a ``fixture`` value: c20sim.transport.rows); ``tcp`` is
-    RTU over TCP."""
-    return tuple(row.name for row in rows() if row.fixture is not None)
+    """The transports the handle can open (the rows with a ``fixture`` value: c20sim.transport.rows), the default
+    first; ``tcp`` is RTU over TCP."""
+    names = [row.name for row in rows() if row.fixture is not None]
+    return tuple(sorted(names, key=lambda name: name != DEFAULT_TRANSPORT))
 
 
 #: Clocks the marker can ask for.
@@ -66,7 +71,7 @@ class Settings:
     """What the fixture starts: profile, transports, drive addresses and clock."""
 
     profile: str | Profile = DEFAULT_PROFILE
-    transport: tuple[str, ...] = ("tcp",)
+    transport: tuple[str, ...] = (DEFAULT_TRANSPORT,)
     drives: tuple[int, ...] = (1,)
     clock: str = "virtual"
     speed: float = 1.0
@@ -561,7 +566,7 @@ def check_settings(given: Mapping[str, Any]) -> Settings:
         raise C20SimError(f"c20sim: bus_timing {bus_timing!r}: give True or False")
     return Settings(
         profile=_profile(given.get("profile", DEFAULT_PROFILE)),
-        transport=_transports(given.get("transport", "tcp")),
+        transport=_transports(given.get("transport", DEFAULT_TRANSPORT)),
         drives=_drives(given.get("drives", (1,))),
         clock=clock,
         speed=float(speed),

@@ -112,7 +112,8 @@ class _MbapConnection(_Connection):
     def _request(self, transaction: int, unit: int, pdu: bytes) -> None:
         line = self.owner.line
         loop = self.loop
-        framer = RtuFramer(line.sim.bus.line_baud, check_gaps=False)
+        # one whole frame, fed at once and flushed: no gap is judged, so the framer needs no baud of the line's
+        framer = RtuFramer(check_gaps=False)
         # arrival on the clock every port stamps with (uvloop's loop time counts whole milliseconds, cached)
         framer.feed(with_crc(bytes((unit,)) + pdu), time.perf_counter())
         framer.flush()
