@@ -87,7 +87,8 @@ def add_transport_options(parser: argparse.ArgumentParser) -> None:
     where = parser.add_argument_group(
         f"endpoints (with none: {', '.join(defaults)}"
         + "".join(f"; no {flag} where there is no POSIX" for flag in posix)
-        + ")"
+        + ")",
+        "The transports: " + "; ".join(f"{row.options[0].flag}, {row.help}" for row in rows()) + ".",
     )
     for row in rows():
         for option in row.options:

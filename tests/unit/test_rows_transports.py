@@ -148,6 +148,7 @@ def test_the_row_reaches_serves_options_and_help(loop_row: Transport, capsys: py
     for command in ("serve", "dashboard", "web", "mcp"):
         text = " ".join(_help(capsys, command).split())
         assert "--loop-tcp HOST:PORT RTU frames on a throwaway listener (a test's own)" in text, command
+        assert "; --loop-tcp, a test's throwaway transport." in text, command  # its help line
     assert ServeOptions(loop_tcp="127.0.0.1:0").asked() == [loop_row]
 
 
