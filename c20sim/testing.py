@@ -135,7 +135,7 @@ class C20Sim:
         ends = server.endpoints
         #: every transport's address by its ready-file key (a path, or HOST:PORT)
         self.endpoints: dict[str, str] = ends.addresses()
-        self.pty: str | None = ends.address("pty")
+        self.pty: str | None = ends.pty.path if ends.pty is not None else None
         self.tcp_port: int | None = ends.tcp.port if ends.tcp is not None else None
         self.modbus_tcp_port: int | None = ends.modbus_tcp.port if ends.modbus_tcp is not None else None
         names = [row.name for row in ends.rows.values() if row.network]
