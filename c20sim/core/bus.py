@@ -387,7 +387,11 @@ class Bus:
         Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
         line and to the addressed drive."""
         baud = self._line_baud  # the request and its reply go at the baud before a 2009H write takes effect
-        reply = self._handle(event, now)
+        try:
+            reply = self._handle(event, now)
+        finally:
+            if self._line_baud != baud:
+                self._tell_line()  # the line followed its only drive: told once the transaction is recorded
         bits = self._char_bits
         request = frame_time(len(event.data), baud, bits)
         spent = request
@@ -401,8 +405,6 @@ class Bus:
             if counters.first_t is None:
                 counters.first_t = event.t - request
             counters.last_t = event.t + spent - request
-        if self._line_baud != baud:
-            self._tell_line()  # the line followed its only drive: told once the transaction is recorded
         return reply
 
     def _handle(self, event: FrameEvent, now: float | None) -> Reply | None:
