@@ -146,6 +146,7 @@ class Transport:
         return any(values.get(option.dest) for option in self.options)
 
     def usable(self) -> bool:
+        """Can it be opened on this system (a pty needs POSIX)?"""
         return self.posix_only is None or posix_supported()
 
 
@@ -219,6 +220,7 @@ def rows() -> tuple[Transport, ...]:
 
 
 def find(name: str) -> Transport | None:
+    """The transport called ``name`` (``"modbus-tcp"``), or None."""
     return _ROWS.get(name)
 
 
