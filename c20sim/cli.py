@@ -28,22 +28,29 @@ from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_pr
 from .plant import add_plant_commands, drive_addresses
 from .scenario.schema import add_schema_command
 from .scenario.suite import add_run_scenario_command
-from .serve import ServeOptions, pty_supported, run, run_server
+from .serve import ServeOptions, endpoint_dests, run, run_server
 from .traffic.auditlog import add_audit_command
 from .traffic.capture import add_decode_command
 from .traffic.exercise import add_exercise_command
 from .traffic.fit import add_fit_command
 from .traffic.record import add_record_command
 from .traffic.replay import add_replay_command
+from .transport.rows import find, rows
 from .wire.errors import C20SimError
 from .wire.registers import BAUD_RATES, format_fcode
 
 __all__ = ["main"]
 
 
-#: The endpoints of a bare ``c20sim`` or ``c20sim serve``: RTU over TCP and Modbus TCP, on unprivileged ports.
-DEFAULT_TCP = "127.0.0.1:5020"
-DEFAULT_MODBUS_TCP = "127.0.0.1:1502"
+def _default(name: str) -> str:
+    row = find(name)
+    return str(row.default) if row is not None else ""
+
+
+#: The endpoints of a bare ``c20sim`` or ``c20sim serve`` on TCP (the rows' defaults: RTU over TCP and Modbus TCP,
+#: on unprivileged ports).
+DEFAULT_TCP = _default("tcp")
+DEFAULT_MODBUS_TCP = _default("modbus-tcp")
 
 
 class UsageError(C20SimError):
@@ -65,15 +72,30 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     """The options ``serve`` and ``dashboard`` share: where the drive is, and what it is."""
+    add_transport_options(parser)
+    add_drive_options(parser)
+
+
+def add_transport_options(parser: argparse.ArgumentParser) -> None:
+    """Where the drive is: each transport's options (one row each, c20sim.transport.rows), then the line's."""
+    defaults = [
+        row.options[0].flag + ("" if row.default is True else f" {row.default}")
+        for row in rows()
+        if row.default is not None
+    ]
+    posix = [row.options[0].flag for row in rows() if row.default is not None and row.posix_only is not None]
     where = parser.add_argument_group(
-        f"endpoints (with none: --pty, --tcp {DEFAULT_TCP} and --modbus-tcp {DEFAULT_MODBUS_TCP}; "
-        "no --pty where there are no ptys)"
+        f"endpoints (with none: {', '.join(defaults)}"
+        + "".join(f"; no {flag} where there is no POSIX" for flag in posix)
+        + ")",
+        "The transports: " + "; ".join(f"{row.options[0].flag}, {row.help}" for row in rows()) + ".",
     )
-    where.add_argument("--pty", action="store_true", help="create a virtual serial port and print its path")
-    where.add_argument(
-        "--link", metavar="PATH", help="a stable symlink to the pty, such as /tmp/ttyC20 (implies --pty)"
-    )
-    where.add_argument("--serial", metavar="DEVICE", help="a real serial port, such as /dev/ttyUSB0")
+    for row in rows():
+        for option in row.options:
+            if option.metavar is None:
+                where.add_argument(option.flag, action="store_true", help=option.help)
+            else:
+                where.add_argument(option.flag, metavar=option.metavar, help=option.help)
     where.add_argument(
         "--baud",
         type=int,
@@ -82,8 +104,6 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
     )
     where.add_argument("--parity", default="N", choices=["N", "E", "O"], help="serial parity (default N)")
     where.add_argument("--stopbits", type=int, default=1, choices=[1, 2], help="serial stop bits (default 1)")
-    where.add_argument("--tcp", metavar="HOST:PORT", help="raw RTU frames over TCP, as a serial device server")
-    where.add_argument("--modbus-tcp", metavar="HOST:PORT", help="Modbus TCP (MBAP), as an Ethernet gateway")
     where.add_argument("--line-timing", action="store_true", help="pace replies at the baud and enforce t1.5/t3.5")
     where.add_argument(
         "--bus-timing",
@@ -107,6 +127,11 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         help="a TCP request that waited this long for the line, or got no reply on it, is answered 0x0B on "
         "--modbus-tcp and dropped on --tcp (default 1.0, an MGate's response timeout)",
     )
+    add_control_options(where)
+
+
+def add_control_options(where: argparse._ArgumentGroup) -> None:
+    """The control API's and the metrics' listeners, and the API's token."""
     where.add_argument(
         "--control", metavar="HOST:PORT", help="HTTP JSON control API, such as 127.0.0.1:8020 (see c20sim ctl)"
     )
@@ -126,6 +151,10 @@ def add_endpoint_options(parser: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help=f"read the control API's token from this file (or give it in ${TOKEN_ENV})",
     )
+
+
+def add_drive_options(parser: argparse.ArgumentParser) -> None:
+    """What the drives are, and what serve keeps of them."""
     what = parser.add_argument_group("the simulated drives")
     what.add_argument(
         "--profile", default=DEFAULT_PROFILE, help=f"profile name or TOML path (default {DEFAULT_PROFILE})"
@@ -172,13 +201,9 @@ def build_simulator(args: argparse.Namespace) -> Simulator:
 
 def serve_options(args: argparse.Namespace) -> ServeOptions:
     options = ServeOptions(
-        pty=args.pty,
-        link=args.link,
-        serial=args.serial,
+        **{dest: getattr(args, dest, None) for dest in endpoint_dests()},
         parity=args.parity,
         stopbits=args.stopbits,
-        tcp=args.tcp,
-        modbus_tcp=args.modbus_tcp,
         line_timing=args.line_timing,
         bus_timing=args.bus_timing,
         max_connections=getattr(args, "max_connections", None),
@@ -194,9 +219,9 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         then=getattr(args, "then", None) or "exit",
     )
     if not options.any_endpoint:
-        options.pty = pty_supported()  # no pty on Windows: TCP alone
-        options.tcp = DEFAULT_TCP
-        options.modbus_tcp = DEFAULT_MODBUS_TCP  # most SCADA masters speak Modbus TCP: there is a port for them
+        # each transport's default where it runs (no pty on Windows); most SCADA masters speak Modbus TCP: it has
+        # a port of its own by default
+        options.give_defaults()
     return options
 
 

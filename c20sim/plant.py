@@ -1,9 +1,10 @@
 """A plant of drives on Kubernetes: ``c20sim plant`` writes the manifests, ``c20sim plant-check`` polls them.
 
 A plant is N buses, each an RS-485 line behind a gateway: one Deployment per
-bus whose pod serves that bus's drives on RTU over TCP (5020) and Modbus TCP
-(1502), a Service per bus (the cluster's name for it), and one ConfigMap with
-the profile and the drives list that every bus reads. The same file runs on a
+bus whose pod serves that bus's drives on every network transport with a
+plant port (c20sim.transport.rows: RTU over TCP on 5020 and Modbus TCP on
+1502 as shipped), a Service per bus (the cluster's name for it), and one
+ConfigMap with the profile and the drives list that every bus reads. The same file runs on a
 cluster (``kubectl apply -f``) and on one machine (``podman kube play``, which
 plays the Deployments with their hostPorts and ignores the Services).
 
@@ -21,7 +22,7 @@ import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from . import __version__
@@ -29,6 +30,7 @@ from .core.simulator import parse_addresses
 from .drive.files import FileReadError, read_text
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .transport.probe import NoAnswer, Prober
+from .transport.rows import PlantPort, rows
 from .transport.tcp import parse_host_port
 from .wire.errors import C20SimError
 from .wire.protocol import ExceptionResponse
@@ -36,11 +38,10 @@ from .wire.registers import STATUS_WORDS, Reg
 
 __all__ = ["PlantSpec", "add_plant_commands", "check_bus", "plant_manifests", "to_yaml"]
 
-#: the ports inside every bus's container (the image EXPOSEs them)
-RTU_PORT = 5020
-MODBUS_PORT = 1502
 #: Each pod's read-only GET /metrics listener (serve --metrics), for Prometheus' scrape annotations.
 METRICS_PORT = 9120
+#: The metrics listener as a published port (not a transport: no Service port, no plant-check).
+METRICS = PlantPort("metrics", METRICS_PORT, METRICS_PORT, "--metrics-port-base", "GET /metrics for Prometheus")
 #: the environment variable that carries the drives list (from the ConfigMap) to serve and to the probe
 DRIVES_ENV = "C20SIM_DRIVES"
 #: the image's user (deploy/Containerfile)
@@ -59,9 +60,12 @@ class PlantSpec:
     profile_text: str
     image: str
     name: str = "c20sim"
-    rtu_port_base: int = RTU_PORT
-    modbus_port_base: int = MODBUS_PORT
-    metrics_port_base: int = METRICS_PORT
+    #: bus 0's host port by its option (``--rtu-port-base``), where not the port inside the container
+    port_bases: Mapping[str, int] = field(default_factory=dict)
+
+    def base(self, port: PlantPort) -> int:
+        """Bus 0's host port of ``port``: bus i's is BASE+i."""
+        return self.port_bases.get(port.base_option, port.container_port)
 
     def bus_name(self, bus: int) -> str:
         return f"{self.name}-bus-{bus}"
@@ -69,6 +73,24 @@ class PlantSpec:
     @property
     def config_name(self) -> str:
         return f"{self.name}-plant"
+
+
+def wire_ports() -> list[tuple[str, PlantPort]]:
+    """Each transport a plant's pod serves (its option, its port), in the rows' order."""
+    return [(row.options[0].flag, row.plant) for row in rows() if row.plant is not None]
+
+
+def published() -> list[PlantPort]:
+    """Every port a pod publishes: the transports', then the metrics listener."""
+    return [port for _, port in wire_ports()] + [METRICS]
+
+
+def probe_port() -> tuple[int, bool]:
+    """The port the readiness probe and plant-check poll: the first plant transport carrying RTU frames (else the
+    first one), and whether it speaks Modbus TCP."""
+    ports = [(row.plant, row.model) for row in rows() if row.plant is not None]
+    port, model = next(((p, m) for p, m in ports if m == "rtu"), ports[0])
+    return port.container_port, model == "mbap"
 
 
 def check_spec(spec: PlantSpec) -> None:
@@ -83,11 +105,7 @@ def check_spec(spec: PlantSpec) -> None:
             f"--name {spec.name!r}: give lower-case letters, digits and '-', starting with a letter, "
             f"at most {longest} characters"
         )
-    bases = {
-        "--rtu-port-base": spec.rtu_port_base,
-        "--modbus-port-base": spec.modbus_port_base,
-        "--metrics-port-base": spec.metrics_port_base,
-    }
+    bases = {port.base_option: spec.base(port) for port in published()}
     for option, base in bases.items():
         if not 1 <= base <= 65536 - spec.buses:
             raise C20SimError(f"{option} {base}: give 1-{65536 - spec.buses} (bus i is published at BASE+i)")
@@ -121,13 +139,18 @@ def plant_manifests(spec: PlantSpec) -> list[dict[str, Any]]:
                 "spec": {
                     "selector": labels,
                     "ports": [
-                        {"name": "rtu-tcp", "port": RTU_PORT, "targetPort": "rtu-tcp", "protocol": "TCP"},
-                        {"name": "modbus-tcp", "port": 502, "targetPort": "modbus-tcp", "protocol": "TCP"},
+                        {"name": port.name, "port": port.service_port, "targetPort": port.name, "protocol": "TCP"}
+                        for _, port in wire_ports()
                     ],
                 },
             }
         )
     return docs
+
+
+def _probe_command() -> list[str]:
+    port, modbus_tcp = probe_port()
+    return ["c20sim", "plant-check", "--quiet", *(["--modbus-tcp"] if modbus_tcp else []), f"127.0.0.1:{port}"]
 
 
 def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[str, Any]:
@@ -136,10 +159,7 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
         "image": spec.image,
         "imagePullPolicy": "IfNotPresent",
         "args": [
-            "--tcp",
-            f"0.0.0.0:{RTU_PORT}",
-            "--modbus-tcp",
-            f"0.0.0.0:{MODBUS_PORT}",
+            *(word for option, port in wire_ports() for word in (option, f"0.0.0.0:{port.container_port}")),
             "--profile",
             "/etc/c20sim/profile.toml",
             "--metrics",
@@ -155,27 +175,16 @@ def _deployment(spec: PlantSpec, bus: int, labels: Mapping[str, str]) -> dict[st
         ],
         "ports": [
             {
-                "name": "rtu-tcp",
-                "containerPort": RTU_PORT,
-                "hostPort": spec.rtu_port_base + bus,
+                "name": port.name,
+                "containerPort": port.container_port,
+                "hostPort": spec.base(port) + bus,
                 "protocol": "TCP",
-            },
-            {
-                "name": "modbus-tcp",
-                "containerPort": MODBUS_PORT,
-                "hostPort": spec.modbus_port_base + bus,
-                "protocol": "TCP",
-            },
-            {
-                "name": "metrics",
-                "containerPort": METRICS_PORT,
-                "hostPort": spec.metrics_port_base + bus,
-                "protocol": "TCP",
-            },
+            }
+            for port in published()
         ],
         # ready when every drive of the bus answers a Modbus read (the drives come from $C20SIM_DRIVES)
         "readinessProbe": {
-            "exec": {"command": ["c20sim", "plant-check", "--quiet", f"127.0.0.1:{RTU_PORT}"]},
+            "exec": {"command": _probe_command()},
             "initialDelaySeconds": 1,
             "periodSeconds": 5,
             "timeoutSeconds": 5,
@@ -329,29 +338,9 @@ def cmd_plant(args: argparse.Namespace) -> int:
         profile_text=profile_text,
         image=args.image,
         name=args.name,
-        rtu_port_base=args.rtu_port_base,
-        modbus_port_base=args.modbus_port_base,
-        metrics_port_base=args.metrics_port_base,
+        port_bases={port.base_option: getattr(args, _dest(port.base_option)) for port in published()},
     )
-    docs = plant_manifests(spec)
-    last = spec.buses - 1
-    header = [
-        f"A c20sim plant: {spec.buses} bus(es), drives {spec.drives} on each, profile {spec.profile_name}.",
-        f"Generated by c20sim {__version__}: {command_line(spec, args.profile)}",
-        "",
-        f"On a cluster:      kubectl apply -f THIS_FILE  (Services {spec.name}-bus-N: RTU over TCP :5020, Modbus TCP :502)",
-        "On one machine:    podman kube play THIS_FILE  (podman ignores the Services; the hostPorts publish",
-        f"                   bus i at RTU over TCP {spec.rtu_port_base}+i and Modbus TCP {spec.modbus_port_base}+i)",
-        f"Check every drive: c20sim plant-check --drives {spec.drives} "
-        + (
-            " ".join(f"127.0.0.1:{spec.rtu_port_base + bus}" for bus in range(spec.buses))
-            if spec.buses <= 4
-            else f"127.0.0.1:{spec.rtu_port_base} ... 127.0.0.1:{spec.rtu_port_base + last}"
-        ),
-        "Tear down:         podman kube down THIS_FILE  (or kubectl delete -f THIS_FILE)",
-        "The control API is not served: it has no token yet, so keep it loopback-only.",
-    ]
-    text = to_yaml(docs, header)
+    text = to_yaml(plant_manifests(spec), plant_header(spec, args.profile))
     if args.output and args.output != "-":
         try:
             with open(args.output, "w", encoding="utf-8") as f:
@@ -363,18 +352,46 @@ def cmd_plant(args: argparse.Namespace) -> int:
     return 0
 
 
+def plant_header(spec: PlantSpec, profile: str) -> list[str]:
+    """The comment lines at the top of the manifests: what the plant is, and how to run, check and end it."""
+    last = spec.buses - 1
+    services = ", ".join(f"{port.title} :{port.service_port}" for _, port in wire_ports())
+    hosts = " and ".join(f"{port.title} {spec.base(port)}+i" for _, port in wire_ports())
+    port, modbus_tcp = probe_port()
+    check = next(p for _, p in wire_ports() if p.container_port == port)
+    base = spec.base(check)
+    return [
+        f"A c20sim plant: {spec.buses} bus(es), drives {spec.drives} on each, profile {spec.profile_name}.",
+        f"Generated by c20sim {__version__}: {command_line(spec, profile)}",
+        "",
+        f"On a cluster:      kubectl apply -f THIS_FILE  (Services {spec.name}-bus-N: {services})",
+        "On one machine:    podman kube play THIS_FILE  (podman ignores the Services; the hostPorts publish",
+        f"                   bus i at {hosts})",
+        f"Check every drive: c20sim plant-check --drives {spec.drives} "
+        + ("--modbus-tcp " if modbus_tcp else "")
+        + (
+            " ".join(f"127.0.0.1:{base + bus}" for bus in range(spec.buses))
+            if spec.buses <= 4
+            else f"127.0.0.1:{base} ... 127.0.0.1:{base + last}"
+        ),
+        "Tear down:         podman kube down THIS_FILE  (or kubectl delete -f THIS_FILE)",
+        "The control API is not served: it has no token yet, so keep it loopback-only.",
+    ]
+
+
+def _dest(option: str) -> str:
+    return option.removeprefix("--").replace("-", "_")
+
+
 def command_line(spec: PlantSpec, profile: str) -> str:
     """The ``c20sim plant`` command that writes this plant again."""
     words = ["c20sim", "plant", "--buses", str(spec.buses), "--drives", spec.drives, "--profile", profile]
     words += ["--image", spec.image]
     if spec.name != "c20sim":
         words += ["--name", spec.name]
-    if spec.rtu_port_base != RTU_PORT:
-        words += ["--rtu-port-base", str(spec.rtu_port_base)]
-    if spec.modbus_port_base != MODBUS_PORT:
-        words += ["--modbus-port-base", str(spec.modbus_port_base)]
-    if spec.metrics_port_base != METRICS_PORT:
-        words += ["--metrics-port-base", str(spec.metrics_port_base)]
+    for port in published():
+        if spec.base(port) != port.container_port:
+            words += [port.base_option, str(spec.base(port))]
     return " ".join(words)
 
 
@@ -469,7 +486,9 @@ def add_plant_commands(sub: Any) -> None:
         "plant",
         help="write Kubernetes manifests for a plant of N buses (kubectl apply, or podman kube play)",
         description="Kubernetes manifests for a plant: a ConfigMap (profile, drives), and a Deployment and a "
-        "Service per bus, each pod serving RTU over TCP (5020) and Modbus TCP (1502).",
+        "Service per bus, each pod serving "
+        + " and ".join(f"{port.title} ({port.container_port})" for _, port in wire_ports())
+        + ".",
     )
     plant.add_argument("--buses", type=int, required=True, help=f"number of buses, 1-{MAX_BUSES}")
     plant.add_argument("--drives", default="1", metavar="LIST", help="drive addresses on each bus, such as 1-32")
@@ -478,21 +497,13 @@ def add_plant_commands(sub: Any) -> None:
     )
     plant.add_argument("--image", default=f"localhost/c20sim:{__version__}", help="the image (deploy/build-image)")
     plant.add_argument("--name", default="c20sim", help="prefix of every object's name (default c20sim)")
-    plant.add_argument(
-        "--rtu-port-base", type=int, default=RTU_PORT, help=f"hostPort of bus 0's RTU over TCP (default {RTU_PORT})"
-    )
-    plant.add_argument(
-        "--modbus-port-base",
-        type=int,
-        default=MODBUS_PORT,
-        help=f"hostPort of bus 0's Modbus TCP (default {MODBUS_PORT})",
-    )
-    plant.add_argument(
-        "--metrics-port-base",
-        type=int,
-        default=METRICS_PORT,
-        help=f"hostPort of bus 0's GET /metrics for Prometheus (default {METRICS_PORT})",
-    )
+    for port in published():
+        plant.add_argument(
+            port.base_option,
+            type=int,
+            default=port.container_port,
+            help=f"hostPort of bus 0's {port.title} (default {port.container_port})",
+        )
     plant.add_argument("-o", "--output", metavar="FILE", help="write here instead of standard output")
     plant.set_defaults(func=cmd_plant)
 

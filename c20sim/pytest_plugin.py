@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 
 from .drive.profile import DEFAULT_PROFILE, Profile
-from .testing import SETTINGS, C20Sim, Settings, check_settings, start
+from .testing import SETTINGS, C20Sim, Settings, check_settings, start, transports
 from .wire.errors import C20SimError
 
 __all__ = ["c20sim", "c20sim_drives", "c20sim_profile", "c20sim_transport", "settings_for"]
@@ -33,7 +33,7 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
         "c20sim(profile=None, transport=None, drives=None, clock='virtual', speed=1.0, seed=1, bus_timing=True): "
-        "settings of the c20sim fixture for this test",
+        f"settings of the c20sim fixture for this test (transport: {', '.join(transports())}, or several)",
     )
 
 
@@ -45,7 +45,8 @@ def c20sim_profile() -> str | Profile:
 
 @pytest.fixture
 def c20sim_transport() -> str | Sequence[str]:
-    """``tcp`` (RTU over TCP, port 0), ``pty``, ``modbus-tcp``, or several (override to change)."""
+    """``tcp`` (RTU over TCP, port 0), ``pty``, ``modbus-tcp``, or several: any transport the test handle opens
+    (:func:`c20sim.testing.transports`, one row each); override to change."""
     return "tcp"
 
 

@@ -11,30 +11,31 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
 import gc
 import json
 import os
 import signal
 import sys
 from collections.abc import Callable, Coroutine
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import IO, TYPE_CHECKING, Any, TypeVar, cast
 
 from .core.simulator import Simulator
 from .transport.framelog import FrameLog
 from .transport.line import Line
-from .transport.tcp import ModbusTcpServer, RtuOverTcpServer, parse_host_port
+from .transport.rows import NEEDS_POSIX, Endpoint, NetworkEndpoint, Opening, Transport, rows
+from .transport.rows import posix_supported as pty_supported
+from .transport.tcp import parse_host_port
 from .wire.errors import C20SimError
 from .wire.protocol import char_bits
 
 if TYPE_CHECKING:
-    # Imported where used: pty needs tty/termios and pyserial needs them on POSIX, which Windows lacks.
     from .control.http import ControlApi
     from .scenario.timeline import Report, Scenario
+    from .transport.modbustcp import ModbusTcpServer
     from .transport.pty import PtyPort
     from .transport.serial import SerialPort
+    from .transport.tcp import RtuOverTcpServer
 
 T = TypeVar("T")
 
@@ -45,95 +46,132 @@ __all__ = ["NEEDS_POSIX", "Endpoints", "ServeOptions", "Server", "pty_supported"
 #: ones, so the log takes at most 400 MiB of disk; ``--log-frames-max-mb 0`` for no bound.
 LOG_FRAMES_MAX_MB = 100.0
 
-#: What ``--pty`` says where there are no ptys (Windows): tty and termios are POSIX-only.
-NEEDS_POSIX = (
-    "--pty needs a POSIX system (Linux, macOS, BSD); on Windows use a com0com pair with --serial COMn, "
-    "or --tcp HOST:PORT (RTU over TCP) or --modbus-tcp HOST:PORT"
-)
+
+def endpoint_dests() -> dict[str, Transport]:
+    """Every transport option's name (its dest: ``modbus_tcp``) and the transport it belongs to."""
+    return {option.dest: row for row in rows() for option in row.options}
 
 
-def pty_supported() -> bool:
-    """True where a pty can be made (POSIX: the tty module loads); False on Windows."""
-    try:
-        import tty  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-class Endpoint(Protocol):
-    @property
-    def name(self) -> str: ...
-
-    async def start(self) -> None: ...
-
-    def close(self) -> None: ...
-
-
-@dataclass
 class ServeOptions:
-    """The endpoint options of ``serve`` and ``dashboard``."""
+    """The endpoint options of ``serve`` and ``dashboard``: the transports' (one keyword per option of a
+    :mod:`~c20sim.transport.rows` row, such as ``tcp="127.0.0.1:0"`` or ``pty=True``, kept in :attr:`endpoints`)
+    and serve's own."""
 
-    pty: bool = False
-    link: str | None = None
-    serial: str | None = None
-    parity: str = "N"
-    stopbits: int = 1
-    tcp: str | None = None
-    modbus_tcp: str | None = None
-    line_timing: bool = False
-    #: hold the shared line for each transaction's RS485 time at the drive's serial settings, whatever the
-    #: transport (the command line's default is on: see docs/line-timing.md); off here for the building block
-    bus_timing: bool = False
-    #: connections each TCP port takes at once (None: the port's default, transport.tcp.MAX_CONNECTIONS)
-    max_connections: int | None = None
-    #: seconds a TCP request may wait for the line, or for a reply on it (transport.tcp.GATEWAY_TIMEOUT)
-    gateway_timeout: float = 1.0
-    log_frames: str | None = None
-    #: rotate the frame log when it reaches this many MiB (None: no limit)
-    log_frames_max_mb: float | None = None
-    ready_file: str | None = None
-    #: HOST:PORT of the HTTP control API (c20sim.control), or None
-    control: str | None = None
-    #: the token the control API asks for; None: none on loopback, a generated one beyond it
-    control_token: str | None = None
-    #: HOST:PORT of a read-only listener serving GET /metrics alone (Prometheus), or None
-    metrics: str | None = None
-    #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
-    scenario: str | None = None
-    #: the live audit (c20sim.control.liveaudit, docs/audit.md): on unless --no-audit
-    audit: bool = True
-    #: after the scenario: "exit" (serve ends with the scenario's exit code) or "serve" (until a stop signal)
-    then: str = "exit"
-    extra_ready: dict[str, str] = field(default_factory=dict)
+    def __init__(
+        self,
+        *,
+        parity: str = "N",
+        stopbits: int = 1,
+        line_timing: bool = False,
+        bus_timing: bool = False,
+        max_connections: int | None = None,
+        gateway_timeout: float = 1.0,
+        log_frames: str | None = None,
+        log_frames_max_mb: float | None = None,
+        ready_file: str | None = None,
+        control: str | None = None,
+        control_token: str | None = None,
+        metrics: str | None = None,
+        scenario: str | None = None,
+        audit: bool = True,
+        then: str = "exit",
+        extra_ready: dict[str, str] | None = None,
+        **endpoints: Any,
+    ) -> None:
+        dests = endpoint_dests()
+        unknown = sorted(set(endpoints) - set(dests))
+        if unknown:
+            raise TypeError(f"ServeOptions: no transport has the option {unknown[0]!r}; they are {', '.join(dests)}")
+        #: each transport option's value, by dest (None or False: not given)
+        self.endpoints: dict[str, Any] = {dest: endpoints.get(dest) for dest in dests}
+        self.parity = parity
+        self.stopbits = stopbits
+        self.line_timing = line_timing
+        #: hold the shared line for each transaction's RS485 time at the drive's serial settings, whatever the
+        #: transport (the command line's default is on: see docs/line-timing.md); off here for the building block
+        self.bus_timing = bus_timing
+        #: connections each TCP port takes at once (None: the port's default, transport.tcp.MAX_CONNECTIONS)
+        self.max_connections = max_connections
+        #: seconds a TCP request may wait for the line, or for a reply on it (transport.tcp.GATEWAY_TIMEOUT)
+        self.gateway_timeout = gateway_timeout
+        self.log_frames = log_frames
+        #: rotate the frame log when it reaches this many MiB (None: no limit)
+        self.log_frames_max_mb = log_frames_max_mb
+        self.ready_file = ready_file
+        #: HOST:PORT of the HTTP control API (c20sim.control), or None
+        self.control = control
+        #: the token the control API asks for; None: none on loopback, a generated one beyond it
+        self.control_token = control_token
+        #: HOST:PORT of a read-only listener serving GET /metrics alone (Prometheus), or None
+        self.metrics = metrics
+        #: a scenario file (c20sim.scenario.timeline) to play against the served simulator once ready
+        self.scenario = scenario
+        #: the live audit (c20sim.control.liveaudit, docs/audit.md): on unless --no-audit
+        self.audit = audit
+        #: after the scenario: "exit" (serve ends with the scenario's exit code) or "serve" (until a stop signal)
+        self.then = then
+        self.extra_ready: dict[str, str] = dict(extra_ready or {})
+
+    def asked(self) -> list[Transport]:
+        """The transports asked for, in the rows' order."""
+        return [row for row in rows() if row.asked(self.endpoints)]
 
     @property
     def any_endpoint(self) -> bool:
-        return bool(self.pty or self.link or self.serial or self.tcp or self.modbus_tcp)
+        return bool(self.asked())
+
+    def give_defaults(self) -> None:
+        """A bare serve's endpoints: each row's default where it can run here (no pty on Windows: TCP alone)."""
+        for row in rows():
+            if row.default is not None and row.usable():
+                self.endpoints[row.options[0].dest] = row.default
 
 
-@dataclass
 class Endpoints:
-    pty: PtyPort | None = None
-    serial: SerialPort | None = None
-    tcp: RtuOverTcpServer | None = None
-    modbus_tcp: ModbusTcpServer | None = None
+    """The started endpoints, by their transport's ready-file key, in the rows' order."""
+
+    def __init__(self) -> None:
+        self.by_key: dict[str, Endpoint] = {}
+        self.rows: dict[str, Transport] = {}
+
+    def add(self, row: Transport, endpoint: Endpoint) -> None:
+        self.by_key[row.key] = endpoint
+        self.rows[row.key] = row
+
+    def get(self, key: str) -> Endpoint | None:
+        return self.by_key.get(key)
 
     def all(self) -> list[Endpoint]:
-        return [e for e in (self.pty, self.serial, self.tcp, self.modbus_tcp) if e is not None]
+        return list(self.by_key.values())
+
+    def network(self) -> list[NetworkEndpoint]:
+        """The listening ones (host, port, wait_closed), in order."""
+        return [cast(NetworkEndpoint, e) for key, e in self.by_key.items() if self.rows[key].network]
 
     def addresses(self) -> dict[str, str]:
-        """The ready file's keys: ``tcp``/``modbus_tcp`` as HOST:PORT, ``pty``/``serial`` as paths."""
-        out: dict[str, str] = {}
-        if self.pty is not None:
-            out["pty"] = self.pty.name
-        if self.serial is not None:
-            out["serial"] = self.serial.name
-        if self.tcp is not None:
-            out["tcp"] = self.tcp.name
-        if self.modbus_tcp is not None:
-            out["modbus_tcp"] = self.modbus_tcp.name
-        return out
+        """The ready file's keys: each transport's key with its address (HOST:PORT, or a path)."""
+        return {key: endpoint.name for key, endpoint in self.by_key.items()}
+
+    def address(self, key: str) -> str | None:
+        found = self.by_key.get(key)
+        return found.name if found is not None else None
+
+    # The shipped transports, typed, for the code and tests that know which they asked for.
+    @property
+    def pty(self) -> PtyPort | None:
+        return cast("PtyPort | None", self.by_key.get("pty"))
+
+    @property
+    def serial(self) -> SerialPort | None:
+        return cast("SerialPort | None", self.by_key.get("serial"))
+
+    @property
+    def tcp(self) -> RtuOverTcpServer | None:
+        return cast("RtuOverTcpServer | None", self.by_key.get("tcp"))
+
+    @property
+    def modbus_tcp(self) -> ModbusTcpServer | None:
+        return cast("ModbusTcpServer | None", self.by_key.get("modbus_tcp"))
 
 
 class Server:
@@ -144,7 +182,7 @@ class Server:
         self.options = options
         self.line = Line(sim, bus_timing=options.bus_timing)
         # The line's character: the serial settings (the serial port's, or those a serial device server in
-        # front of the TCP endpoints would have).
+        # front of the TCP endpoints would have); the bus tells whoever listens.
         sim.bus.char_bits = char_bits(8, options.parity, options.stopbits)
         self.endpoints = Endpoints()
         self.frame_log: FrameLog | None = None
@@ -156,99 +194,16 @@ class Server:
 
     async def start(self) -> None:
         """Start every endpoint, or none: on error, close what started and raise C20SimError."""
-        opts, sim, line = self.options, self.sim, self.line
-        max_mb = opts.log_frames_max_mb
-        if max_mb is not None and max_mb != 0 and not 0.01 <= max_mb <= 1e6:  # refuses nan; inf is above the range
-            raise C20SimError(
-                f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000, or 0 for no bound"
-            )
-        scenario = None
-        if opts.scenario:
-            from .scenario.timeline import check, load_scenario
-
-            scenario = load_scenario(opts.scenario)
-            for warning in _scenario_differences(scenario, sim):
-                print(f"c20sim: warning: {warning}", file=sys.stderr, flush=True)
-            check(scenario, sim)
+        opts = self.options
+        _check_options(opts)
+        scenario = self._load_scenario()
         try:
-            if opts.audit:
-                from .control import liveaudit
-
-                self._unsubscribe.append(liveaudit.start(sim).close)
-            from .control import drills
-            from .drillrun import serve_runner
-
-            rtu = opts.pty or opts.link or opts.serial or opts.tcp
-            drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), "tcp" if rtu else "modbus-tcp"))
-            # at close: a running drill stops (its thread calls on this loop no more) and the service goes
-            self._unsubscribe.append(lambda: drills.detach(sim))
-            if opts.log_frames:
-                self._open_frame_log(opts.log_frames)
-            if opts.pty or opts.link:
-                if not pty_supported():
-                    raise C20SimError(NEEDS_POSIX)
-                from .transport.pty import PtyPort
-
-                self.endpoints.pty = PtyPort(line, link=opts.link, line_timing=opts.line_timing)
-                await self.endpoints.pty.start()
-            if opts.serial:
-                try:
-                    from .transport.serial import SerialPort
-                except ImportError as exc:
-                    raise C20SimError(
-                        f"--serial: pyserial cannot be loaded here ({exc}); use --tcp or --modbus-tcp"
-                    ) from None
-                self.endpoints.serial = SerialPort(
-                    line,
-                    opts.serial,
-                    parity=opts.parity,
-                    stopbits=opts.stopbits,
-                    line_timing=opts.line_timing,
-                )
-                await self.endpoints.serial.start()
-            if (opts.tcp or opts.modbus_tcp) and not 0.01 <= opts.gateway_timeout <= 120.0:  # refuses nan
-                raise C20SimError(
-                    f"--gateway-timeout {opts.gateway_timeout:g}: give seconds from 0.01 to 120 (an MGate's range)"
-                )
-            if opts.max_connections is not None and not 1 <= opts.max_connections <= 10000:
-                raise C20SimError(f"--max-connections {opts.max_connections}: give 1 to 10000 connections per port")
-            if opts.tcp:
-                host, port = parse_host_port(opts.tcp, "--tcp")
-                self.endpoints.tcp = RtuOverTcpServer(
-                    line, host, port, max_connections=opts.max_connections, timeout=opts.gateway_timeout
-                )
-                await self.endpoints.tcp.start()
-            if opts.modbus_tcp:
-                host, port = parse_host_port(opts.modbus_tcp, "--modbus-tcp")
-                self.endpoints.modbus_tcp = ModbusTcpServer(
-                    line, host, port, max_connections=opts.max_connections, timeout=opts.gateway_timeout
-                )
-                await self.endpoints.modbus_tcp.start()
-            if self.endpoints.tcp is not None and self.endpoints.modbus_tcp is not None:
-                self.endpoints.tcp.modbus_tcp = functools.partial(str, self.endpoints.modbus_tcp.name)
-                self.endpoints.modbus_tcp.rtu_tcp = functools.partial(str, self.endpoints.tcp.name)
+            self._start_watchers()
+            await self._open_endpoints()
             if opts.control:
-                from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
-
-                host, port = parse_host_port(opts.control, "--control")
-                token = opts.control_token
-                if token is not None and not token.strip():
-                    raise C20SimError("--control-token: empty; give a token, or leave the option out")
-                if token is None and not is_loopback(host):
-                    token = new_token()  # beyond loopback, never without one
-                self.control = ControlApi(sim, token=token, endpoints=self.endpoints.addresses)
-                self.control.frame_log = self.frame_log
-                self.control.line = line
-                await self.control.start(host, port)
+                await self._start_control(opts.control)
             if opts.metrics:
-                from .control import routes
-                from .control.http import ControlApi
-
-                host, port = parse_host_port(opts.metrics, "--metrics")
-                self.metrics = ControlApi(sim, endpoints=self.endpoints.addresses)
-                self.metrics.line = line
-                only = routes.Table([routes.table().named("metrics")])
-                await self.metrics.start(host, port, table=only, option="--metrics")
+                await self._start_metrics(opts.metrics)
             if opts.ready_file:
                 self.write_ready_file(opts.ready_file)
             if self.control is not None:
@@ -256,12 +211,87 @@ class Server:
             if scenario is not None:
                 from .scenario.timeline import play
 
-                self.scenario_task = asyncio.create_task(play(scenario, sim, line=line, out=sys.stdout))
+                self.scenario_task = asyncio.create_task(play(scenario, self.sim, line=self.line, out=sys.stdout))
                 self.scenario_task.add_done_callback(_report_scenario_error)
         except BaseException:
             self.close()
             await self._close_control()
             raise
+
+    def _load_scenario(self) -> Scenario | None:
+        if not self.options.scenario:
+            return None
+        from .scenario.timeline import check, load_scenario
+
+        scenario = load_scenario(self.options.scenario)
+        for warning in _scenario_differences(scenario, self.sim):
+            print(f"c20sim: warning: {warning}", file=sys.stderr, flush=True)
+        check(scenario, self.sim)
+        return scenario
+
+    def _start_watchers(self) -> None:
+        """The live audit, the drill service, the frame log: each listens to the bus until close."""
+        sim, opts = self.sim, self.options
+        if opts.audit:
+            from .control import liveaudit
+
+            self._unsubscribe.append(liveaudit.start(sim).close)
+        from .control import drills
+        from .drillrun import serve_runner
+
+        rtu = any(row.model == "rtu" for row in opts.asked())
+        drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), "tcp" if rtu else "modbus-tcp"))
+        # at close: a running drill stops (its thread calls on this loop no more) and the service goes
+        self._unsubscribe.append(lambda: drills.detach(sim))
+        if opts.log_frames:
+            self._open_frame_log(opts.log_frames)
+
+    async def _open_endpoints(self) -> None:
+        """Each transport asked for, in the rows' order; then each is told where the others are."""
+        opts = self.options
+        for row in opts.asked():
+            if not row.usable():
+                raise C20SimError(row.posix_only or f"{row.options[0].flag}: not available here")
+            opening = Opening(
+                self.line,
+                {option.dest: opts.endpoints.get(option.dest) for option in row.options},
+                parity=opts.parity,
+                stopbits=opts.stopbits,
+                line_timing=opts.line_timing,
+                max_connections=opts.max_connections,
+                gateway_timeout=opts.gateway_timeout,
+            )
+            endpoint = row.opener(opening)
+            self.endpoints.add(row, endpoint)  # closed with the others if its start fails half-way
+            await endpoint.start()
+        for key, endpoint in self.endpoints.by_key.items():
+            introduce = self.endpoints.rows[key].introduce
+            if introduce is not None:
+                introduce(endpoint, self.endpoints.address)
+
+    async def _start_control(self, address: str) -> None:
+        from .control.http import ControlApi, is_loopback, new_token  # imports aiohttp: only when asked for
+
+        host, port = parse_host_port(address, "--control")
+        token = self.options.control_token
+        if token is not None and not token.strip():
+            raise C20SimError("--control-token: empty; give a token, or leave the option out")
+        if token is None and not is_loopback(host):
+            token = new_token()  # beyond loopback, never without one
+        self.control = ControlApi(self.sim, token=token, endpoints=self.endpoints.addresses)
+        self.control.frame_log = self.frame_log
+        self.control.line = self.line
+        await self.control.start(host, port)
+
+    async def _start_metrics(self, address: str) -> None:
+        from .control import routes
+        from .control.http import ControlApi
+
+        host, port = parse_host_port(address, "--metrics")
+        self.metrics = ControlApi(self.sim, endpoints=self.endpoints.addresses)
+        self.metrics.line = self.line
+        only = routes.Table([routes.table().named("metrics")])
+        await self.metrics.start(host, port, table=only, option="--metrics")
 
     def addresses(self) -> dict[str, str]:
         """The ready file's keys: the endpoints, ``control`` as http://HOST:PORT, and ``extra_ready``."""
@@ -328,9 +358,8 @@ class Server:
         if self.scenario_task is not None:
             await asyncio.wait([self.scenario_task])  # cancelled by close(); an error was reported as it ended
         await self._close_control()
-        for server in (self.endpoints.tcp, self.endpoints.modbus_tcp):
-            if server is not None:
-                await server.wait_closed()
+        for server in self.endpoints.network():
+            await server.wait_closed()
 
     def close(self) -> None:
         self._remove_ready_file()
@@ -345,6 +374,19 @@ class Server:
         if self.frame_log is not None:
             self.frame_log.close()
             self.frame_log = None
+
+
+def _check_options(opts: ServeOptions) -> None:
+    """serve's own limits, said before anything opens."""
+    max_mb = opts.log_frames_max_mb
+    if max_mb is not None and max_mb != 0 and not 0.01 <= max_mb <= 1e6:  # refuses nan; inf is above the range
+        raise C20SimError(f"--log-frames-max-mb {max_mb:g}: give a size in MiB from 0.01 to 1000000, or 0 for no bound")
+    if any(row.network for row in opts.asked()) and not 0.01 <= opts.gateway_timeout <= 120.0:  # refuses nan
+        raise C20SimError(
+            f"--gateway-timeout {opts.gateway_timeout:g}: give seconds from 0.01 to 120 (an MGate's range)"
+        )
+    if opts.max_connections is not None and not 1 <= opts.max_connections <= 10000:
+        raise C20SimError(f"--max-connections {opts.max_connections}: give 1 to 10000 connections per port")
 
 
 def _profile_name(name_or_path: str) -> str:

@@ -24,50 +24,41 @@ The pytest fixture (:mod:`c20sim.pytest_plugin`) is this handle, one per test.
 from __future__ import annotations
 
 import asyncio
-import math
 import os
 import threading
 from collections.abc import Callable, Coroutine, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from .audit import RULES, Finding, Severity
 from .control import liveaudit, ops
 from .core.bus import Direction, FrameRecord, RecordKind
-from .core.simulator import Simulator, check_addresses, make_clock
+from .core.simulator import Simulator, make_clock
 from .drill import Judgement
 from .drive.model import Telemetry
 from .drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from .drivehandle import DriveHandle
 from .serve import ServeOptions, Server
+from .testsettings import DEFAULT_TRANSPORT, SETTINGS, Settings, check_settings, transports
+from .transport.rows import find, rows
 from .wire.errors import C20SimError
 from .wire.protocol import ExceptionResponse, WriteMultipleRequest, WriteSingleRequest
 
-__all__ = ["C20Sim", "DriveHandle", "Settings", "check_settings", "start"]
+__all__ = [
+    "DEFAULT_TRANSPORT",
+    "SETTINGS",
+    "C20Sim",
+    "DriveHandle",
+    "Settings",
+    "check_settings",
+    "start",
+    "transports",
+]
 
 T = TypeVar("T")
 
-#: Transports the fixture can open; ``tcp`` is RTU over TCP.
-TRANSPORTS = ("tcp", "pty", "modbus-tcp")
-#: Clocks the marker can ask for.
-CLOCKS = ("virtual", "realtime")
+
 #: Frames shown in an assertion's message.
 SHOWN_FRAMES = 20
-
-
-@dataclass(frozen=True)
-class Settings:
-    """What the fixture starts: profile, transports, drive addresses and clock."""
-
-    profile: str | Profile = DEFAULT_PROFILE
-    transport: tuple[str, ...] = ("tcp",)
-    drives: tuple[int, ...] = (1,)
-    clock: str = "virtual"
-    speed: float = 1.0
-    seed: int = 1
-    #: each transaction holds the line for its RS485 time (19200 8N1: about 86 one-register reads a second),
-    #: as ``c20sim serve`` does by default; False: only the turnaround
-    bus_timing: bool = True
 
 
 class _LoopThread:
@@ -120,10 +111,11 @@ def format_frames(records: Sequence[FrameRecord], limit: int = SHOWN_FRAMES) -> 
 class C20Sim:
     """A running simulator: its ports, its clock, its drives, and assertions on its frame log.
 
-    ``host``/``port`` are the endpoint of the TCP transport asked for: RTU over TCP for ``transport="tcp"``,
+    ``host``/``port`` are the endpoint of the network transport asked for: RTU over TCP for ``transport="tcp"``,
     Modbus TCP for ``transport="modbus-tcp"`` (with both, the first one listed). ``tcp_port`` is the RTU-over-TCP
     port, ``modbus_tcp_port`` the Modbus TCP port and ``pty`` the virtual serial port's path; each is None unless
-    that transport was asked for. Methods that take ``drive`` act on the first drive when it is None.
+    that transport was asked for. ``endpoints`` has every transport's address by its ready-file key, as
+    ``serve --ready-file`` writes them. Methods that take ``drive`` act on the first drive when it is None.
     """
 
     def __init__(
@@ -141,13 +133,20 @@ class C20Sim:
         self.profile: Profile = server.sim.profile
         self.addresses: tuple[int, ...] = tuple(server.sim.drives)
         ends = server.endpoints
+        #: every transport's address by its ready-file key (a path, or HOST:PORT)
+        self.endpoints: dict[str, str] = ends.addresses()
         self.pty: str | None = ends.pty.path if ends.pty is not None else None
         self.tcp_port: int | None = ends.tcp.port if ends.tcp is not None else None
         self.modbus_tcp_port: int | None = ends.modbus_tcp.port if ends.modbus_tcp is not None else None
-        by_name = {"tcp": ends.tcp, "modbus-tcp": ends.modbus_tcp}
-        first = next((by_name[t] for t in transports if by_name.get(t) is not None), None)
+        names = [row.name for row in ends.rows.values() if row.network]
+        listening = dict(zip(names, ends.network(), strict=True))
+        first = next((listening[t] for t in transports if t in listening), None)
         self.host: str | None = first.host if first is not None else None
         self.port: int | None = first.port if first is not None else None
+        #: what the masters' connections carry: ``rtu`` where any transport asked for carries RTU frames, else
+        #: ``mbap`` (what the drill's standard plan plays, as serve's)
+        models = {row.model for t in transports if (row := find(t)) is not None}
+        self.model = "rtu" if "rtu" in models or not models else "mbap"
 
     @classmethod
     def start(
@@ -348,7 +347,7 @@ class C20Sim:
         from .drill import read_plan, standard_plan
         from .drillrun import RunOptions, load_plan, play
 
-        served = "modbus-tcp" if self.port is None and self.pty is None else "tcp"
+        served = "modbus-tcp" if self.model == "mbap" else "tcp"
         if plan is None:
             chosen = standard_plan(seed, served)
         elif isinstance(plan, (str, os.PathLike)) and os.path.isfile(plan):
@@ -486,85 +485,14 @@ def _written(request: object) -> dict[int, int]:
     return {}
 
 
-def _transports(value: object) -> tuple[str, ...]:
-    if isinstance(value, str):
-        names: tuple[object, ...] = (value,)
-    elif isinstance(value, Iterable):
-        names = tuple(value)
-    else:
-        raise C20SimError(f"c20sim: transport {value!r}: give a name or a sequence of {', '.join(TRANSPORTS)}")
-    for name in names:
-        if name not in TRANSPORTS:
-            raise C20SimError(f"c20sim: unknown transport {name!r}; use one or more of {', '.join(TRANSPORTS)}")
-    if not names:
-        raise C20SimError("c20sim: give at least one transport")
-    return tuple(str(name) for name in names)
-
-
-def _drives(value: object) -> tuple[int, ...]:
-    """Drive addresses, checked as ``--drives`` is: 1-247, each once."""
-    addresses = (value,) if isinstance(value, int) else tuple(value) if isinstance(value, Iterable) else ()
-    if not addresses or not all(isinstance(a, int) and not isinstance(a, bool) for a in addresses):
-        raise C20SimError(f"c20sim: drives {value!r}: give drive addresses 1-247, such as (1, 2)")
-    try:
-        return tuple(check_addresses(addresses))
-    except ValueError as exc:
-        raise C20SimError(f"c20sim: drives {value!r}: {exc}") from None
-
-
-def _profile(value: object) -> Profile:
-    if isinstance(value, Profile):
-        return value
-    if not isinstance(value, str | os.PathLike):
-        raise C20SimError(f"c20sim: profile {value!r}: give a profile name, a path or a Profile")
-    try:
-        return load_profile(os.fspath(value))
-    except C20SimError as exc:
-        raise C20SimError(f"c20sim: profile: {exc}") from None
-
-
-#: The settings a marker or :meth:`C20Sim.start` may give.
-SETTINGS = ("profile", "transport", "drives", "clock", "speed", "seed", "bus_timing")
-
-
-def check_settings(given: Mapping[str, Any]) -> Settings:
-    """Settings from keywords (a missing one takes its default); a bad one is a C20SimError saying what is wrong."""
-    unknown = set(given) - set(SETTINGS)
-    if unknown:
-        raise C20SimError(f"c20sim: unknown setting {', '.join(sorted(unknown))}; use {', '.join(SETTINGS)}")
-    clock = given.get("clock", "virtual")
-    if clock not in CLOCKS:
-        raise C20SimError(f"c20sim: unknown clock {clock!r}; use {' or '.join(map(repr, CLOCKS))}")
-    speed = given.get("speed", 1.0)
-    if isinstance(speed, bool) or not isinstance(speed, int | float) or not math.isfinite(speed) or speed <= 0:
-        raise C20SimError(f"c20sim: speed {speed!r}: give a positive number of model seconds per wall second")
-    seed = given.get("seed", 1)
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        raise C20SimError(f"c20sim: seed {seed!r}: give a whole number")
-    bus_timing = given.get("bus_timing", True)
-    if not isinstance(bus_timing, bool):
-        raise C20SimError(f"c20sim: bus_timing {bus_timing!r}: give True or False")
-    return Settings(
-        profile=_profile(given.get("profile", DEFAULT_PROFILE)),
-        transport=_transports(given.get("transport", "tcp")),
-        drives=_drives(given.get("drives", (1,))),
-        clock=clock,
-        speed=float(speed),
-        seed=seed,
-        bus_timing=bus_timing,
-    )
-
-
 def start(settings: Settings) -> C20Sim:
     """Start a simulator for ``settings`` in a background thread; :meth:`C20Sim.close` stops it."""
     profile = settings.profile if isinstance(settings.profile, Profile) else load_profile(settings.profile)
     sim = Simulator(profile, settings.drives, clock=make_clock(settings.clock, settings.speed), seed=settings.seed)
-    options = ServeOptions(
-        pty="pty" in settings.transport,
-        tcp="127.0.0.1:0" if "tcp" in settings.transport else None,
-        modbus_tcp="127.0.0.1:0" if "modbus-tcp" in settings.transport else None,
-        bus_timing=settings.bus_timing,
-    )
+    given: dict[str, Any] = {
+        row.options[0].dest: row.fixture for row in rows() if row.name in settings.transport and row.fixture is not None
+    }
+    options = ServeOptions(**given, bus_timing=settings.bus_timing)
     thread = _LoopThread()
 
     async def serve() -> Server:

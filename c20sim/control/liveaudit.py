@@ -12,6 +12,10 @@ is behind the line; when the engine runs changes nothing it says, since it sees
 the same frames in the same order. It judges the frames' times, which the ports stamp
 on the monotonic clock: the master's rhythm as a plant would see it, whatever
 the model's clock (virtual, or a realtime clock at a speed factor).
+
+The line's baud and character size are the bus's to tell (:meth:`~c20sim.core.bus.Bus.on_line`): when they
+change, the records queued so far (which went at the old settings) are audited first, then the auditor takes
+the new ones. Nothing is polled per record.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from typing import Any
 
 from ..audit import Auditor, Finding, Limits, LineDemand
 from ..audit.engine import F_COMM_TIMEOUT, F_MAX_SPEED
-from ..core.bus import Direction, FrameRecord
+from ..core.bus import Direction, FrameRecord, LineSettings
 from ..core.simulator import Simulator
 
 __all__ = ["BATCH", "MAX_QUEUE", "LiveAudit", "of", "start"]
@@ -47,10 +51,9 @@ class LiveAudit:
         self.limits = limits
         self._bus = sim.bus
         self.auditor = self._fresh()
-        # the records the audit has still to see, and the line's baud they all went at (a baud change audits
-        # the queue first: it is seldom, and a record then needs no baud of its own)
+        # the records the audit has still to see, all at the auditor's line settings (the bus tells a change,
+        # which audits the queue first: it is seldom, and a record then needs no baud of its own)
         self._queue: list[FrameRecord] = []
-        self._baud = self._bus.line_baud
         self._scheduled = False
         #: the loop the batches were last scheduled on, and its thread: asking for the running loop is a getpid()
         #: system call on Python 3.11, so it is asked again only when that loop no longer runs, or for a record
@@ -58,10 +61,12 @@ class LiveAudit:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
         self._unsubscribe = self._bus.subscribe(self._feed)
+        self._unwatch = self._bus.on_line(self._line_changed)
 
     def _fresh(self) -> Auditor:
         sim = self.sim
-        auditor = Auditor(sim.profile, baud=self._bus.line_baud, ignore=self.ignore, limits=self.limits)
+        line = self._bus.line_settings
+        auditor = Auditor(sim.profile, baud=line.baud, bits=line.char_bits, ignore=self.ignore, limits=self.limits)
         spec = sim.profile.registers.get(F_COMM_TIMEOUT)
         for address, drive in sim.drives.items():
             timeout = drive.read(F_COMM_TIMEOUT) * spec.scale if spec is not None else None
@@ -75,9 +80,6 @@ class LiveAudit:
         never delays one."""
         if record.from_gateway:
             return  # the Modbus TCP gateway's own answer (0x0B after silence): never on the line
-        if self._bus.line_baud != self._baud:
-            self.drain()  # those queued went at the old baud (a 2009H write the line followed)
-            self._baud = self._bus.line_baud
         queue = self._queue
         queue.append(record)
         if len(queue) < BATCH:
@@ -98,6 +100,18 @@ class LiveAudit:
         self._scheduled = True
         loop.call_soon(self.drain)
 
+    def _line_changed(self, line: LineSettings) -> None:
+        """The bus's word that the line changed (a 2009H write it followed, a reset, the serial settings): what
+        is queued went at the old settings and is audited at them; the next records at the new."""
+        self.drain()
+        auditor = self.auditor
+        if line.char_bits != auditor.bits:
+            auditor.bits = line.char_bits
+            auditor.set_baud(line.baud)
+            auditor._requests.clear()  # their costs were at the old character size (set_baud clears on a new baud)
+        else:
+            auditor.set_baud(line.baud)
+
     def drain(self) -> None:
         """Audit the records queued so far."""
         self._scheduled = False
@@ -106,8 +120,6 @@ class LiveAudit:
             return
         self._queue = []
         auditor = self.auditor
-        if self._baud != auditor.baud:
-            auditor.set_baud(self._baud)
         request, reply, rx = auditor.request, auditor.reply, Direction.RX
         for record in records:
             if record.direction is rx:
@@ -157,10 +169,10 @@ class LiveAudit:
         """Forget what was seen: the next frames are judged afresh (the drives' settings read again)."""
         self._queue.clear()
         self.auditor = self._fresh()
-        self._baud = self._bus.line_baud
 
     def close(self) -> None:
         self._unsubscribe()
+        self._unwatch()
         _LIVE.pop(self.sim, None)
 
 

@@ -16,6 +16,12 @@ request is served, and :attr:`Reply.baud` keeps the baud the reply goes out
 at. With several drives, a drive set to another baud than the line's goes
 deaf, as it would on a real multi-drop line.
 
+The bus tells when the line changes, as it tells of frames: a listener of
+:meth:`Bus.on_line` is called with the new :class:`LineSettings` (baud and
+character size) whenever either changes, by a write the line followed (once
+the request is served, its reply recorded at the old baud), a reset, or the
+serial settings given to :attr:`Bus.char_bits`. Nobody polls the baud.
+
 Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
 and is passed to each listener (the JSON-lines writer, the dashboard).
 
@@ -61,7 +67,7 @@ from ..wire.values import quick_init
 from .linkfaults import LinkFaults
 from .slave import Slave
 
-__all__ = ["Bus", "Counters", "Direction", "FrameRecord", "RecordKind", "Reply"]
+__all__ = ["Bus", "Counters", "Direction", "FrameRecord", "LineListener", "LineSettings", "RecordKind", "Reply"]
 
 log = logging.getLogger(__name__)
 
@@ -223,6 +229,18 @@ class Reply:
     wrong_transaction: float = 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class LineSettings:
+    """What the line runs at: what a listener of :meth:`Bus.on_line` is told when it changes."""
+
+    baud: int
+    char_bits: int  #: bits per character: 10 for 8N1, 11 with parity or 2 stop bits
+
+
+#: Called with the line's new settings when its baud or its character changes.
+LineListener = Callable[[LineSettings], None]
+
+
 class Bus:
     """Drives sharing one line. ``handle`` serves one framing event."""
 
@@ -230,7 +248,9 @@ class Bus:
         self.slaves: list[Slave] = list(slaves)
         if not self.slaves:
             raise ValueError("a bus needs at least one drive")
-        self.line_baud = self.slaves[0].baud
+        self._line_baud = self.slaves[0].baud
+        #: who is told when the line's settings change (:meth:`on_line`)
+        self._line_listening: tuple[LineListener, ...] = ()
         #: link faults of the whole line, and of each drive's interface (by position in ``slaves``)
         self.link = LinkFaults()
         self.drive_links: list[LinkFaults] = [LinkFaults() for _ in self.slaves]
@@ -244,12 +264,61 @@ class Bus:
         self.counters: dict[int, Counters] = {}
         self.noise = 0
         #: bits per character on the line (10 for 8N1, 11 with parity or 2 stop bits): the serial settings
-        self.char_bits = SHEET_CHAR_BITS
+        self._char_bits = SHEET_CHAR_BITS
         #: seconds the last event held the line (request, turnaround, reply), and its request's share of it
         self.last_line_time = 0.0
         self.last_request_time = 0.0
         #: seconds every event so far held the line
         self.line_busy_s = 0.0
+
+    # -- the line's settings, told to whoever listens
+
+    @property
+    def line_baud(self) -> int:
+        """The line's speed: the drives' F08.01 (with one drive, the line follows its writes)."""
+        return self._line_baud
+
+    @line_baud.setter
+    def line_baud(self, baud: int) -> None:
+        if baud != self._line_baud:
+            self._line_baud = baud
+            self._tell_line()
+
+    @property
+    def char_bits(self) -> int:
+        """Bits per character on the line (10 for 8N1, 11 with parity or 2 stop bits): the serial settings."""
+        return self._char_bits
+
+    @char_bits.setter
+    def char_bits(self, bits: int) -> None:
+        if bits != self._char_bits:
+            self._char_bits = bits
+            self._tell_line()
+
+    @property
+    def line_settings(self) -> LineSettings:
+        return LineSettings(self._line_baud, self._char_bits)
+
+    def on_line(self, listener: LineListener) -> Callable[[], None]:
+        """Call ``listener`` with the new :class:`LineSettings` whenever the baud or the character changes (after
+        the request that changed it is served and its reply recorded); returns a function that unsubscribes."""
+        self._line_listening = (*self._line_listening, listener)
+
+        def drop() -> None:
+            listening = list(self._line_listening)
+            if listener in listening:
+                listening.remove(listener)
+                self._line_listening = tuple(listening)
+
+        return drop
+
+    def _tell_line(self) -> None:
+        settings = self.line_settings
+        for listener in self._line_listening:
+            try:
+                listener(settings)
+            except Exception:
+                log.exception("a line listener failed on %s; the bus keeps serving", settings)
 
     def counters_of(self, address: int) -> Counters:
         """The traffic counters of ``address`` (zeros until a frame names it)."""
@@ -303,10 +372,10 @@ class Bus:
         """The drive answering ``address`` at the line's baud, if any."""
         # Addresses change (2008H, restore defaults, a state file): the cache is a guess, checked each time.
         cached = self._at.get(address)
-        if cached is not None and cached.address == address and cached.baud == self.line_baud:
+        if cached is not None and cached.address == address and cached.baud == self._line_baud:
             return cached
         for slave in self.slaves:
-            if slave.address == address and slave.baud == self.line_baud:
+            if slave.address == address and slave.baud == self._line_baud:
                 self._at[address] = slave
                 return slave
         self._at.pop(address, None)
@@ -317,12 +386,17 @@ class Bus:
 
         Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
         line and to the addressed drive."""
-        baud = self.line_baud  # the request and its reply go at the baud before a 2009H write takes effect
-        reply = self._handle(event, now)
-        request = frame_time(len(event.data), baud, self.char_bits)
+        baud = self._line_baud  # the request and its reply go at the baud before a 2009H write takes effect
+        try:
+            reply = self._handle(event, now)
+        finally:
+            if self._line_baud != baud:
+                self._tell_line()  # the line followed its only drive: told once the transaction is recorded
+        bits = self._char_bits
+        request = frame_time(len(event.data), baud, bits)
         spent = request
         if reply is not None:
-            spent = transaction_time(len(event.data), len(reply.data), baud, self.char_bits, reply.delay)
+            spent = transaction_time(len(event.data), len(reply.data), baud, bits, reply.delay)
         self.last_line_time, self.last_request_time = spent, request
         self.line_busy_s += spent
         if event.kind is not FrameKind.NOISE and len(event.data) >= 2:  # an addressed frame (noise is the line's)
@@ -367,7 +441,7 @@ class Bus:
         if self._offline(slave):
             return None
         return self._reply(
-            slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self.line_baud, event.mbap
+            slave, slave.frame_error(slave_address, event.data[1]), event.t, t, None, self._line_baud, event.mbap
         )
 
     def _hit(self, event: FrameEvent) -> FrameEvent:
@@ -407,7 +481,7 @@ class Bus:
                 return None
             rx("broadcast: no reply")
             for each in self.slaves:
-                if each.baud != self.line_baud or self._offline(each):
+                if each.baud != self._line_baud or self._offline(each):
                     continue
                 if self._forced(each) is None:
                     each.handle(request, t)  # a forced exception means the drive never acts on the request
@@ -434,14 +508,15 @@ class Bus:
             spent.spend()
         else:
             response = slave.handle(request, t)
-        baud = self.line_baud
+        baud = self._line_baud
         self._follow_baud(slave)
         return self._reply(slave, response, event.t, t, request, baud, event.mbap, event.data, spent)
 
     def _follow_baud(self, slave: Slave) -> None:
-        """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf)."""
-        if len(self.slaves) == 1 and slave.baud != self.line_baud:
-            self.line_baud = slave.baud
+        """The line follows the only drive on it to a new baud (on a multi-drop line, the drive goes deaf); the
+        listeners are told when :meth:`handle` ends, after the reply at the old baud is recorded."""
+        if len(self.slaves) == 1 and slave.baud != self._line_baud:
+            self._line_baud = slave.baud
 
     def _reply(
         self,

@@ -44,9 +44,10 @@ second than the line carries. A silent request (broadcast, absent drive)
 holds the line for its own frame. A line-timed port has put the request on its
 wire already: its transactions hold the line for the rest.
 
-When the bus's line speed changes (the only drive took a 2009H write), every
-endpoint attached to the line is told, after the reply that acknowledged it
-has been handed over at the old speed.
+When the bus's line speed changes (the only drive took a 2009H write, or a
+reset), the bus tells the line (:meth:`~c20sim.core.bus.Bus.on_line`), and
+the line tells every endpoint attached to it, after the reply that
+acknowledged the change has been handed over at the old speed: nothing polls.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ from bisect import bisect_left
 from collections import deque
 from collections.abc import Callable
 
-from ..core.bus import Reply
+from ..core.bus import LineSettings, Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
 
@@ -228,15 +229,21 @@ class Line:
         self._last_peer: object = None  #: and its peer
         self._last_on_line = 0.0  #: its request's time in the frame log
         self._event_loop: asyncio.AbstractEventLoop | None = None
-        self._baud = sim.bus.line_baud
         self._baud_listeners: list[Callable[[int], None]] = []
+        #: what the bus last told of the line, and a new baud told while a reply was in hand (for the endpoints
+        #: once it is handed over at the old one)
+        self._settings = sim.bus.line_settings
+        self._told: int | None = None
+        self._in_hand = False  #: a transaction is being served and its reply not yet handed over or held
+        self._unwatch = sim.bus.on_line(self._line_told)
         #: the replies' latency (request's last byte to reply handed over), for GET /metrics
         self.latency = Latency()
         #: seconds the line has been held: a transaction's RS485 time with bus timing, else delayed replies
         self.busy_seconds = 0.0
 
     def on_baud(self, listener: Callable[[int], None]) -> Callable[[], None]:
-        """Call ``listener`` with the new line speed; returns a function that detaches it."""
+        """Call ``listener`` with the new line speed, once the reply that changed it is handed over (as the bus
+        tells the line); returns a function that detaches it."""
         self._baud_listeners.append(listener)
 
         def detach() -> None:
@@ -367,6 +374,7 @@ class Line:
                 del self._room_waiters[peer]
 
     def close(self) -> None:
+        self._unwatch()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -452,11 +460,14 @@ class Line:
             if on_line != asked:
                 event = dataclasses.replace(event, t=on_line)
             self._last_source, self._last_on_line = source, on_line
+            self._in_hand = True  # a baud the bus tells now waits until this reply is handed over
             try:
                 reply = self.sim.handle(event)
             except Exception:
                 log.exception("bug while serving %s; the simulator keeps serving", event)
+                self._in_hand = False
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
+                self._announce_baud()
                 continue
             hold = reply.delay if reply is not None else 0.0
             if self.bus_timing:
@@ -470,6 +481,7 @@ class Line:
                     _deliver(respond, reply)  # silence is known at once; a line-timed port paces its own reply
                     respond = _nothing
                 self._busy = True
+                self._in_hand = False
                 due = max(time.perf_counter(), self._held_until) + hold
                 self._held_until = due
                 self._timer = DueTimer(self._loop(), due, self._release, reply, respond, asked)
@@ -477,6 +489,7 @@ class Line:
             if reply is not None:
                 self.latency.observe(time.perf_counter() - asked)
             _deliver(respond, reply)
+            self._in_hand = False
             self._announce_baud()
 
     def _queued_for_the_line(self, event: FrameEvent, respond: Respond, source: object) -> bool:
@@ -500,11 +513,20 @@ class Line:
         self._announce_baud()
         self._serve_waiting()
 
+    def _line_told(self, settings: LineSettings) -> None:
+        """The bus's word that the line changed: a new baud goes to the endpoints now, or, while a reply is in hand
+        or held, once it is handed over (at the old baud)."""
+        if settings.baud != self._settings.baud:
+            self._told = settings.baud
+        self._settings = settings
+        if not self._in_hand and not self._busy:
+            self._announce_baud()
+
     def _announce_baud(self) -> None:
-        baud = self.sim.bus.line_baud
-        if baud == self._baud:
+        baud = self._told
+        if baud is None:
             return
-        self._baud = baud
+        self._told = None
         for listener in list(self._baud_listeners):
             try:
                 listener(baud)

@@ -28,24 +28,21 @@ from pathlib import Path
 from typing import Any
 
 from ..control.client import TOKEN_ENV, ControlClient, RemoteOps, attach_target
+from ..transport.rows import rows
 from ..wire.errors import C20SimError
 
-__all__ = ["SERVE_OPTIONS", "run_dashboard", "serve_argv", "served"]
+__all__ = ["SERVE_OPTIONS", "run_dashboard", "serve_argv", "serve_options", "served"]
 
 #: Seconds a started server may take to write its ready file, and to stop.
 START_TIMEOUT = 30.0
 STOP_TIMEOUT = 10.0
 
-#: serve's options that the dashboard passes on: argparse dest -> the option.
+#: serve's own options that the dashboard passes on, beside the transports' (:func:`serve_options`): argparse
+#: dest -> the option.
 SERVE_OPTIONS = {
-    "pty": "--pty",
-    "link": "--link",
-    "serial": "--serial",
     "baud": "--baud",
     "parity": "--parity",
     "stopbits": "--stopbits",
-    "tcp": "--tcp",
-    "modbus_tcp": "--modbus-tcp",
     "line_timing": "--line-timing",
     "bus_timing": "--bus-timing",
     "control": "--control",
@@ -65,10 +62,17 @@ SERVE_OPTIONS = {
 ATTACH_OPTIONS = frozenset({"control_token"})
 
 
+def serve_options() -> dict[str, str]:
+    """Every option the dashboard passes on to the serve it starts: each transport's (one row each,
+    c20sim.transport.rows), then serve's own (:data:`SERVE_OPTIONS`); argparse dest -> the option."""
+    transports = {option.dest: option.flag for row in rows() for option in row.options}
+    return {**transports, **SERVE_OPTIONS}
+
+
 def serve_argv(args: argparse.Namespace, ready_file: str) -> list[str]:
     """The ``c20sim serve`` command line for the dashboard's options (a control API on loopback if none given)."""
     argv = [sys.executable, "-m", "c20sim", "serve"]
-    for dest, option in SERVE_OPTIONS.items():
+    for dest, option in serve_options().items():
         value = getattr(args, dest, None)
         if dest == "control" and value is None:
             value = "127.0.0.1:0"
@@ -209,7 +213,7 @@ def stop(process: subprocess.Popen[bytes]) -> None:
 
 def check_attach_options(args: argparse.Namespace, parser_defaults: dict[str, object]) -> None:
     """--attach takes the server as it is: a serve option beside it is a mistake, said as one."""
-    for dest, option in SERVE_OPTIONS.items():
+    for dest, option in serve_options().items():
         if dest in ATTACH_OPTIONS:
             continue
         if getattr(args, dest, None) != parser_defaults.get(dest):
