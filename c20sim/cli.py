@@ -123,7 +123,6 @@ def add_transport_options(parser: argparse.ArgumentParser) -> None:
         "--gateway-timeout",
         metavar="SECONDS",
         type=float,
-        default=1.0,
         help="a TCP request that waited this long for the line, or got no reply on it, is answered 0x0B on "
         "--modbus-tcp and dropped on --tcp (default 1.0, an MGate's response timeout)",
     )
@@ -207,7 +206,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         line_timing=args.line_timing,
         bus_timing=args.bus_timing,
         max_connections=getattr(args, "max_connections", None),
-        gateway_timeout=getattr(args, "gateway_timeout", 1.0),
+        gateway_timeout=1.0 if getattr(args, "gateway_timeout", None) is None else args.gateway_timeout,
         log_frames=args.log_frames,
         log_frames_max_mb=args.log_frames_max_mb,
         ready_file=args.ready_file,

@@ -45,6 +45,8 @@ SERVE_OPTIONS = {
     "stopbits": "--stopbits",
     "line_timing": "--line-timing",
     "bus_timing": "--bus-timing",
+    "max_connections": "--max-connections",
+    "gateway_timeout": "--gateway-timeout",
     "control": "--control",
     "profile": "--profile",
     "drives": "--drives",

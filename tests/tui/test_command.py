@@ -61,6 +61,13 @@ def test_dashboard_passes_bus_timing_off_to_serve(started: list[tuple[list[str],
     assert not any("bus-timing" in word for word in on)
 
 
+def test_dashboard_passes_the_tcp_ports_limits_to_serve(started: list[tuple[list[str], str | None]]) -> None:
+    assert cli.main(["dashboard", "--tcp", "127.0.0.1:0", "--max-connections", "2", "--gateway-timeout", "0.5"]) == 0
+    ((argv, _),) = started
+    assert argv[argv.index("--max-connections") + 1] == "2"
+    assert argv[argv.index("--gateway-timeout") + 1] == "0.5"
+
+
 def test_dashboard_passes_every_option_to_serve(started: list[tuple[list[str], str | None]]) -> None:
     argv = ["dashboard", "--modbus-tcp", "127.0.0.1:0", "--drives", "1,2", "--clock", "virtual", "--line-timing"]
     argv += ["--pty", "--seed", "7", "--control", "127.0.0.1:8020", "--control-token", "s3cret"]
