@@ -96,6 +96,11 @@ class BenchSetters:
         self.bench.dial = (bool(sw1), bool(sw2), bool(sw3))
         self._changed()
 
+    def set_extra(self, name: str, value: object) -> None:
+        """A condition of a row with no setter of its own (:mod:`c20sim.drive.conditions`), kept by its name."""
+        self.bench.extra[name] = value
+        self._changed()
+
     def set_terminal_inputs(self, bits: int) -> None:
         """The physical input terminals (bits of :class:`~c20sim.drive.terminals.Input`)."""
         before = self._cfg.inputs

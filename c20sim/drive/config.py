@@ -20,6 +20,7 @@ from .params import ParameterStore
 from .physics import STEP
 from .profile import Profile
 from .terminals import multi_speed_index
+from .trips import COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY, COMM_TRIP  # the communication cause's
 
 __all__ = [
     "CHANNEL_COMM",
@@ -81,8 +82,6 @@ CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
 #: F00.00 / 2005H: the control modes the model tells apart.
 CONTROL_OPEN_LOOP, CONTROL_DIAL = 1, 3
 
-#: F08.03, the action on a communication timeout (INVT GD20 P14.05, remembered: P14.03 is the answer delay).
-COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
 
 CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION
 # The dial switches SW1-SW3 (sheet: 2005H "3: dial switch setting (SW1 valid), model related", 2006H "3: dial
@@ -107,6 +106,8 @@ class Conditions:
     ai: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  #: AI1-AI3, V
     physical_inputs: int = 0  #: the physical input terminals
     dial: tuple[bool, bool, bool] = (False, False, False)  #: SW1, SW2, SW3
+    #: the conditions no part above reads, by their row's name (c20sim.drive.conditions: a row with no setter)
+    extra: dict[str, object] = field(default_factory=dict)
 
 
 @quick_init  # a write that changes a setting builds one: at half the price (wire/values.py)

@@ -5,12 +5,12 @@
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..wire.registers import Reg, RegisterMap, RegisterSpec, parse_fcode
+from .trips import FaultCause  # what the model can trip on: one per row of the causes' table
 
 __all__ = [
     "DEFAULT_PROFILE",
@@ -203,31 +203,6 @@ class ControlParams:
         default=0.0, metadata=_num(0, 1000, "rpm", "read noise on 3006H while turning (uniform +-); 0 = none")
     )
     noise_seed: int = field(default=0, metadata=_num(0, 2**31 - 1, "", "seed of the read noise"))
-
-
-class FaultCause(enum.Enum):
-    """What the model can trip on; the profile maps each to a wire code."""
-
-    POWER_STAGE_U = "power_stage_u"
-    POWER_STAGE_V = "power_stage_v"
-    POWER_STAGE_W = "power_stage_w"
-    OVERCURRENT_ACCEL = "overcurrent_accel"
-    OVERCURRENT_DECEL = "overcurrent_decel"
-    OVERCURRENT_CONSTANT = "overcurrent_constant"
-    OVERVOLTAGE_ACCEL = "overvoltage_accel"
-    OVERVOLTAGE_DECEL = "overvoltage_decel"
-    OVERVOLTAGE_CONSTANT = "overvoltage_constant"
-    UNDERVOLTAGE = "undervoltage"
-    MOTOR_OVERLOAD = "motor_overload"
-    DRIVE_OVERLOAD = "drive_overload"
-    OUTPUT_PHASE_LOSS = "output_phase_loss"
-    OVERHEAT = "overheat"
-    EXTERNAL = "external"
-    COMMUNICATION = "communication"
-    CURRENT_DETECTION = "current_detection"
-    EEPROM = "eeprom"
-    HALL = "hall"
-    STALL = "stall"
 
 
 @dataclass(frozen=True)
