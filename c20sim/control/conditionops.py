@@ -11,7 +11,8 @@ from typing import Any
 
 from ..core.generators import GeneratorError, parse_generator
 from ..core.simulator import Simulator
-from ..drive.model import Drive, HallFault
+from ..drive import conditions as rows
+from ..drive.model import Drive
 from .opscore import ControlError, _shown, _synced, drive, integer, number, unknown
 
 
@@ -32,78 +33,34 @@ class Condition:
     continuous: bool = False
 
 
-def _ranged(
-    name: str, unit: str, low: float, high: float, read: Callable[[Drive], float], write: Callable[[Drive, float], None]
-) -> Condition:
-    return Condition(name, unit, low, high, read, write, lambda k, v: number(k, v, low, high), continuous=True)
+def _choice(choices: tuple[str, ...]) -> Callable[[str, object], object]:
+    def check(key: str, value: object) -> str | None:
+        if value is not None and value not in choices:
+            names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
+            raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
+        return None if value is None else str(value)
+
+    return check
 
 
-def _hall(key: str, value: object) -> str | None:
-    choices = [f.value for f in HallFault]
-    if value is not None and value not in choices:
-        names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
-    return None if value is None else str(value)
+def _check(row: rows.Condition) -> Callable[[str, object], object]:
+    """How a value of the row's kind is checked: a number or an integer in its range, or one of its choices."""
+    low, high = row.low, row.high
+    if row.kind == "choice":
+        return _choice(row.choices)
+    assert low is not None and high is not None
+    if row.kind == "integer":
+        return lambda k, v: integer(k, v, int(low), int(high))
+    return lambda k, v: number(k, v, low, high)
 
 
-def _hall_now(d: Drive) -> str | None:
-    fault = d.hall_fault
-    return None if fault is None else fault.value
+def _condition(row: rows.Condition) -> Condition:
+    return Condition(row.name, row.unit, row.low, row.high, row.get, row.set, _check(row), row.help, row.continuous)
 
 
-#: Every condition, by the name all front ends use. To add one: a row here (and its setter on the Drive).
-CONDITIONS: Mapping[str, Condition] = {
-    c.name: c
-    for c in (
-        _ranged("supply_v", "V", 0, 2000, lambda d: d.telemetry().supply_v, lambda d, v: d.set_supply_voltage(v)),
-        _ranged(
-            "load_torque_nm", "N m", 0, 1000, lambda d: d.telemetry().load_torque_nm, lambda d, v: d.set_load_torque(v)
-        ),
-        _ranged("active_load_nm", "N m", -1000, 1000, lambda d: d.active_load, lambda d, v: d.set_active_load(v)),
-        _ranged(
-            "load_inertia_kg_m2",
-            "kg m2",
-            0,
-            100,
-            lambda d: d.telemetry().load_inertia_kg_m2,
-            lambda d, v: d.set_load_inertia(v),
-        ),
-        _ranged("ambient_c", "°C", -50, 150, lambda d: d.telemetry().ambient_c, lambda d, v: d.set_ambient(v)),
-        Condition(
-            "hall_fault",
-            "",
-            None,
-            None,
-            _hall_now,
-            lambda d, v: d.set_hall_fault(v),
-            _hall,
-            help="null, 'stuck0', 'stuck7' or 'sequence'",
-        ),
-        _ranged("ai1_v", "V", 0, 10, lambda d: d.ai(1), lambda d, v: d.set_ai(1, v)),
-        _ranged("ai2_v", "V", 0, 10, lambda d: d.ai(2), lambda d, v: d.set_ai(2, v)),
-        _ranged("ai3_v", "V", 0, 10, lambda d: d.ai(3), lambda d, v: d.set_ai(3, v)),
-        Condition(
-            "dial_switches",
-            "",
-            0,
-            7,
-            lambda d: sum(1 << i for i, on in enumerate(d.dial_switches) if on),
-            lambda d, v: d.set_dial_switches(bool(v & 1), bool(v & 2), bool(v & 4)),
-            lambda k, v: integer(k, v, 0, 7),
-            help="the dial switches, bit 0 SW1, bit 1 SW2, bit 2 SW3 (they act where 2005H = 3, 2006H = 3, 2007H = 5)",
-        ),
-        Condition(
-            "terminal_inputs",
-            "",
-            0,
-            0x1FF,
-            lambda d: d.physical_inputs,
-            lambda d, v: d.set_terminal_inputs(v),
-            lambda k, v: integer(k, v, 0, 0x1FF),
-            help="the physical input terminals, bits 0-8",
-        ),
-    )
-}
+#: Every condition, by the name all front ends use: one per row of :data:`c20sim.drive.conditions.CONDITIONS`.
+#: To add one: a row there.
+CONDITIONS: Mapping[str, Condition] = {name: _condition(row) for name, row in rows.CONDITIONS.items()}
 
 
 def check_conditions(values: object) -> dict[str, object]:

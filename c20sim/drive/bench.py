@@ -2,7 +2,8 @@
 dial switches, input terminals), each a physical condition the model then answers to by its own physics.
 
 :class:`BenchSetters` is a part of :class:`~c20sim.drive.model.Drive` (its conditions' setters); the
-operations (:data:`c20sim.control.ops.CONDITIONS`) and the dashboard set conditions through it.
+conditions' rows (:data:`c20sim.drive.conditions.CONDITIONS`), and through them the operations and the dashboard, set
+conditions through it.
 """
 
 from __future__ import annotations

@@ -82,38 +82,40 @@ LINK_OF_KEY: Mapping[str, str] = {knob.key: name for name, knob in KNOBS.items()
 
 @dataclass(frozen=True, slots=True)
 class Conditions:
-    """The physical conditions a drive is in now, as read through the operations."""
+    """The physical conditions a drive is in now, as read through the operations: every condition of
+    :data:`c20sim.control.ops.CONDITIONS` by its name, in ``values`` or as an attribute (``.supply_v``; a
+    continuous one as a float), with the terminals as ``inputs`` and the Hall sensor's fault as ``hall``."""
 
-    supply_v: float
-    load_torque_nm: float
-    load_inertia_kg_m2: float
-    ambient_c: float
-    ai1_v: float
-    ai2_v: float
-    inputs: int  #: the physical input terminals (not the virtual ones of 200AH)
-    hall: HallFault | None
+    values: Mapping[str, object]
     held_fault: int | None  #: a fault latched persistently, not yet released
 
     @classmethod
     def of(cls, values: Mapping[str, object], held_fault: int | None) -> Conditions:
-        def num(name: str) -> float:
-            value = values[name]
-            assert isinstance(value, int | float)
-            return float(value)
+        return cls(dict(values), held_fault)
 
-        hall, inputs = values["hall_fault"], values["terminal_inputs"]
-        assert isinstance(inputs, int)
-        return cls(
-            supply_v=num("supply_v"),
-            load_torque_nm=num("load_torque_nm"),
-            load_inertia_kg_m2=num("load_inertia_kg_m2"),
-            ambient_c=num("ambient_c"),
-            ai1_v=num("ai1_v"),
-            ai2_v=num("ai2_v"),
-            inputs=inputs,
-            hall=None if hall is None else HallFault(hall),
-            held_fault=held_fault,
-        )
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name in ("values", "held_fault"):
+            raise AttributeError(name)
+        try:
+            value = self.values[name]
+        except KeyError:
+            raise AttributeError(f"no condition {name!r}; conditions: {', '.join(self.values)}") from None
+        condition = ops.CONDITIONS.get(name)
+        if condition is not None and condition.continuous and isinstance(value, int | float):
+            return float(value)
+        return value
+
+    @property
+    def inputs(self) -> int:
+        """The physical input terminals (not the virtual ones of 200AH)."""
+        value = self.values["terminal_inputs"]
+        assert isinstance(value, int)
+        return value
+
+    @property
+    def hall(self) -> HallFault | None:
+        value = self.values["hall_fault"]
+        return None if value is None else HallFault(value)
 
 
 @functools.cache
