@@ -31,6 +31,8 @@ class Condition:
     help: str = ""
     #: a continuous quantity: it may be given a generator (c20sim.core.generators) instead of a value
     continuous: bool = False
+    #: a choice's values (null is allowed too); None for a number
+    choices: tuple[str, ...] | None = None
 
 
 def _choice(choices: tuple[str, ...]) -> Callable[[str, object], object]:
@@ -55,7 +57,10 @@ def _check(row: rows.Condition) -> Callable[[str, object], object]:
 
 
 def _condition(row: rows.Condition) -> Condition:
-    return Condition(row.name, row.unit, row.low, row.high, row.get, row.set, _check(row), row.help, row.continuous)
+    choices = row.choices if row.kind == "choice" else None
+    return Condition(
+        row.name, row.unit, row.low, row.high, row.get, row.set, _check(row), row.help, row.continuous, choices
+    )
 
 
 #: Every condition, by the name all front ends use: one per row of :data:`c20sim.drive.conditions.CONDITIONS`.

@@ -45,6 +45,7 @@ __all__ = [
     "Bench",
     "FaultCause",
     "Trip",
+    "docs_table",
     "register",
     "unregister",
 ]
@@ -244,9 +245,9 @@ def _latched(name: str, doc: str) -> Trip:
 TRIPS: dict[str, Trip] = {
     t.name: t
     for t in (
-        _latched("power_stage_u", "power stage, phase U: latched by a bench, no physical cause in the model"),
-        _latched("power_stage_v", "power stage, phase V: latched"),
-        _latched("power_stage_w", "power stage, phase W: latched"),
+        _latched("power_stage_u", "power stage, phase U: no physical cause in the model, only latched"),
+        _latched("power_stage_v", "power stage, phase V: only latched"),
+        _latched("power_stage_w", "power stage, phase W: only latched"),
         Trip(
             "overcurrent",
             "the current the speed loop asks is past `protection.overcurrent_a` while driving (by the ramp's phase)",
@@ -334,7 +335,7 @@ TRIPS: dict[str, Trip] = {
             foresee=lambda it, seg: seg.drive_rate > 0.0,
             trips_at=lambda it, seg, n: seg.drive_i2t(n) >= BUDGET,
         ),
-        _latched("output_phase_loss", "output phase loss: latched"),
+        _latched("output_phase_loss", "output phase loss: only latched"),
         Trip(
             "overheat",
             "the module's temperature reaches `thermal.overheat_c`; it resets `thermal.overheat_reset_k` below",
@@ -382,8 +383,8 @@ TRIPS: dict[str, Trip] = {
             detect=lambda p: lambda m, mo: mo.cfg.comm_action == COMM_TRIP and m.comm_expired(mo.k),
             present=lambda m: m.comm_expired(m.motion.k),
         ),
-        _latched("current_detection", "current detection: latched"),
-        _latched("eeprom", "EEPROM: latched"),
+        _latched("current_detection", "current detection: only latched"),
+        _latched("eeprom", "EEPROM: only latched"),
         Trip(
             "hall",
             "a bad Hall code (stuck at 0 or 7, out of sequence) while the bus is up",
@@ -419,6 +420,21 @@ TRIPS: dict[str, Trip] = {
         ),
     )
 }
+
+
+def docs_table() -> str:
+    """The causes as docs/faults.md lists them (between its ``causes`` markers): one line a row, from the rows."""
+    checked = sorted((t for t in TRIPS.values() if t.check is not None), key=lambda t: t.check or 0.0)
+    order = {t.name: i for i, t in enumerate(checked, start=1)}
+    lines = [
+        "| cause | profile causes | step's order | bench's cause (dashboard key) | what trips it |",
+        "|---|---|---|---|---|",
+    ]
+    for t in TRIPS.values():
+        causes = ", ".join(f"`{c}`" for c in t.causes)
+        bench = f"`{t.bench.name}` ({t.bench.key})" if t.bench is not None else f"none: latched as `{t.name}`"
+        lines.append(f"| {t.name} | {causes} | {order.get(t.name, '-')} | {bench} | {t.doc} |")
+    return "\n".join(lines) + "\n"
 
 
 def _add_causes(trip: Trip) -> None:
