@@ -122,28 +122,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
     protection = check.section(data, "protection", ProtectionParams)
     thermal = check.section(data, "thermal", ThermalParams)
     control = check.section(data, "control", ControlParams)
-    if supply.undervoltage_v >= supply.voltage_v:
-        raise check.fail(
-            "supply.undervoltage_v",
-            f"{supply.undervoltage_v:g} V must be below supply.voltage_v = {supply.voltage_v:g} V",
-        )
-    if supply.undervoltage_recover_v and not supply.undervoltage_v < supply.undervoltage_recover_v < supply.voltage_v:
-        raise check.fail(
-            "supply.undervoltage_recover_v",
-            f"{supply.undervoltage_recover_v:g} V must be between supply.undervoltage_v = {supply.undervoltage_v:g} V "
-            f"and supply.voltage_v = {supply.voltage_v:g} V",
-        )
-    if motor.active_load_free_rpm <= motor.rated_speed_rpm:
-        raise check.fail(
-            "motor.active_load_free_rpm",
-            f"{motor.active_load_free_rpm:g} rpm must be above motor.rated_speed_rpm = {motor.rated_speed_rpm:g} rpm",
-        )
-    if supply.overvoltage_v <= supply.voltage_v:
-        raise check.fail(
-            "supply.overvoltage_v",
-            f"{supply.overvoltage_v:g} V must be above supply.voltage_v = {supply.voltage_v:g} V",
-        )
-
+    _check_levels(check, motor, supply)
     faults = _parse_faults(check, data.get("fault"))
     parameters, defaults, mirrors = _parse_parameters(check, data.get("parameter"))
     if protocol.password and password_address in {p.address for p in parameters}:
@@ -184,3 +163,29 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
         registers=registers,
         behaviours=tuple(behaviours),
     )
+
+
+def _check_levels(check: _Checker, motor: MotorParams, supply: SupplyParams) -> None:
+    """The levels that must keep their order across keys: the bus's trip levels about the supply, the active
+    load's free speed above the rated one."""
+    if supply.undervoltage_v >= supply.voltage_v:
+        raise check.fail(
+            "supply.undervoltage_v",
+            f"{supply.undervoltage_v:g} V must be below supply.voltage_v = {supply.voltage_v:g} V",
+        )
+    if supply.undervoltage_recover_v and not supply.undervoltage_v < supply.undervoltage_recover_v < supply.voltage_v:
+        raise check.fail(
+            "supply.undervoltage_recover_v",
+            f"{supply.undervoltage_recover_v:g} V must be between supply.undervoltage_v = {supply.undervoltage_v:g} V "
+            f"and supply.voltage_v = {supply.voltage_v:g} V",
+        )
+    if motor.active_load_free_rpm <= motor.rated_speed_rpm:
+        raise check.fail(
+            "motor.active_load_free_rpm",
+            f"{motor.active_load_free_rpm:g} rpm must be above motor.rated_speed_rpm = {motor.rated_speed_rpm:g} rpm",
+        )
+    if supply.overvoltage_v <= supply.voltage_v:
+        raise check.fail(
+            "supply.overvoltage_v",
+            f"{supply.overvoltage_v:g} V must be above supply.voltage_v = {supply.voltage_v:g} V",
+        )

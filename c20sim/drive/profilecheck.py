@@ -248,26 +248,7 @@ def _parse_parameters(check: _Checker, raw: Any) -> tuple[list[RegisterSpec], di
                 f"{where}.source", f"must be one of {', '.join(_SOURCES)}{_did_you_mean(str(source), _SOURCES)}"
             )
         if "mirror" in entry:
-            mirror_text = entry["mirror"]
-            register = _parse_register(mirror_text)
-            if register is None or register not in REQUIRED_MIRRORS:
-                allowed = ", ".join(f"{r:04X}H" for r in REQUIRED_MIRRORS)
-                raise check.fail(
-                    f"{where}.mirror", f"{mirror_text!r} cannot mirror a function code; allowed: {allowed}"
-                )
-            if register in mirrors:
-                raise check.fail(
-                    f"{where}.mirror", f"{register:04X}H already mirrors {format_fcode(mirrors[register])}"
-                )
-            fixed = FIXED_REGISTERS[register]
-            if fixed.access is Access.RW_STOPPED and access_text != Access.RW_STOPPED.value:
-                raise check.fail(f"{where}.access", f"must be W/R* like the register it mirrors, {register:04X}H")
-            if minimum < fixed.minimum or maximum > fixed.maximum:
-                raise check.fail(
-                    f"{where}.max" if maximum > fixed.maximum else f"{where}.min",
-                    f"{minimum}-{maximum} goes beyond {register:04X}H's range in the sheet, "
-                    f"{fixed.minimum}-{fixed.maximum}",
-                )
+            register = _parse_mirror(check, where, entry["mirror"], access_text, minimum, maximum, mirrors)
             mirrors[register] = address
         specs.append(
             RegisterSpec(
@@ -296,3 +277,25 @@ def _parse_register(text: Any) -> int | None:
         return int(body, 16)
     except ValueError:
         return None
+
+
+def _parse_mirror(
+    check: _Checker, where: str, mirror_text: Any, access_text: str, minimum: int, maximum: int, mirrors: dict[int, int]
+) -> int:
+    """The 20xxH register a function code mirrors: one of REQUIRED_MIRRORS, not mirrored twice, as W/R* as it
+    and within its range in the sheet."""
+    register = _parse_register(mirror_text)
+    if register is None or register not in REQUIRED_MIRRORS:
+        allowed = ", ".join(f"{r:04X}H" for r in REQUIRED_MIRRORS)
+        raise check.fail(f"{where}.mirror", f"{mirror_text!r} cannot mirror a function code; allowed: {allowed}")
+    if register in mirrors:
+        raise check.fail(f"{where}.mirror", f"{register:04X}H already mirrors {format_fcode(mirrors[register])}")
+    fixed = FIXED_REGISTERS[register]
+    if fixed.access is Access.RW_STOPPED and access_text != Access.RW_STOPPED.value:
+        raise check.fail(f"{where}.access", f"must be W/R* like the register it mirrors, {register:04X}H")
+    if minimum < fixed.minimum or maximum > fixed.maximum:
+        raise check.fail(
+            f"{where}.max" if maximum > fixed.maximum else f"{where}.min",
+            f"{minimum}-{maximum} goes beyond {register:04X}H's range in the sheet, {fixed.minimum}-{fixed.maximum}",
+        )
+    return register
