@@ -22,6 +22,7 @@ it through :meth:`Drive.cause_present <c20sim.drive.model.Drive.cause_present>`.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +32,7 @@ from .profile import FaultCause, Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, RUNNING, Event, State, next_state
 from .terminals import Input
-from .trips import TRIPS, Trip
+from .trips import Trip, checked
 
 if TYPE_CHECKING:
     from .integrator import Integrator
@@ -46,18 +47,28 @@ TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
 RESTARTS = {State.FORWARD: Event.FORWARD, State.REVERSE: Event.REVERSE}
 
 
-def _checks(profile: Profile, codes: Mapping[FaultCause, int]) -> tuple[tuple[Callable[[Any, Any], bool], Trip], ...]:
-    """The rows the step tries, in their fixed order, armed for ``profile``: those with a check whose causes the
-    profile has a code for (a cause without one is a protection this drive lacks: it never trips)."""
-    rows = sorted((t for t in TRIPS.values() if t.detect is not None and t.check is not None), key=_rank)
-    return tuple(
-        (t.detect(profile), t) for t in rows if t.detect is not None and any(FaultCause(c) in codes for c in t.causes)
-    )
+Checks = tuple[tuple[Callable[[Any, Any], bool], Trip], ...]
+#: The rows armed per profile, the latest few (a simulator's drives share one profile): profile's id -> (the
+#: profile, weakly, the rows they were armed from, the checks by state).
+_ARMED: dict[int, tuple[weakref.ref[Profile], tuple[Trip, ...], dict[State, Checks]]] = {}
+_ARMED_MAX = 16
 
 
-def _rank(trip: Trip) -> float:
-    assert trip.check is not None
-    return trip.check
+def _checks(profile: Profile, codes: Mapping[FaultCause, int]) -> dict[State, Checks]:
+    """The rows the step tries in each state, in their fixed order, armed for ``profile``: those that can trip in
+    the state and whose causes the profile has a code for (a cause without one is a protection this drive
+    lacks: it never trips)."""
+    rows = checked()
+    kept = _ARMED.get(id(profile))
+    if kept is not None and kept[0]() is profile and kept[1] is rows:
+        return kept[2]
+    coded = {cause.value for cause in codes}
+    armed = [(t.detect(profile), t) for t in rows if t.detect is not None and any(c in coded for c in t.causes)]
+    by_state = {state: tuple(a for a in armed if a[1].states is None or state in a[1].states) for state in State}
+    while len(_ARMED) >= _ARMED_MAX:
+        del _ARMED[next(iter(_ARMED))]
+    _ARMED[id(profile)] = (weakref.ref(profile), rows, by_state)
+    return by_state
 
 
 class Machine:
@@ -81,7 +92,7 @@ class Machine:
         #: Called with True when the inverter starts driving the motor, False when it stops.
         self.on_drive: Callable[[bool], None] | None = None
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
-        #: the causes the step tries, in order: (detect, row)
+        #: the causes the step tries in each state, in order: (detect, row)
         self.checks = _checks(profile, self.codes)
 
     def power_up(self) -> None:
@@ -93,6 +104,7 @@ class Machine:
         self.forced_hold = False
         self.last_comm = None
         self.state = State.STOPPED if self.bus_ok else State.OFF
+        self.watching = self.checks[self.state]  #: the rows the step tries in this state
         self.auto_resets = 0  #: automatic fault resets since power-up or the last manual reset (F08.28)
         self.reset_due: int | None = None  #: the step of the next automatic reset
         self.restart_event: Event | None = None  #: the run to take up again once the power is back (F01.21)
@@ -120,6 +132,7 @@ class Machine:
             self.command = 0
         self.motion.entered(old in DRIVEN, new in DRIVEN)
         self.state = new
+        self.watching = self.checks[new]
         if (old in DRIVEN) != (new in DRIVEN) and self.on_drive is not None:
             self.on_drive(new in DRIVEN)  # the running-hour counter
 
@@ -286,7 +299,7 @@ class Machine:
         # ramp of a heavy load that asks more than the trip level trips on overcurrent; with it on, the ramp holds
         # at the level, and only a load step faster than the limit (a shock) trips; a load beyond the limit slows
         # the rotor. A bad Hall code trips whenever the bus is up.
-        for detect, trip in self.checks:
+        for detect, trip in self.watching:
             if detect(self, motion) and self.trip_on(
                 FaultCause(f"{trip.name}_{motion.phase}" if trip.phases else trip.name)
             ):

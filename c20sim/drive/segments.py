@@ -17,7 +17,7 @@ from .physics import RPM, STEP, Segment
 from .profile import Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, State
-from .trips import TRIPS
+from .trips import foreseen
 
 __all__ = ["SteadySegments", "target_rpm"]
 
@@ -106,15 +106,12 @@ class SteadySegments:
             theta0=self.hall.theta,
             theta_rate=self.speed * RPM * self.cfg.pole_pairs * STEP,
         )
-        self.watching = (
-            tuple(
-                t.trips_at
-                for t in TRIPS.values()
-                if t.foresee is not None and t.trips_at is not None and t.foresee(self, self.segment)
-            )
-            if watch
-            else ()
-        )
+        watching: tuple[Callable[[Any, Segment, int], bool], ...] = ()
+        if watch:  # the causes that can trip along it, from their rows
+            for trip in foreseen():
+                if trip.foresee is not None and trip.trips_at is not None and trip.foresee(self, self.segment):
+                    watching += (trip.trips_at,)
+        self.watching = watching
 
     def segment_event(self, seg: Segment, n: int, expired: Callable[[int], bool]) -> bool:
         """True if a protection trips at step ``n`` of the segment (monotone in ``n``)."""

@@ -24,6 +24,7 @@ The parts take the :class:`~c20sim.drive.protection.Machine` (``m``) and read th
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -45,7 +46,9 @@ __all__ = [
     "Bench",
     "FaultCause",
     "Trip",
+    "checked",
     "docs_table",
+    "foreseen",
     "register",
     "unregister",
 ]
@@ -151,6 +154,8 @@ class Trip:
     phases: tuple[str, ...] = ()
     #: its place in the step's fixed order (None: the step does not trip on it by this row)
     check: float | None = None
+    #: the drive's states it can trip in (None: every state the step watches, all but off and faulted)
+    states: frozenset[Any] | None = None
     #: (profile) -> (machine, integrator) -> whether the step trips on it now: armed once per drive, so the
     #: profile's levels are bound before the step (it runs every millisecond of model time)
     detect: Callable[[Any], Detect] | None = None
@@ -162,7 +167,7 @@ class Trip:
     trips_at: Callable[[Any, Any, int], bool] | None = None
     bench: Bench | None = None
 
-    @property
+    @functools.cached_property
     def causes(self) -> tuple[str, ...]:
         """The profile causes of this row."""
         return tuple(f"{self.name}_{phase}" for phase in self.phases) if self.phases else (self.name,)
@@ -185,7 +190,7 @@ def _overcurrent_present(m: Any) -> bool:
 
 def _overcurrent(p: Any) -> Detect:
     level = p.protection.overcurrent_a
-    return lambda m, mo: m.state in DRIVEN and abs(mo.demand) > level
+    return lambda m, mo: abs(mo.demand) > level
 
 
 def _overvoltage(p: Any) -> Detect:
@@ -253,6 +258,7 @@ TRIPS: dict[str, Trip] = {
             "the current the speed loop asks is past `protection.overcurrent_a` while driving (by the ramp's phase)",
             PHASES,
             check=2,
+            states=DRIVEN,  # the current the loop asks flows only while the inverter drives
             detect=_overcurrent,
             present=_overcurrent_present,
             # a load that needs more than the trip level to hold
@@ -437,6 +443,19 @@ def docs_table() -> str:
     return "\n".join(lines) + "\n"
 
 
+@functools.cache
+def checked() -> tuple[Trip, ...]:
+    """The rows the step tries, in their fixed order (``check``); kept until a row is registered or taken away."""
+    rows = [t for t in TRIPS.values() if t.detect is not None and t.check is not None]
+    return tuple(sorted(rows, key=lambda t: t.check or 0.0))
+
+
+@functools.cache
+def foreseen() -> tuple[Trip, ...]:
+    """The rows a steady segment asks whether they can trip along it."""
+    return tuple(t for t in TRIPS.values() if t.foresee is not None and t.trips_at is not None)
+
+
 def _add_causes(trip: Trip) -> None:
     for phase, value in zip(trip.phases or (None,), trip.causes, strict=True):
         FaultCause._members[value] = FaultCause._make(value, trip, phase)
@@ -448,6 +467,8 @@ def register(trip: Trip) -> Trip:
         raise ValueError(f"fault cause {trip.name}: declared twice")
     TRIPS[trip.name] = trip
     _add_causes(trip)
+    checked.cache_clear()
+    foreseen.cache_clear()
     return trip
 
 
@@ -456,6 +477,8 @@ def unregister(name: str) -> None:
     trip = TRIPS.pop(name)
     for value in trip.causes:
         del FaultCause._members[value]
+    checked.cache_clear()
+    foreseen.cache_clear()
 
 
 for _trip in TRIPS.values():
