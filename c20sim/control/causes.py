@@ -19,14 +19,13 @@ are latched, and stay until released.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from ..core.simulator import Simulator
 from ..drive.model import Drive
 from ..drive.profile import FaultCause, Profile
-from ..drive.trips import HOT_AMBIENT, TRIPS
+from ..drive.trips import HOT_AMBIENT, TRIPS, Cycle, overheat_seconds
 from . import ops
 
 __all__ = [
@@ -67,6 +66,12 @@ class Cause:
     on: Callable[[Profile, Conditions], dict[str, object]]
     #: (profile, conditions now) -> the conditions that end it
     off: Callable[[Profile, Conditions], dict[str, object]]
+    #: (profile, the module's temperature or None) -> seconds to the trip (inf: never); None: the step's to find
+    eta: Callable[[Profile, float | None], float] | None = None
+    #: its words on the dashboard where it has an ``eta``: "{when}" stands for "trips in about N s"
+    dashboard: str = ""
+    #: the dashboard's switch steps one condition through values instead of on and off
+    cycle: Cycle | None = None
 
     def present(self, drive: Drive) -> bool:
         """Whether it is there now, whoever set the conditions: the drive's protection decides, per fault."""
@@ -80,7 +85,8 @@ def _from_rows() -> dict[str, Cause]:
     for row in rows:
         b = row.bench
         assert b is not None
-        out[b.name] = Cause(b.name, b.key, b.label, b.how, tuple(FaultCause(c) for c in row.causes), b.on, b.off)
+        faults = tuple(FaultCause(c) for c in row.causes)
+        out[b.name] = Cause(b.name, b.key, b.label, b.how, faults, b.on, b.off, b.eta, b.dashboard, b.cycle)
     return out
 
 
@@ -229,20 +235,6 @@ def clear_all(sim: Simulator, address: int) -> None:
         change.update(cause.off(sim.profile, {**now, **change}))
     ops.set_conditions(sim, address, change)
     ops.clear_fault(sim, address, reset=False)
-
-
-def overheat_seconds(profile: Profile, from_c: float | None = None) -> float:
-    """Seconds to the overheat trip at :data:`HOT_AMBIENT` from ``from_c`` (the profile's ambient).
-
-    Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
-    """
-    th = profile.thermal
-    start = th.ambient_c if from_c is None else from_c
-    if start > th.overheat_c:
-        return 0.0
-    if th.overheat_c >= HOT_AMBIENT:
-        return math.inf
-    return th.time_constant_s * math.log((HOT_AMBIENT - start) / (HOT_AMBIENT - th.overheat_c))
 
 
 def _words(change: Mapping[str, object]) -> str:

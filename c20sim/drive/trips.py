@@ -44,11 +44,13 @@ __all__ = [
     "PHASES",
     "TRIPS",
     "Bench",
+    "Cycle",
     "FaultCause",
     "Trip",
     "checked",
     "docs_table",
     "foreseen",
+    "overheat_seconds",
     "register",
     "unregister",
 ]
@@ -125,6 +127,17 @@ class FaultCause(metaclass=_Causes):
 
 
 @dataclass(frozen=True)
+class Cycle:
+    """A switch that steps one condition through values instead of on and off (the Hall sensor's faults)."""
+
+    condition: str
+    #: the values in turn; the first is the healthy one
+    values: tuple[object, ...]
+    #: what the healthy value is called
+    off: str
+
+
+@dataclass(frozen=True)
 class Bench:
     """How a bench brings a cause about and ends it: the dashboard's switch, and the conditions it sets."""
 
@@ -141,6 +154,13 @@ class Bench:
     off: Change
     #: its place among the bench's causes (the dashboard's fault panel, the API's list of causes)
     rank: float
+    #: (profile, the module's temperature or None for the profile's ambient) -> seconds from the conditions on to
+    #: the trip (inf: never); None: the trip's time is the step's to find
+    eta: Callable[[Any, float | None], float] | None = None
+    #: its words on the dashboard where it has an ``eta``: "{when}" stands for "trips in about N s"
+    dashboard: str = ""
+    #: the dashboard's switch steps one condition through values instead of on and off
+    cycle: Cycle | None = None
 
 
 @dataclass(frozen=True)
@@ -240,6 +260,20 @@ def _inputs(c: Conditions) -> int:
 
 #: The hottest ambient any front end may set: the overheat cause's.
 HOT_AMBIENT = float(CONDITIONS["ambient_c"].high or 0.0)
+
+
+def overheat_seconds(profile: Any, from_c: float | None = None) -> float:
+    """Seconds to the overheat trip at :data:`HOT_AMBIENT` from ``from_c`` (the profile's ambient).
+
+    Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
+    """
+    th = profile.thermal
+    start = th.ambient_c if from_c is None else from_c
+    if start > th.overheat_c:
+        return 0.0
+    if th.overheat_c >= HOT_AMBIENT:
+        return math.inf
+    return float(th.time_constant_s * math.log((HOT_AMBIENT - start) / (HOT_AMBIENT - th.overheat_c)))
 
 
 def _latched(name: str, doc: str) -> Trip:
@@ -363,6 +397,8 @@ TRIPS: dict[str, Trip] = {
                 lambda p, c: {"ambient_c": HOT_AMBIENT},
                 lambda p, c: {"ambient_c": p.thermal.ambient_c},
                 rank=6,
+                eta=overheat_seconds,
+                dashboard=f"ambient {HOT_AMBIENT:g} °C, the highest accepted: {{when}}; T/t advances virtual time",
             ),
         ),
         Trip(
@@ -406,6 +442,7 @@ TRIPS: dict[str, Trip] = {
                 lambda p, c: {"hall_fault": "stuck0"},
                 lambda p, c: {"hall_fault": None},
                 rank=7,
+                cycle=Cycle("hall_fault", (None, "stuck0", "stuck7", "sequence"), "mended"),
             ),
         ),
         Trip(

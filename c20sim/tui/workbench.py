@@ -29,6 +29,7 @@ from ..core.simulator import Simulator
 from ..drive.faultrecord import CURRENT_CONTEXT, FAULT_TYPES, has_record
 from ..drive.model import HallFault, Telemetry
 from ..drive.profile import Profile
+from ..drive.trips import Cycle
 from ..wire.errors import C20SimError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import RUN_CHANNELS, Command, Reg, RunChannel, fcode_address
@@ -56,8 +57,6 @@ KEYPAD: Mapping[str, Command] = {
     "stop": Command.STOP,
     "reset": Command.RESET,
 }
-
-HALL_CYCLE: tuple[HallFault | None, ...] = (None, HallFault.STUCK0, HallFault.STUCK7, HallFault.SEQUENCE)
 
 
 @dataclass(frozen=True)
@@ -247,10 +246,8 @@ class Workbench:
                 key = str(len(self.forced) + 1)
                 self.forced[key] = (spec.code, spec.name)
                 self._latched_cause[key] = spec.cause.value
-        #: the device fault switches, the overheat's trip time worked out for this profile
-        self.device_switches = tuple(
-            replace(s, how=self._overheat_how()) if s.key == "o" else s for s in DEVICE_SWITCHES
-        )
+        #: the device fault switches, a cause's trip time (its ``eta``) worked out for this profile
+        self.device_switches = tuple(self._switch(s) for s in DEVICE_SWITCHES)
 
     # --- reading
 
@@ -431,10 +428,14 @@ class Workbench:
         """Seconds to the overheat trip with the overheat cause on, from ``from_c`` (the profile's ambient)."""
         return causes.overheat_seconds(self.profile, from_c)
 
-    def _overheat_how(self) -> str:
-        seconds = self.overheat_seconds()
+    def _switch(self, switch: Switch) -> Switch:
+        """A device switch as this profile shows it: with its cause's trip time where the cause has one."""
+        cause = causes.CAUSES[CAUSE_OF_KEY[switch.key]]
+        if cause.eta is None or not cause.dashboard:
+            return switch
+        seconds = cause.eta(self.profile, None)
         when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
-        return f"ambient {causes.HOT_AMBIENT:g} °C, the highest accepted: {when}; T/t advances virtual time"
+        return replace(switch, how=cause.dashboard.format(when=when))
 
     def _cause(self, key: str) -> str:
         if key in CAUSE_OF_KEY:
@@ -466,19 +467,25 @@ class Workbench:
         if key == "z":
             self.ops.call("clear_causes", address=address)
             return f"drive {address}: every fault cause cleared"
-        if key == "h":  # the Hall sensor cycles through its faults
-            now = self.conditions(address).hall
-            fault = HALL_CYCLE[(HALL_CYCLE.index(now) + 1) % len(HALL_CYCLE)]
-            self.set_conditions(address, {"hall_fault": None if fault is None else fault.value})
-            return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
         cause = self._cause(key)
+        row = causes.CAUSES.get(cause)
+        if row is not None and row.cycle is not None:  # a switch that steps a condition (the Hall sensor's faults)
+            return self._step(address, row.label, row.cycle)
         if self.device_fault_active(address, key):
             return str(self.ops.call("clear_fault", address=address, cause=cause, reset=False)["note"])
         note = str(self.ops.call("fault", address=address, request={"cause": cause})["note"])
-        if cause == "overheat":
-            seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
+        if row is not None and row.eta is not None:
+            seconds = row.eta(self.profile, self.telemetry(address).temperature_c)
             note += " (never trips)" if math.isinf(seconds) else f" (trips in about {seconds:.0f} s)"
         return note
+
+    def _step(self, address: int, label: str, cycle: Cycle) -> str:
+        """The next of the cycle's values for its condition; returns it in words."""
+        now = self.ops.conditions(address)[cycle.condition]
+        values = cycle.values
+        value = values[(values.index(now) + 1) % len(values)] if now in values else values[0]
+        self.set_conditions(address, {cycle.condition: value})
+        return f"drive {address}: {label} {cycle.off if value is None else value}"
 
     # --- link faults
 
