@@ -8,8 +8,10 @@ inputs (JSON-like values: the same check whoever asks) and raises
 :class:`ControlError` with an HTTP status and a sentence saying what is wrong;
 nothing is changed unless every input is right. The names come from the
 register map (:class:`~c20sim.wire.registers.Command`, ...), the link faults'
-:data:`~c20sim.core.linkfaults.KNOBS`, the :data:`CONDITIONS` table here and the
-:mod:`~c20sim.control.causes` table: a new condition or link fault is defined
+:data:`~c20sim.core.linkfaults.KNOBS`, the conditions' rows
+(:data:`c20sim.drive.conditions.CONDITIONS`, checked here as :data:`CONDITIONS`)
+and the fault causes' rows (:data:`c20sim.drive.trips.TRIPS`, brought about by
+:mod:`~c20sim.control.causes`): a new condition, cause or link fault is one row
 in one of those places and every front end has it.
 
 Pure: no I/O, no clock of its own; time is the simulator's.
