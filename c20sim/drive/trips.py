@@ -4,7 +4,8 @@ A :class:`Trip` row is one cause of device faults: its name (the profile's ``cau
 ``_decel`` and ``_constant`` for one that trips by the ramp's phase), its line in the docs, and its parts:
 
 - ``detect``: whether the step trips on it now (:meth:`~c20sim.drive.protection.Machine.protect` tries the
-  rows by ``check``, the fixed order, and trips on the first whose cause the profile has a code for);
+  rows by ``check``, the fixed order, in the ``states`` they can trip in, and trips on the first whose cause
+  the profile has a code for);
 - ``present``: whether the condition that trips it is there now, whoever set it (the control layer's causes,
   the dashboard's marks);
 - ``persists``: the reset guard, whether a latched fault of it still holds (none: the reset is the retry);
@@ -19,7 +20,10 @@ has no physical cause for: latched by a bench, held until released. Every cause 
 (:class:`FaultCause`) comes from these rows: a new cause is :func:`register` of one row.
 
 The parts take the :class:`~c20sim.drive.protection.Machine` (``m``) and read the profile, the integrator
-(``m.motion``), the Hall sensor and the bench's conditions from it.
+(``m.motion``), the Hall sensor and the bench's conditions from it. The bus coming and going (undervoltage:
+off while stopped, a trip while running, on again above the recover level) and the communication timeout's
+actions other than a trip stay written out in ``Machine.protect``: they are transitions of their own, not
+only trips; their rows give the rest (present, persists, the bench's cause, the trip itself).
 """
 
 from __future__ import annotations
