@@ -10,7 +10,9 @@ A :class:`Trip` row is one cause of device faults: its name (the profile's ``cau
   the dashboard's marks);
 - ``persists``: the reset guard, whether a latched fault of it still holds (none: the reset is the retry);
 - ``foresee``: for a steady segment (:mod:`~c20sim.drive.segments`), whether it can trip there, and at which
-  step of the segment it does;
+  step of the segment it does (``trips_at``): a row whose ``detect`` reads what moves along a segment (the
+  temperature, an I²t budget) needs them, or the segment jumps past its trip; one that reads only conditions
+  needs none (a condition set ends the segment);
 - ``bench``: how a bench brings it about (:class:`Bench`: the dashboard's key, the conditions it sets and
   ends), from which :data:`c20sim.control.causes.CAUSES`, the API's and the scenarios' causes and the
   dashboard's fault switches are built.

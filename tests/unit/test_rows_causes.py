@@ -23,6 +23,7 @@ from c20sim.control.openapi import document
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive import conditions, trips
+from c20sim.drive.model import Drive
 from c20sim.drive.profile import FaultCause, load_profile, parse_profile
 from c20sim.drive.trips import docs_table
 from c20sim.scenario.schema import build
@@ -105,6 +106,56 @@ def test_a_registered_cause_is_gone_after(wet_rows: None) -> None:
         trips.register(CONDENSATION)
 
 
+#: A throwaway cause that moves along a steady segment: the module past 40 °C, foreseen by the segment's closed form.
+WARM = trips.Trip(
+    "warm",
+    "the module past 40 °C (a test's throwaway cause)",
+    check=6.5,
+    detect=lambda p: lambda m, mo: bool(mo.temp >= 40.0),
+    present=lambda m: bool(m.motion.temp >= 40.0),
+    foresee=lambda it, seg: seg.temp_ss > 40.0,
+    trips_at=lambda it, seg, n: seg.temp(n) >= 40.0,
+)
+WARM_FAULT = '\n[[fault]]\ncode = 98\nname = "WRM"\ncause = "warm"\n'
+
+
+class SteppedDrive(Drive):
+    """The same model that never enters a steady segment: every step integrated."""
+
+    def _try_segment(self) -> None:
+        return None
+
+
+def warm_trip_step(cls: type[Drive], fault: str = WARM_FAULT) -> tuple[bool, int, int]:
+    """(whether it was on a steady segment at 60 s, the fault code, the step it tripped on) of a stopped drive in a
+    60 °C ambient, advanced 150 s."""
+    drive = cls(parse_profile(PROFILE.read_text() + fault, "warm.toml"))
+    steps: list[int] = []
+    drive.machine.on_trip = lambda code: steps.append(drive.motion.k)
+    drive.set_ambient(60.0)
+    drive.advance_to(60.0)
+    steady = drive.motion.segment is not None
+    drive.advance_to(150.0)
+    return steady, drive.read(Reg.FAULT_CODE), steps[0] if steps else -1
+
+
+def test_a_steady_segment_stops_where_a_registered_cause_trips() -> None:
+    """The segments iterate the rows: a row that foresees its trip along a segment trips on the same step as a
+    drive stepped every millisecond (134 s: 240 s x ln(35 / 20), the module heading for 60 °C from 25 °C)."""
+    trips.register(WARM)
+    try:
+        segmented, stepped = warm_trip_step(Drive), warm_trip_step(SteppedDrive)
+    finally:
+        trips.unregister("warm")
+    assert segmented[:2] == (True, 98)  # it skipped along a segment, and tripped
+    assert stepped[:2] == (False, 98)
+    assert segmented[2] == stepped[2]  # on the same step
+    assert 134_000 <= segmented[2] <= 135_000
+    assert warm_trip_step(Drive, "") == (True, 0, -1)  # the row gone: nothing trips at 40 °C
+    with pytest.raises(ProfileError, match=r"unknown cause 'warm'"):
+        warm_trip_step(Drive)
+
+
 def test_a_row_declared_twice_is_refused() -> None:
     with pytest.raises(ValueError, match=r"^fault cause stall: declared twice$"):
         trips.register(trips.Trip("stall", "again"))
@@ -130,6 +181,7 @@ from c20sim.control.client import ControlClient
 from c20sim.control.openapi import document
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
+from c20sim.drive.model import Drive
 from c20sim.drive.profile import FaultCause, load_profile, parse_profile
 from c20sim.drive.trips import docs_table
 from c20sim.scenario.schema import build
