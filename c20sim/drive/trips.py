@@ -86,11 +86,11 @@ class _Causes(type):
         return len(cls._members)
 
     def __getattr__(cls, name: str) -> FaultCause:
-        """``FaultCause.UNDERVOLTAGE``: a cause by its name in capitals."""
-        for member in cls._members.values():
-            if member.name == name:
-                return member
-        raise AttributeError(name)
+        """``FaultCause.UNDERVOLTAGE``: a cause by its name in capitals (its value's)."""
+        member = cls._members.get(name.lower()) if name.isupper() else None
+        if member is None:
+            raise AttributeError(name)
+        return member
 
 
 class FaultCause(metaclass=_Causes):
