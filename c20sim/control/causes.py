@@ -3,7 +3,9 @@
 A real drive trips on what happens to it: a sagging supply, a jammed load, a
 hot cabinet, a broken Hall sensor. :data:`CAUSES` names each such cause and
 the conditions (:data:`~c20sim.control.ops.CONDITIONS`) that bring it about,
-worked out from the profile's own trip levels, so ``trip("undervoltage")``
+worked out from the profile's own trip levels: it is built from the rows of
+the drive's causes (:data:`c20sim.drive.trips.TRIPS`) that say how a bench
+brings them about (their ``bench``), so ``trip("undervoltage")``
 means the same on every profile and in every front end (scenario
 ``fault = { cause = "undervoltage" }``, ``POST .../fault {"cause": ...}``,
 pytest ``.trip("undervoltage")``, ``c20sim ctl fault --cause``, the
@@ -17,19 +19,18 @@ are latched, and stay until released.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from ..core.simulator import Simulator
 from ..drive.model import Drive
-from ..drive.physics import STEP
 from ..drive.profile import FaultCause, Profile
-from ..drive.terminals import Input
+from ..drive.trips import HOT_AMBIENT, TRIPS, Cycle, overheat_seconds
 from . import ops
 
 __all__ = [
     "CAUSES",
+    "HOT_AMBIENT",
     "JSON",
     "TOML",
     "Cause",
@@ -65,127 +66,32 @@ class Cause:
     on: Callable[[Profile, Conditions], dict[str, object]]
     #: (profile, conditions now) -> the conditions that end it
     off: Callable[[Profile, Conditions], dict[str, object]]
+    #: (profile, the module's temperature or None) -> seconds to the trip (inf: never); None: the step's to find
+    eta: Callable[[Profile, float | None], float] | None = None
+    #: its words on the dashboard where it has an ``eta``: "{when}" stands for "trips in about N s"
+    dashboard: str = ""
+    #: the dashboard's switch steps one condition through values instead of on and off
+    cycle: Cycle | None = None
 
     def present(self, drive: Drive) -> bool:
         """Whether it is there now, whoever set the conditions: the drive's protection decides, per fault."""
         return any(drive.cause_present(fault) for fault in self.faults)
 
 
-def _load_levels(p: Profile) -> dict[str, float]:
-    kt, prot = p.motor.kt_nm_per_a, p.protection
-    return {
-        "overload": round(prot.current_limit_a * kt * 0.9, 2),
-        "stall": round(prot.current_limit_a * kt * 1.5, 2),
-    }
+def _from_rows() -> dict[str, Cause]:
+    """The bench's causes of the rows of :data:`~c20sim.drive.trips.TRIPS`, in their ``rank``."""
+    rows = sorted((t for t in TRIPS.values() if t.bench is not None), key=lambda t: t.bench.rank if t.bench else 0)
+    out: dict[str, Cause] = {}
+    for row in rows:
+        b = row.bench
+        assert b is not None
+        faults = tuple(FaultCause(c) for c in row.causes)
+        out[b.name] = Cause(b.name, b.key, b.label, b.how, faults, b.on, b.off, b.eta, b.dashboard, b.cycle)
+    return out
 
 
-def _shock_load(p: Profile) -> float:
-    """A load torque step that the speed loop answers, within one step, with 125 % of the overcurrent trip.
-
-    A heavy ramp cannot do it while current limiting is on (the default, as INVT ships it): the ramp holds at
-    the limiting level. What still trips OC is a load step faster than the limit can act (a jam hit at speed):
-    the loop answers the speed lost in one step with kp = inertia x 2 pi x the loop's bandwidth, so a step of
-    T N m asks T x 2 pi f x STEP / kt amps, whatever the inertia.
-    """
-    per_nm = 2 * math.pi * p.control.speed_loop_hz * STEP / p.motor.kt_nm_per_a
-    return round(1.25 * p.protection.overcurrent_a / per_nm, 1)
-
-
-def _load(name: str, key: str, label: str, how: str, faults: tuple[FaultCause, ...]) -> Cause:
-    return Cause(
-        name,
-        key,
-        label,
-        how,
-        faults,
-        lambda p, c: {"load_torque_nm": _load_levels(p)[name]},
-        lambda p, c: {"load_torque_nm": 0.0},
-    )
-
-
-def _inputs(c: Conditions) -> int:
-    value = c["terminal_inputs"]
-    assert isinstance(value, int)
-    return value
-
-
-#: The hottest ambient any front end may set: the overheat cause's.
-HOT_AMBIENT = float(ops.CONDITIONS["ambient_c"].high or 0.0)
-
-#: Every physical cause, by the name all front ends use. To add one: a row here.
-CAUSES: Mapping[str, Cause] = {
-    c.name: c
-    for c in (
-        Cause(
-            "undervoltage",
-            "u",
-            "undervoltage",
-            "supply switched low (UV while running, off while stopped)",
-            (FaultCause.UNDERVOLTAGE,),
-            lambda p, c: {"supply_v": round(p.supply.undervoltage_v * 0.5, 1)},
-            lambda p, c: {"supply_v": p.supply.voltage_v},
-        ),
-        Cause(
-            "overvoltage",
-            "v",
-            "overvoltage",
-            "supply switched high (OV1-3 by phase)",
-            (FaultCause.OVERVOLTAGE_ACCEL, FaultCause.OVERVOLTAGE_DECEL, FaultCause.OVERVOLTAGE_CONSTANT),
-            lambda p, c: {"supply_v": round(p.supply.overvoltage_v * 1.1, 1)},
-            lambda p, c: {"supply_v": p.supply.voltage_v},
-        ),
-        Cause(
-            "overcurrent",
-            "c",
-            "overcurrent",
-            "a shock load: a load torque step faster than the current limit can act (OC3 running, OC1/OC2 on a ramp)",
-            (FaultCause.OVERCURRENT_ACCEL, FaultCause.OVERCURRENT_DECEL, FaultCause.OVERCURRENT_CONSTANT),
-            lambda p, c: {"load_torque_nm": _shock_load(p)},
-            lambda p, c: {"load_torque_nm": 0.0},
-        ),
-        _load(
-            "overload",
-            "l",
-            "overload",
-            "load torque near the current limit (motor overload by its inverse-time curve)",
-            (FaultCause.MOTOR_OVERLOAD,),
-        ),
-        _load(
-            "stall",
-            "k",
-            "locked rotor",
-            "load torque past the current limit (stall while running)",
-            (FaultCause.STALL,),
-        ),
-        Cause(
-            "overheat",
-            "o",
-            "overheat",
-            f"ambient at {HOT_AMBIENT:g} °C, the highest accepted (the trip time is the profile's)",
-            (FaultCause.OVERHEAT,),
-            lambda p, c: {"ambient_c": HOT_AMBIENT},
-            lambda p, c: {"ambient_c": p.thermal.ambient_c},
-        ),
-        Cause(
-            "hall",
-            "h",
-            "Hall sensor",
-            "the Hall sensor stuck at 0 (the dashboard cycles: stuck 0, stuck 7, out of sequence, mended)",
-            (FaultCause.HALL,),
-            lambda p, c: {"hall_fault": "stuck0"},
-            lambda p, c: {"hall_fault": None},
-        ),
-        Cause(
-            "external",
-            "e",
-            "external fault",
-            "the EF input terminal",
-            (FaultCause.EXTERNAL,),
-            lambda p, c: {"terminal_inputs": _inputs(c) | Input.EF},
-            lambda p, c: {"terminal_inputs": _inputs(c) & ~Input.EF},
-        ),
-    )
-}
+#: Every physical cause, by the name all front ends use: one per row of the drive's causes with a ``bench``.
+CAUSES: Mapping[str, Cause] = _from_rows()
 
 #: The profile's fault causes that a physical cause above brings about.
 PHYSICAL = frozenset(f for cause in CAUSES.values() for f in cause.faults)
@@ -329,20 +235,6 @@ def clear_all(sim: Simulator, address: int) -> None:
         change.update(cause.off(sim.profile, {**now, **change}))
     ops.set_conditions(sim, address, change)
     ops.clear_fault(sim, address, reset=False)
-
-
-def overheat_seconds(profile: Profile, from_c: float | None = None) -> float:
-    """Seconds to the overheat trip at :data:`HOT_AMBIENT` from ``from_c`` (the profile's ambient).
-
-    Self-heating left out: T(t) = A - (A - T0) exp(-t / tau) reaching the trip level.
-    """
-    th = profile.thermal
-    start = th.ambient_c if from_c is None else from_c
-    if start > th.overheat_c:
-        return 0.0
-    if th.overheat_c >= HOT_AMBIENT:
-        return math.inf
-    return th.time_constant_s * math.log((HOT_AMBIENT - start) / (HOT_AMBIENT - th.overheat_c))
 
 
 def _words(change: Mapping[str, object]) -> str:

@@ -8,8 +8,10 @@ inputs (JSON-like values: the same check whoever asks) and raises
 :class:`ControlError` with an HTTP status and a sentence saying what is wrong;
 nothing is changed unless every input is right. The names come from the
 register map (:class:`~c20sim.wire.registers.Command`, ...), the link faults'
-:data:`~c20sim.core.linkfaults.KNOBS`, the :data:`CONDITIONS` table here and the
-:mod:`~c20sim.control.causes` table: a new condition or link fault is defined
+:data:`~c20sim.core.linkfaults.KNOBS`, the conditions' rows
+(:data:`c20sim.drive.conditions.CONDITIONS`, checked here as :data:`CONDITIONS`)
+and the fault causes' rows (:data:`c20sim.drive.trips.TRIPS`, brought about by
+:mod:`~c20sim.control.causes`): a new condition, cause or link fault is one row
 in one of those places and every front end has it.
 
 Pure: no I/O, no clock of its own; time is the simulator's.
@@ -17,22 +19,13 @@ Pure: no I/O, no clock of its own; time is the simulator's.
 
 from __future__ import annotations
 
-import difflib
-import itertools
-import json
-import math
-import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from ..core.bus import FrameRecord
-from ..core.clock import RealtimeClock
-from ..core.generators import GeneratorError, parse_generator
-from ..core.linkfaults import KNOBS, LinkFaults
 from ..core.simulator import Simulator, set_address
-from ..drive.model import Drive, HallFault, Telemetry
+from ..drive.model import Telemetry
 from ..drive.params import ParameterStore, StateFileError
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
@@ -46,12 +39,35 @@ from ..wire.registers import (
     is_fcode,
     resolve_register,
 )
+from .conditionops import (
+    CONDITIONS,
+    Condition,
+    _read_conditions,
+    check_conditions,
+    clear_generators,
+    conditions,
+    generators,
+    set_conditions,
+)
+from .linkops import (
+    KIND_CHECKS,
+    LINK_CHECKS,
+    check_link_faults,
+    clear_link_faults,
+    link_state,
+    links,
+    set_link_faults,
+)
+from .opscore import ControlError, _shown, _synced, drive, flag, integer, number, unknown
+from .runtimeops import SPEED_RANGE, clock_state, frames, frames_in_words, pause, resume, select_frames, set_speed
 
 __all__ = [
     "CONDITIONS",
     "KEYS",
+    "KIND_CHECKS",
     "LINK_CHECKS",
     "MAX_ADVANCE",
+    "SPEED_RANGE",
     "Condition",
     "ControlError",
     "Setup",
@@ -67,12 +83,18 @@ __all__ = [
     "counters",
     "drive",
     "drive_state",
+    "flag",
     "frames",
+    "frames_in_words",
     "generators",
+    "held_fault",
     "inject_fault",
+    "integer",
     "key_command",
     "keypad_edit",
     "link_state",
+    "links",
+    "number",
     "parse_register",
     "pause",
     "power_cycle",
@@ -84,6 +106,7 @@ __all__ = [
     "reset",
     "restore_defaults",
     "resume",
+    "select_frames",
     "set_conditions",
     "set_link_faults",
     "set_run_channel",
@@ -93,99 +116,7 @@ __all__ = [
     "write_register",
 ]
 
-
-class ControlError(C20SimError):
-    """An operation that cannot be done: ``status`` is the HTTP status to answer with.
-
-    ``exception`` is the Modbus exception code a master would have got for the same thing (a refused
-    register edit), or None.
-    """
-
-    def __init__(self, message: str, status: int = 400, *, exception: int | None = None) -> None:
-        super().__init__(message)
-        self.status = status
-        self.exception = exception
-
-
-# --- Checking JSON-like values.
-
-
-def number(key: str, value: object, low: float | None = None, high: float | None = None) -> float:
-    """A finite number, within ``low``-``high`` where given."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ControlError(f"{key}: expected a number, got {_shown(value)}")
-    bounds = f"{low:g}-{high:g}" if low is not None and high is not None else f">= {low:g}" if low is not None else ""
-    if isinstance(value, int) and abs(value) >= _HUGE:  # beyond a float: said by its length, not printed
-        raise ControlError(f"{key}: a number of {_digits(value)} is outside {bounds or 'a float'}")
-    if not math.isfinite(value):
-        raise ControlError(f"{key}: expected a finite number, got {value}")
-    if (low is not None and value < low) or (high is not None and value > high):
-        raise ControlError(f"{key}: {value:g} is outside {bounds}")
-    return float(value)
-
-
-def integer(key: str, value: object, low: int, high: int) -> int:
-    """A whole number within ``low``-``high``."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ControlError(f"{key}: expected an integer, got {_shown(value)}")
-    if not low <= value <= high:
-        raise ControlError(f"{key}: {_shown(value)} is outside {low}-{high}")
-    return value
-
-
-#: Numbers from 10^30 on are said by their length in an error, never printed (nor made floats): no value an
-#: operation takes comes near, and a number of thousands of digits would fill the message.
-_HUGE = 10**30
-
-
-def _digits(value: int) -> str:
-    """``4000 digits``: a whole number's length (past the interpreter's limit on printing one: said so)."""
-    try:
-        return f"{len(str(abs(value)))} digits"
-    except ValueError:  # more digits than int -> str may make (sys.set_int_max_str_digits)
-        return f"more than {sys.get_int_max_str_digits()} digits"
-
-
-def _shown(value: object) -> str:
-    """A JSON value for an error message: a number of thousands of digits said by its length, a long value cut."""
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= _HUGE:
-        return f"a number of {_digits(value)}"
-    text = json.dumps(value, default=str)
-    return text if len(text) <= 80 else text[:77] + "..."
-
-
-def flag(key: str, value: object) -> bool:
-    if not isinstance(value, bool):
-        raise ControlError(f"{key}: expected true or false, got {_shown(value)}")
-    return value
-
-
-def unknown(kind: str, key: str, known: Mapping[str, object] | Sequence[str]) -> ControlError:
-    """The error for an unknown name: the closest known one, and all of them."""
-    names = list(known)
-    close = difflib.get_close_matches(key, names, n=1)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
-    return ControlError(f"unknown {kind} {key!r}{hint} (known: {', '.join(names)})")
-
-
 # --- The drives.
-
-
-def drive(sim: Simulator, address: int) -> Drive:
-    """The drive at ``address``; 404 if there is none."""
-    try:
-        return sim.drives[address]
-    except KeyError:
-        raise ControlError(
-            f"no drive at address {address}; drives: {', '.join(map(str, sim.drives))}", status=404
-        ) from None
-
-
-def _synced(sim: Simulator, address: int) -> Drive:
-    """The drive at ``address``, brought to the clock's time: every change happens at 'now'."""
-    found = drive(sim, address)
-    sim.sync()
-    return found
 
 
 def telemetry(sim: Simulator, address: int) -> Telemetry:
@@ -332,182 +263,6 @@ def counters(sim: Simulator, address: int) -> dict[str, object]:
     return sim.bus.counters_of(address).as_dict()
 
 
-# --- Conditions: the drive's physical surroundings.
-
-
-@dataclass(frozen=True)
-class Condition:
-    """One physical condition: how a value is checked, set on a drive and read back from it."""
-
-    name: str
-    unit: str
-    #: the range of a numeric condition (None for the others)
-    low: float | None
-    high: float | None
-    read: Callable[[Drive], object]
-    write: Callable[[Drive, Any], None]
-    check: Callable[[str, object], object]
-    help: str = ""
-    #: a continuous quantity: it may be given a generator (c20sim.core.generators) instead of a value
-    continuous: bool = False
-
-
-def _ranged(
-    name: str, unit: str, low: float, high: float, read: Callable[[Drive], float], write: Callable[[Drive, float], None]
-) -> Condition:
-    return Condition(name, unit, low, high, read, write, lambda k, v: number(k, v, low, high), continuous=True)
-
-
-def _hall(key: str, value: object) -> str | None:
-    choices = [f.value for f in HallFault]
-    if value is not None and value not in choices:
-        names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
-    return None if value is None else str(value)
-
-
-def _hall_now(d: Drive) -> str | None:
-    fault = d.hall_fault
-    return None if fault is None else fault.value
-
-
-#: Every condition, by the name all front ends use. To add one: a row here (and its setter on the Drive).
-CONDITIONS: Mapping[str, Condition] = {
-    c.name: c
-    for c in (
-        _ranged("supply_v", "V", 0, 2000, lambda d: d.telemetry().supply_v, lambda d, v: d.set_supply_voltage(v)),
-        _ranged(
-            "load_torque_nm", "N m", 0, 1000, lambda d: d.telemetry().load_torque_nm, lambda d, v: d.set_load_torque(v)
-        ),
-        _ranged("active_load_nm", "N m", -1000, 1000, lambda d: d.active_load, lambda d, v: d.set_active_load(v)),
-        _ranged(
-            "load_inertia_kg_m2",
-            "kg m2",
-            0,
-            100,
-            lambda d: d.telemetry().load_inertia_kg_m2,
-            lambda d, v: d.set_load_inertia(v),
-        ),
-        _ranged("ambient_c", "°C", -50, 150, lambda d: d.telemetry().ambient_c, lambda d, v: d.set_ambient(v)),
-        Condition(
-            "hall_fault",
-            "",
-            None,
-            None,
-            _hall_now,
-            lambda d, v: d.set_hall_fault(v),
-            _hall,
-            help="null, 'stuck0', 'stuck7' or 'sequence'",
-        ),
-        _ranged("ai1_v", "V", 0, 10, lambda d: d.ai(1), lambda d, v: d.set_ai(1, v)),
-        _ranged("ai2_v", "V", 0, 10, lambda d: d.ai(2), lambda d, v: d.set_ai(2, v)),
-        _ranged("ai3_v", "V", 0, 10, lambda d: d.ai(3), lambda d, v: d.set_ai(3, v)),
-        Condition(
-            "dial_switches",
-            "",
-            0,
-            7,
-            lambda d: sum(1 << i for i, on in enumerate(d.dial_switches) if on),
-            lambda d, v: d.set_dial_switches(bool(v & 1), bool(v & 2), bool(v & 4)),
-            lambda k, v: integer(k, v, 0, 7),
-            help="the dial switches, bit 0 SW1, bit 1 SW2, bit 2 SW3 (they act where 2005H = 3, 2006H = 3, 2007H = 5)",
-        ),
-        Condition(
-            "terminal_inputs",
-            "",
-            0,
-            0x1FF,
-            lambda d: d.physical_inputs,
-            lambda d, v: d.set_terminal_inputs(v),
-            lambda k, v: integer(k, v, 0, 0x1FF),
-            help="the physical input terminals, bits 0-8",
-        ),
-    )
-}
-
-
-def check_conditions(values: object) -> dict[str, object]:
-    """Check conditions by their :data:`CONDITIONS` names; returns the checked values.
-
-    A continuous condition may be given a generator instead of a value, such as ``{"ramp": 30, "over": 5}``
-    (:func:`c20sim.core.generators.parse_generator`): it is checked here, and started by :func:`set_conditions`.
-    """
-    if not isinstance(values, Mapping) or not values:
-        raise ControlError(f'give conditions as an object, such as {{"supply_v": 30}}; known: {", ".join(CONDITIONS)}')
-    checked: dict[str, object] = {}
-    for key, value in values.items():
-        condition = CONDITIONS.get(key)
-        if condition is None:
-            raise unknown("condition", key, CONDITIONS)
-        if isinstance(value, Mapping):
-            checked[key] = _check_generator(condition, value)
-        else:
-            checked[key] = condition.check(key, value)
-    return checked
-
-
-def _check_generator(condition: Condition, spec: Mapping[str, object]) -> Mapping[str, object]:
-    if not condition.continuous or condition.low is None or condition.high is None:
-        raise ControlError(
-            f"{condition.name}: takes a value, not a generator; generators are for continuous conditions"
-        )
-    try:
-        parse_generator(condition.name, spec, condition.low, condition.high, 0.0, condition.low)
-    except GeneratorError as exc:
-        raise ControlError(str(exc)) from None
-    return spec
-
-
-def set_conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> None:
-    """Set conditions at the drive's current time; all are checked before any is applied.
-
-    A value stops a generator running on that condition; a generator (see :func:`check_conditions`)
-    starts from the condition's value now and is applied as the drive is advanced.
-    """
-    found = drive(sim, address)
-    checked = check_conditions(values)
-    sim.sync()
-    for key, value in checked.items():
-        condition = CONDITIONS[key]
-        if isinstance(value, Mapping):
-            assert condition.low is not None and condition.high is not None
-            current = condition.read(found)
-            assert isinstance(current, int | float)
-            generator = parse_generator(key, value, condition.low, condition.high, sim.now(), float(current))
-            sim.set_generator(address, key, generator, condition.write, condition.low, condition.high)
-        else:
-            sim.clear_generator(address, key)
-            condition.write(found, value)
-
-
-def generators(sim: Simulator, address: int) -> dict[str, dict[str, Any]]:
-    """The generators running on the drive's conditions, by condition."""
-    drive(sim, address)
-    sim.sync()
-    return sim.generators(address)
-
-
-def clear_generators(sim: Simulator, address: int, name: object = None) -> dict[str, dict[str, Any]]:
-    """Stop the generator on condition ``name`` (all of the drive's for None); the conditions stay where
-    they are. Returns the generators still running."""
-    drive(sim, address)
-    if name is not None and not isinstance(name, str):
-        raise ControlError(f"condition: expected a condition's name, such as supply_v, got {_shown(name)}")
-    if name is not None and name not in CONDITIONS:
-        raise unknown("condition", name, CONDITIONS)
-    sim.clear_generator(address, None if name is None else str(name))
-    return sim.generators(address)
-
-
-def _read_conditions(found: Drive) -> dict[str, object]:
-    return {name: condition.read(found) for name, condition in CONDITIONS.items()}
-
-
-def conditions(sim: Simulator, address: int) -> dict[str, object]:
-    """The conditions the drive is in now, whoever set them, by their :data:`CONDITIONS` names."""
-    return _read_conditions(_synced(sim, address))
-
-
 # --- Device faults by code (by cause: c20sim.control.causes).
 
 
@@ -622,191 +377,10 @@ def advance(sim: Simulator, seconds: object) -> float:
     return sim.run_until(sim.now() + step)
 
 
-# --- Link faults.
+# --- Set-ups.
 
-
-def links(sim: Simulator, address: int | None) -> LinkFaults:
-    """The link faults of one drive (404 if there is none), or of the whole bus for None."""
-    if address is not None:
-        drive(sim, address)
-    return sim.link_faults(address)
-
-
-def link_state(link: LinkFaults) -> dict[str, Any]:
-    """Link faults as JSON-ready values, with ``active``: the names of those switched on."""
-    out: dict[str, Any] = {}
-    for name in KNOBS:
-        value = getattr(link, name)
-        if isinstance(value, bytes):
-            value = value.hex(" ").upper()
-        elif isinstance(value, ExceptionCode):
-            value = int(value)
-        out[name] = value
-    out["active"] = link.active
-    return out
-
-
-def _hex_bytes(key: str, value: object) -> bytes:
-    if not isinstance(value, str):
-        raise ControlError(f'{key}: expected hex bytes such as "FF 00", got {_shown(value)}')
-    try:
-        return bytes.fromhex(value)
-    except ValueError:
-        raise ControlError(f'{key}: {value!r} is not hex bytes such as "FF 00"') from None
-
-
-def _exception_code(key: str, value: object) -> ExceptionCode | None:
-    if value is None:
-        return None
-    if isinstance(value, str) and value.upper() in ExceptionCode.__members__:
-        return ExceptionCode[value.upper()]
-    code = integer(key, value, 1, 0xFF) if not isinstance(value, str) else -1
-    try:
-        return ExceptionCode(code)
-    except ValueError:
-        codes = ", ".join(f"{c.name} ({int(c)})" for c in ExceptionCode)
-        raise ControlError(f"{key}: {_shown(value)} is not an exception code; use one of {codes}") from None
-
-
-#: How a value of each kind of link fault is checked (the kinds of :class:`~c20sim.core.linkfaults.Knob`).
-KIND_CHECKS: Mapping[str, Callable[[str, object], object]] = {
-    "flag": flag,
-    "count": lambda k, v: integer(k, v, 0, 1_000_000),
-    "percent": lambda k, v: number(k, v, 0, 100),
-    "seconds": lambda k, v: number(k, v, 0, 60),
-    "bytes": _hex_bytes,
-    "address": lambda k, v: None if v is None else integer(k, v, 0, 255),
-    "exception": _exception_code,
-}
-
-#: Link fault name -> its checker, from the link faults' own knobs.
-LINK_CHECKS: Mapping[str, Callable[[str, object], object]] = {
-    name: KIND_CHECKS[knob.kind] for name, knob in KNOBS.items()
-}
-
-
-def check_link_faults(values: object) -> dict[str, object]:
-    """Check link faults by their :data:`~c20sim.core.linkfaults.KNOBS` names; returns the values to set."""
-    if not isinstance(values, Mapping) or not values:
-        raise ControlError(f'give link faults as an object, such as {{"offline": true}}; known: {", ".join(KNOBS)}')
-    checked = {}
-    for key, value in values.items():
-        check = LINK_CHECKS.get(key)
-        if check is None:
-            raise unknown("link fault", key, KNOBS)
-        checked[key] = check(key, value)
-    return checked
-
-
-def set_link_faults(sim: Simulator, address: int | None, values: Mapping[str, object]) -> LinkFaults:
-    """Switch link faults of one drive (or the bus for None); all are checked before any is set."""
-    link = links(sim, address)
-    for key, value in check_link_faults(values).items():
-        setattr(link, key, value)
-    return link
-
-
-def clear_link_faults(sim: Simulator, address: int | None) -> LinkFaults:
-    link = links(sim, address)
-    link.clear()
-    return link
-
-
-# --- The frame log.
-
-
-def frames(
-    sim: Simulator,
-    *,
-    last: int | None = None,
-    slave: int | None = None,
-    since: int = 0,
-    first_seq: int = 0,
-    wall_offset: float | None = None,
-) -> list[dict[str, Any]]:
-    """The frame log, oldest first, each record with its sequence number ``seq`` (from ``first_seq``).
-
-    ``last`` keeps the newest N (N >= 1) of the records left after ``since`` and ``slave``;
-    only the records kept are put in words, which is what costs. ``wall_offset`` (from the I/O layer)
-    adds each frame's wall-clock time.
-    """
-    return frames_in_words(select_frames(sim, last=last, slave=slave, since=since, first_seq=first_seq), wall_offset)
-
-
-def select_frames(
-    sim: Simulator, *, last: int | None = None, slave: int | None = None, since: int = 0, first_seq: int = 0
-) -> list[tuple[int, FrameRecord]]:
-    """The records :func:`frames` keeps, with their sequence numbers (cheap: the records are not copied)."""
-    if last is not None and (isinstance(last, bool) or last < 1):
-        raise ControlError(f"last={last} must be at least 1")
-    records = sim.bus.records
-    skip = min(max(0, since - first_seq), len(records))
-    kept = [
-        (first_seq + i, record)
-        for i, record in enumerate(itertools.islice(records, skip, None), start=skip)
-        if slave is None or record.slave == slave
-    ]
-    if last is not None:
-        kept = kept[-last:]
-    return kept
-
-
-def frames_in_words(kept: list[tuple[int, FrameRecord]], wall_offset: float | None = None) -> list[dict[str, Any]]:
-    """Selected records in words: what costs, and touches no simulator state (records are frozen), so a worker
-    thread may do it."""
-    return [{"seq": seq, **record.as_dict(wall_offset)} for seq, record in kept]
-
-
-# --- Runtime control: the clock, and set-ups.
-
-#: The speed factors :func:`set_speed` takes: model seconds per wall second.
-SPEED_RANGE = (0.001, 1000.0)
 #: The set-up :func:`reset` names the profile's defaults by.
 DEFAULTS = "defaults"
-
-
-def clock_state(sim: Simulator) -> dict[str, Any]:
-    """The clock: ``clock`` (virtual or realtime), ``t``, ``paused`` and ``speed`` (None for virtual)."""
-    clock = sim.clock
-    realtime = clock if isinstance(clock, RealtimeClock) else None
-    return {
-        "clock": "virtual" if sim.virtual else "realtime",
-        "t": sim.now(),
-        "paused": realtime.paused if realtime is not None else False,
-        "speed": realtime.speed if realtime is not None else None,
-    }
-
-
-def _realtime(sim: Simulator, what: str) -> RealtimeClock:
-    if not isinstance(sim.clock, RealtimeClock):
-        raise ControlError(
-            f"{what}: the clock is virtual and moves only when advanced; {what} is for serve --clock realtime", 409
-        )
-    return sim.clock
-
-
-def pause(sim: Simulator) -> dict[str, Any]:
-    """Stop the model's time (realtime clock; 409 for a virtual one): the drives stand still, and still
-    answer the bus, until :func:`resume`."""
-    clock = _realtime(sim, "pause")
-    sim.sync()
-    clock.pause()
-    return clock_state(sim)
-
-
-def resume(sim: Simulator) -> dict[str, Any]:
-    """Let a paused realtime clock run on from where it stopped."""
-    _realtime(sim, "resume").resume()
-    return clock_state(sim)
-
-
-def set_speed(sim: Simulator, factor: object) -> dict[str, Any]:
-    """Set the realtime clock's speed factor (model seconds per wall second), with no jump in time."""
-    clock = _realtime(sim, "speed")
-    value = number("speed", factor, *SPEED_RANGE)
-    sim.sync()
-    clock.speed = value
-    return clock_state(sim)
 
 
 @dataclass(frozen=True)

@@ -59,8 +59,8 @@ def conditions_schema() -> dict[str, Any]:
         if c.continuous and c.low is not None and c.high is not None:
             plain = {"type": "number", "minimum": c.low, "maximum": c.high}
             props[name] = {"description": c.unit, "oneOf": [plain, generator_schema(c.low, c.high)]}
-        elif name == "hall_fault":
-            props[name] = {"enum": [None, "stuck0", "stuck7", "sequence"], "description": c.help}
+        elif c.choices is not None:
+            props[name] = {"enum": [None, *c.choices], "description": c.help}
         else:
             props[name] = {"type": "integer", "minimum": c.low, "maximum": c.high, "description": c.help}
     return {"type": "object", "properties": props, "additionalProperties": False, "minProperties": 1}

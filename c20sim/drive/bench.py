@@ -2,7 +2,8 @@
 dial switches, input terminals), each a physical condition the model then answers to by its own physics.
 
 :class:`BenchSetters` is a part of :class:`~c20sim.drive.model.Drive` (its conditions' setters); the
-operations (:data:`c20sim.control.ops.CONDITIONS`) and the dashboard set conditions through it.
+conditions' rows (:data:`c20sim.drive.conditions.CONDITIONS`), and through them the operations and the dashboard, set
+conditions through it.
 """
 
 from __future__ import annotations
@@ -94,6 +95,11 @@ class BenchSetters:
         :data:`~c20sim.drive.config.DIAL_SPEED_SOURCE`.
         """
         self.bench.dial = (bool(sw1), bool(sw2), bool(sw3))
+        self._changed()
+
+    def set_extra(self, name: str, value: object) -> None:
+        """A condition of a row with no setter of its own (:mod:`c20sim.drive.conditions`), kept by its name."""
+        self.bench.extra[name] = value
         self._changed()
 
     def set_terminal_inputs(self, bits: int) -> None:

@@ -20,6 +20,7 @@ from .params import ParameterStore
 from .physics import STEP
 from .profile import Profile
 from .terminals import multi_speed_index
+from .trips import COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY, COMM_TRIP  # the communication cause's
 
 __all__ = [
     "CHANNEL_COMM",
@@ -81,8 +82,6 @@ CURRENT_LIMIT_LEVEL_DEFAULT_PCT = 160.0
 #: F00.00 / 2005H: the control modes the model tells apart.
 CONTROL_OPEN_LOOP, CONTROL_DIAL = 1, 3
 
-#: F08.03, the action on a communication timeout (INVT GD20 P14.05, remembered: P14.03 is the answer delay).
-COMM_TRIP, COMM_CONTINUE, COMM_STOP, COMM_STOP_ANY = 0, 1, 2, 3
 
 CHANNEL_KEYPAD, CHANNEL_TERMINAL, CHANNEL_COMM = RunChannel.KEYPAD, RunChannel.TERMINALS, RunChannel.COMMUNICATION
 # The dial switches SW1-SW3 (sheet: 2005H "3: dial switch setting (SW1 valid), model related", 2006H "3: dial
@@ -107,6 +106,8 @@ class Conditions:
     ai: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  #: AI1-AI3, V
     physical_inputs: int = 0  #: the physical input terminals
     dial: tuple[bool, bool, bool] = (False, False, False)  #: SW1, SW2, SW3
+    #: the conditions no part above reads, by their row's name (c20sim.drive.conditions: a row with no setter)
+    extra: dict[str, object] = field(default_factory=dict)
 
 
 @quick_init  # a write that changes a setting builds one: at half the price (wire/values.py)
@@ -176,14 +177,6 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
     bandwidth = physics.TWO_PI * profile.control.speed_loop_hz
     stall_on = P.get(F_OV_STALL) if F_OV_STALL in P else 1
     stall_pct = P.get(F_OV_STALL_LEVEL) if F_OV_STALL_LEVEL in P else 120
-    limiting = P.get(F_CURRENT_LIMITING) if F_CURRENT_LIMITING in P else CURRENT_LIMITING_DEFAULT
-    limit_pct = (
-        P.get(F_CURRENT_LIMIT_LEVEL) * regs[F_CURRENT_LIMIT_LEVEL].scale
-        if F_CURRENT_LIMIT_LEVEL in P
-        else CURRENT_LIMIT_LEVEL_DEFAULT_PCT
-    )
-    # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
-    limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
     mode = P.get(Reg.CONTROL_MODE)
     # Open loop (F00.00 = 1; 3 hands it to SW1: on open loop, off closed, assumed): a voltage-mode drive, whose
     # speed droops under load by the I R drop; assumed, the sheet names the mode only.
@@ -216,7 +209,7 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         ki=0.0 if open_loop else inertia * bandwidth * bandwidth / 4.0,
         open_loop=open_loop,
         stall_v=profile.supply.voltage_v * stall_pct / 100.0 if stall_on else 0.0,
-        limit_a=limit_a if limiting else 0.0,
+        limit_a=_limit_a(profile, P),
         motor_rated_a=m.rated_current_a * max(coefficient, 0.01),
         comm_action=P.get(F_COMM_ACTION) if F_COMM_ACTION in P else COMM_TRIP,
         auto_reset_trials=P.get(F_AUTO_RESET_TRIALS) if F_AUTO_RESET_TRIALS in P else 0,
@@ -227,6 +220,19 @@ def configure(profile: Profile, P: ParameterStore, ram: Mapping[int, int], bench
         s_end=_share(profile, P, F_S_END) if s_curve else 0.0,
         ride_v=profile.supply.voltage_v * ride_pct / 100.0 if F_RIDE_THROUGH in P and P.get(F_RIDE_THROUGH) else 0.0,
     )
+
+
+def _limit_a(profile: Profile, P: ParameterStore) -> float:
+    """The current limiting level, A (F11.05, F11.06); 0 with limiting off."""
+    limiting = P.get(F_CURRENT_LIMITING) if F_CURRENT_LIMITING in P else CURRENT_LIMITING_DEFAULT
+    limit_pct = (
+        P.get(F_CURRENT_LIMIT_LEVEL) * profile.registers[F_CURRENT_LIMIT_LEVEL].scale
+        if F_CURRENT_LIMIT_LEVEL in P
+        else CURRENT_LIMIT_LEVEL_DEFAULT_PCT
+    )
+    # The level never exceeds the hardware clamp: above it the clamp acts first, as the limiting would.
+    limit_a = min(profile.protection.drive_rated_current_a * limit_pct / 100.0, profile.protection.current_limit_a)
+    return limit_a if limiting else 0.0
 
 
 def _share(profile: Profile, P: ParameterStore, address: int) -> float:

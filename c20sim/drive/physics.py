@@ -207,8 +207,6 @@ class Segment:
     drive_rate: float
     theta0: float
     theta_rate: float  #: electrical radians per step
-    watch_heat: bool
-    watch_overload: bool
 
     def temp(self, n: int) -> float:
         if self.temp0 == self.temp_ss:

@@ -10,29 +10,34 @@ an undervoltage recover level; the automatic events (at zero, hold done) and
 the terminals' run and reset inputs become events; and a latched fault is
 released by a reset only once its cause is gone (:meth:`Machine.cause_persists`).
 
-"Is this cause present" is decided here and nowhere else: :meth:`Machine.present`
-answers it for every :class:`~c20sim.drive.profile.FaultCause` from the
-conditions the drive is in, whoever set them; the control layer's causes
-(:mod:`c20sim.control.causes`) ask it through :meth:`Drive.cause_present
-<c20sim.drive.model.Drive.cause_present>`.
+What each cause trips on, whether it is present and whether it persists are
+the rows of :data:`~c20sim.drive.trips.TRIPS`, one row a cause: the step tries
+them in their fixed order, and :meth:`Machine.present` and
+:meth:`Machine.cause_persists` ask the row of the cause. "Is this cause present"
+is answered here and nowhere else, for every
+:class:`~c20sim.drive.profile.FaultCause` from the conditions the drive is in,
+whoever set them; the control layer's causes (:mod:`c20sim.control.causes`) ask
+it through :meth:`Drive.cause_present <c20sim.drive.model.Drive.cause_present>`.
 """
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from .config import CHANNEL_COMM, CHANNEL_TERMINAL, COMM_CONTINUE, COMM_STOP_ANY, COMM_TRIP
-from .physics import ACCEL, BUDGET, CONSTANT, DECEL, RPM, STEP
+from .physics import STEP
 from .profile import FaultCause, Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, RUNNING, Event, State, next_state
 from .terminals import Input
+from .trips import Trip, checked
 
 if TYPE_CHECKING:
     from .integrator import Integrator
 
-__all__ = ["BY_PHASE", "TRIPS_ON_UNDERVOLTAGE", "Machine"]
+__all__ = ["TRIPS_ON_UNDERVOLTAGE", "Machine"]
 
 
 #: States in which a bus below the undervoltage level trips (fault 0x0A) instead of powering off.
@@ -40,19 +45,30 @@ TRIPS_ON_UNDERVOLTAGE = RUNNING | {State.DECELERATING}
 #: The run an undervoltage trip in each state takes up again once the power is back, with F01.21 = 1 (a jog is
 #: a held key, a stop was ending anyway: neither restarts).
 RESTARTS = {State.FORWARD: Event.FORWARD, State.REVERSE: Event.REVERSE}
-#: The overcurrent and overvoltage causes by the ramp's phase when they trip.
-BY_PHASE = {
-    "overcurrent": {
-        ACCEL: FaultCause.OVERCURRENT_ACCEL,
-        DECEL: FaultCause.OVERCURRENT_DECEL,
-        CONSTANT: FaultCause.OVERCURRENT_CONSTANT,
-    },
-    "overvoltage": {
-        ACCEL: FaultCause.OVERVOLTAGE_ACCEL,
-        DECEL: FaultCause.OVERVOLTAGE_DECEL,
-        CONSTANT: FaultCause.OVERVOLTAGE_CONSTANT,
-    },
-}
+
+
+Checks = tuple[tuple[Callable[[Any, Any], bool], Trip], ...]
+#: The rows armed per profile, the latest few (a simulator's drives share one profile): profile's id -> (the
+#: profile, weakly, the rows they were armed from, the checks by state).
+_ARMED: dict[int, tuple[weakref.ref[Profile], tuple[Trip, ...], dict[State, Checks]]] = {}
+_ARMED_MAX = 16
+
+
+def _checks(profile: Profile, codes: Mapping[FaultCause, int]) -> dict[State, Checks]:
+    """The rows the step tries in each state, in their fixed order, armed for ``profile``: those that can trip in
+    the state and whose causes the profile has a code for (a cause without one is a protection this drive
+    lacks: it never trips)."""
+    rows = checked()
+    kept = _ARMED.get(id(profile))
+    if kept is not None and kept[0]() is profile and kept[1] is rows:
+        return kept[2]
+    coded = {cause.value for cause in codes}
+    armed = [(t.detect(profile), t) for t in rows if t.detect is not None and any(c in coded for c in t.causes)]
+    by_state = {state: tuple(a for a in armed if a[1].states is None or state in a[1].states) for state in State}
+    while len(_ARMED) >= _ARMED_MAX:
+        del _ARMED[next(iter(_ARMED))]
+    _ARMED[id(profile)] = (weakref.ref(profile), rows, by_state)
+    return by_state
 
 
 class Machine:
@@ -76,6 +92,8 @@ class Machine:
         #: Called with True when the inverter starts driving the motor, False when it stops.
         self.on_drive: Callable[[bool], None] | None = None
         self.brake_steps_limit = round(p.brake_hold_s / STEP)
+        #: the causes the step tries in each state, in order: (detect, row)
+        self.checks = _checks(profile, self.codes)
 
     def power_up(self) -> None:
         """No fault, no request seen, no command in force; off until the bus is above the recover level."""
@@ -86,6 +104,7 @@ class Machine:
         self.forced_hold = False
         self.last_comm = None
         self.state = State.STOPPED if self.bus_ok else State.OFF
+        self.watching = self.checks[self.state]  #: the rows the step tries in this state
         self.auto_resets = 0  #: automatic fault resets since power-up or the last manual reset (F08.28)
         self.reset_due: int | None = None  #: the step of the next automatic reset
         self.restart_event: Event | None = None  #: the run to take up again once the power is back (F01.21)
@@ -113,6 +132,7 @@ class Machine:
             self.command = 0
         self.motion.entered(old in DRIVEN, new in DRIVEN)
         self.state = new
+        self.watching = self.checks[new]
         if (old in DRIVEN) != (new in DRIVEN) and self.on_drive is not None:
             self.on_drive(new in DRIVEN)  # the running-hour counter
 
@@ -201,25 +221,13 @@ class Machine:
 
     def cause_persists(self) -> bool:
         """The reset guard: whether the latched fault's cause still holds it (the fault may outlast the
-        condition that tripped it: a bus still below its recover level, a hot module, a spent budget)."""
-        cause, s, p, motion = self.cause, self.profile.supply, self.profile.protection, self.motion
+        condition that tripped it: a bus still below its recover level, a hot module, a spent budget): the
+        cause's row says (no ``persists``: stall, communication, the reset itself is the retry)."""
+        cause = self.cause
         if cause is None:
             return self.forced_hold
-        if cause is FaultCause.UNDERVOLTAGE:
-            return not self.bus_ok
-        if cause in BY_PHASE["overvoltage"].values():
-            return motion.bus > s.overvoltage_v
-        if cause in BY_PHASE["overcurrent"].values():  # a load that needs more than the trip level to hold
-            return self.load_current() > p.overcurrent_a
-        if cause is FaultCause.MOTOR_OVERLOAD:
-            return motion.motor_i2t > p.overload_warning * BUDGET
-        if cause is FaultCause.DRIVE_OVERLOAD:
-            return motion.drive_i2t > p.overload_warning * BUDGET
-        if cause is FaultCause.OVERHEAT:
-            return motion.temp > self.profile.thermal.overheat_c - self.profile.thermal.overheat_reset_k
-        if cause in (FaultCause.EXTERNAL, FaultCause.HALL):
-            return self.present(cause)
-        return False  # stall, communication: the reset itself is the retry
+        persists = cause.trip.persists
+        return persists is not None and bool(persists(self))
 
     def present(self, cause: FaultCause) -> bool:
         """Whether the condition that trips ``cause`` is there now, whoever set it (a bench, a master, a behaviour).
@@ -227,34 +235,10 @@ class Machine:
         The condition, not its effect: a supply below the undervoltage level is present at once, before
         the bus has fallen, and gone at once when the supply is back, while the reset guard
         (:meth:`cause_persists`) may still refuse. Faults the model has no physical cause for (a power
-        stage, the EEPROM, ...) are never present: they are latched (:meth:`force`).
+        stage, the EEPROM, ...) are never present: they are latched (:meth:`force`). The cause's row says.
         """
-        s, p, th, motion = self.profile.supply, self.profile.protection, self.profile.thermal, self.motion
-        bench, cfg = motion.bench, motion.cfg
-        if cause is FaultCause.UNDERVOLTAGE:
-            return bench.supply < s.undervoltage_v
-        if cause in BY_PHASE["overvoltage"].values():
-            return bench.supply > s.overvoltage_v
-        if cause in BY_PHASE["overcurrent"].values():  # holding the load, or starting or stopping it on the ramp
-            if cfg.limit_a:  # current limiting: the ramp never asks more than the level, below the trip
-                return self.load_current() > p.overcurrent_a
-            ramp = cfg.inertia * max(cfg.up, cfg.down) / STEP * RPM / self.profile.motor.kt_nm_per_a
-            return self.load_current() + ramp > p.overcurrent_a
-        if cause is FaultCause.STALL:  # the current limit cannot hold the load: a running rotor stalls
-            return self.load_current() > p.current_limit_a
-        if cause is FaultCause.MOTOR_OVERLOAD:  # past the rating within the limit (beyond it, a stall)
-            return self.load_current() <= p.current_limit_a and motion.motor_rate(self.load_current()) > 0.0
-        if cause is FaultCause.DRIVE_OVERLOAD:
-            return self.load_current() <= p.current_limit_a and motion.drive_rate(self.load_current()) > 0.0
-        if cause is FaultCause.OVERHEAT:  # the temperature the module heads for is past the trip level
-            return bench.ambient + motion.loss * th.resistance_k_per_w > th.overheat_c
-        if cause is FaultCause.EXTERNAL:
-            return bool(cfg.inputs & Input.EF)
-        if cause is FaultCause.HALL:
-            return self.hall.fault is not None
-        if cause is FaultCause.COMMUNICATION:
-            return self.comm_expired(motion.k)
-        return False
+        present = cause.trip.present
+        return present is not None and bool(present(self))
 
     def load_current(self) -> float:
         """The current (A) the motor needs to hold its load: friction, load torque and active load."""
@@ -282,7 +266,7 @@ class Machine:
     def protect(self) -> None:
         """Trip on the first cause present, in a fixed order; handle the bus coming and going."""
         state, motion = self.state, self.motion
-        supply, prot = self.profile.supply, self.profile.protection
+        supply = self.profile.supply
         if motion.riding is not self.riding:  # name a ride-through when it begins and when it ends
             self.riding = motion.riding
             t, v = self.t0 + motion.k * STEP, motion.bus
@@ -309,33 +293,21 @@ class Machine:
         if state is State.OFF:
             self.apply(Event.POWER_BACK)
             return
-        driven = state in DRIVEN
-        if motion.bus > supply.overvoltage_v and self.trip_on(BY_PHASE["overvoltage"][motion.phase]):
-            return
-        # The current the loop asks this step flows for the microseconds the limit takes to act: with current
-        # limiting off, a ramp of a heavy load that asks more than the trip level trips here; with it on, the
-        # ramp holds at the level, and only a load step faster than the limit (a shock) trips; a load beyond
-        # the limit slows the rotor.
-        if driven and abs(motion.demand) > prot.overcurrent_a and self.trip_on(BY_PHASE["overcurrent"][motion.phase]):
-            return
-        if self.hall.glitch and self.trip_on(FaultCause.HALL):  # a bad code trips whenever the bus is up
-            return
-        if motion.stall_steps >= self.stall_steps_limit and self.trip_on(FaultCause.STALL):
-            return
-        if motion.motor_i2t >= BUDGET and self.trip_on(FaultCause.MOTOR_OVERLOAD):
-            return
-        if motion.drive_i2t >= BUDGET and self.trip_on(FaultCause.DRIVE_OVERLOAD):
-            return
-        if motion.temp >= self.profile.thermal.overheat_c and self.trip_on(FaultCause.OVERHEAT):
-            return
-        if motion.cfg.inputs & Input.EF and self.trip_on(FaultCause.EXTERNAL):
-            return
-        if self.comm_expired(motion.k):
-            if motion.cfg.comm_action == COMM_TRIP:
-                self.trip_on(FaultCause.COMMUNICATION)
-            else:  # F08.03 = 2 or 3: no alarm, ramp to stop; re-armed by the next request
-                self.last_comm = None
-                self.apply(Event.STOP if state not in (State.JOG_FORWARD, State.JOG_REVERSE) else Event.JOG_STOP)
+        # The rows in their fixed order (overvoltage, overcurrent, Hall, stall, overloads, overheat, EF,
+        # communication): the first present trips, by the ramp's phase for a cause that has phases. The current
+        # the loop asks this step flows for the microseconds the limit takes to act: with current limiting off, a
+        # ramp of a heavy load that asks more than the trip level trips on overcurrent; with it on, the ramp holds
+        # at the level, and only a load step faster than the limit (a shock) trips; a load beyond the limit slows
+        # the rotor. A bad Hall code trips whenever the bus is up.
+        for detect, trip in self.watching:
+            if detect(self, motion) and self.trip_on(
+                FaultCause(f"{trip.name}_{motion.phase}" if trip.phases else trip.name)
+            ):
+                return
+        if motion.cfg.comm_action != COMM_TRIP and self.comm_expired(motion.k):
+            # F08.03 = 2 or 3: no alarm, ramp to stop; re-armed by the next request
+            self.last_comm = None
+            self.apply(Event.STOP if state not in (State.JOG_FORWARD, State.JOG_REVERSE) else Event.JOG_STOP)
 
     def comm_expired(self, k: int) -> bool:
         """True if the communication timeout has run out by step ``k``."""

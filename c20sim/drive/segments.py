@@ -2,19 +2,22 @@
 
 :class:`SteadySegments` is the integrator's fast-forward, a part of :class:`~c20sim.drive.integrator.Integrator`:
 it enters a :class:`~c20sim.drive.physics.Segment` when the drive has settled, and jumps along its closed
-forms to a later step, or to the first step a protection would trip on (the protection decides, not this).
+forms to a later step, or to the first step a protection would trip on: each cause's row
+(:data:`~c20sim.drive.trips.TRIPS`) says whether it can trip along a segment and at which step.
 An idle drive so costs no CPU, and the state at a time is the same whatever the polling rate.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from .config import Conditions, Config
-from .physics import BUDGET, RPM, STEP, Segment
+from .physics import RPM, STEP, Segment
 from .profile import Profile
 from .sensors import Hall
 from .statemachine import DRIVEN, State
+from .trips import foreseen
 
 __all__ = ["SteadySegments", "target_rpm"]
 
@@ -36,7 +39,7 @@ class SteadySegments:
     """The integrator's fast-forward (a mixin of :class:`~c20sim.drive.integrator.Integrator`, whose state it
     reads and moves)."""
 
-    __slots__ = ("drive_i2t", "k", "motor_i2t", "segment", "temp")  #: what a jump along a segment moves
+    __slots__ = ("drive_i2t", "k", "motor_i2t", "segment", "temp", "watching")  #: what a jump along a segment moves
     profile: Profile
     bench: Conditions
     hall: Hall
@@ -56,6 +59,8 @@ class SteadySegments:
     limited: bool
     stall_steps: int
     segment: Segment | None
+    #: the rows' ``trips_at`` of the causes that can trip along the segment
+    watching: tuple[Callable[[Any, Segment, int], bool], ...]
 
     def motor_rate(self, current: float) -> float:
         raise NotImplementedError  # the integrator's
@@ -100,16 +105,19 @@ class SteadySegments:
             drive_rate=drive_rate,
             theta0=self.hall.theta,
             theta_rate=self.speed * RPM * self.cfg.pole_pairs * STEP,
-            watch_heat=watch and temp_ss > thermal.overheat_c,
-            watch_overload=watch and (motor_rate > 0.0 or drive_rate > 0.0),
         )
+        watching: tuple[Callable[[Any, Segment, int], bool], ...] = ()
+        if watch:  # the causes that can trip along it, from their rows
+            for trip in foreseen():
+                if trip.foresee is not None and trip.trips_at is not None and trip.foresee(self, self.segment):
+                    watching += (trip.trips_at,)
+        self.watching = watching
 
     def segment_event(self, seg: Segment, n: int, expired: Callable[[int], bool]) -> bool:
         """True if a protection trips at step ``n`` of the segment (monotone in ``n``)."""
-        if seg.watch_heat and seg.temp(n) >= self.profile.thermal.overheat_c:
-            return True
-        if seg.watch_overload and (seg.motor_i2t(n) >= BUDGET or seg.drive_i2t(n) >= BUDGET):
-            return True
+        for trips_at in self.watching:
+            if trips_at(self, seg, n):
+                return True
         return expired(seg.k0 + n)
 
     def advance_segment(self, target: int, expired: Callable[[int], bool]) -> bool:

@@ -26,6 +26,7 @@ from textual.widgets import Button, Checkbox, Input, Label, RichLog, Static
 
 from ..control.ops import ControlError
 from ..core.bus import Direction, FrameRecord, RecordKind
+from ..drive import conditions
 from ..drive.terminals import Input as Terminal
 from .messages import ConditionsChanged, FramesLogged, SaveLogRequested
 from .workbench import (
@@ -331,13 +332,12 @@ class NumberInput(Input):
         self.post_message(Input.Submitted(self, self.value))
 
 
-#: Conditions panel fields: id -> (label, unit, step, the control API's condition, which bounds it).
+#: Conditions panel fields: id -> (label, unit, step, the control API's condition, which bounds it), one per
+#: condition whose row (c20sim.drive.conditions) has a panel field.
 CONDITION_FIELDS = {
-    "supply": ("supply", "V", 1.0, "supply_v"),
-    "load": ("load", "N m", 0.1, "load_torque_nm"),
-    "ambient": ("ambient", "°C", 5.0, "ambient_c"),
-    "ai1": ("AI1 knob", "V", 0.5, "ai1_v"),
-    "ai2": ("AI2", "V", 0.5, "ai2_v"),
+    row.panel.id: (row.panel.label, row.unit, row.panel.step, name)
+    for name, row in conditions.CONDITIONS.items()
+    if row.panel is not None
 }
 
 
@@ -367,15 +367,10 @@ class ConditionsPanel(Vertical):
     def show(self) -> None:
         """Show the conditions of the selected drive (fields being edited are left alone)."""
         cond = self.bench.conditions(self.selected)
-        values = {
-            "supply": cond.supply_v,
-            "load": cond.load_torque_nm,
-            "ambient": cond.ambient_c,
-            "ai1": cond.ai1_v,
-            "ai2": cond.ai2_v,
-        }
-        for name, value in values.items():
-            self.query_one(f"#cond-{name}", NumberInput).show(value)
+        for name, (_, _, _, condition) in CONDITION_FIELDS.items():
+            value = cond.values[condition]
+            assert isinstance(value, int | float)
+            self.query_one(f"#cond-{name}", NumberInput).show(float(value))
         for terminal in Terminal:
             box = self.query_one(f"#term-{terminal.name}", Checkbox)
             on_ = bool(cond.inputs & terminal)

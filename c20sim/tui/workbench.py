@@ -29,6 +29,7 @@ from ..core.simulator import Simulator
 from ..drive.faultrecord import CURRENT_CONTEXT, FAULT_TYPES, has_record
 from ..drive.model import HallFault, Telemetry
 from ..drive.profile import Profile
+from ..drive.trips import Cycle
 from ..wire.errors import C20SimError
 from ..wire.protocol import ExceptionCode
 from ..wire.registers import RUN_CHANNELS, Command, Reg, RunChannel, fcode_address
@@ -57,8 +58,6 @@ KEYPAD: Mapping[str, Command] = {
     "reset": Command.RESET,
 }
 
-HALL_CYCLE: tuple[HallFault | None, ...] = (None, HallFault.STUCK0, HallFault.STUCK7, HallFault.SEQUENCE)
-
 
 @dataclass(frozen=True)
 class Switch:
@@ -82,38 +81,40 @@ LINK_OF_KEY: Mapping[str, str] = {knob.key: name for name, knob in KNOBS.items()
 
 @dataclass(frozen=True, slots=True)
 class Conditions:
-    """The physical conditions a drive is in now, as read through the operations."""
+    """The physical conditions a drive is in now, as read through the operations: every condition of
+    :data:`c20sim.control.ops.CONDITIONS` by its name, in ``values`` or as an attribute (``.supply_v``; a
+    continuous one as a float), with the terminals as ``inputs`` and the Hall sensor's fault as ``hall``."""
 
-    supply_v: float
-    load_torque_nm: float
-    load_inertia_kg_m2: float
-    ambient_c: float
-    ai1_v: float
-    ai2_v: float
-    inputs: int  #: the physical input terminals (not the virtual ones of 200AH)
-    hall: HallFault | None
+    values: Mapping[str, object]
     held_fault: int | None  #: a fault latched persistently, not yet released
 
     @classmethod
     def of(cls, values: Mapping[str, object], held_fault: int | None) -> Conditions:
-        def num(name: str) -> float:
-            value = values[name]
-            assert isinstance(value, int | float)
-            return float(value)
+        return cls(dict(values), held_fault)
 
-        hall, inputs = values["hall_fault"], values["terminal_inputs"]
-        assert isinstance(inputs, int)
-        return cls(
-            supply_v=num("supply_v"),
-            load_torque_nm=num("load_torque_nm"),
-            load_inertia_kg_m2=num("load_inertia_kg_m2"),
-            ambient_c=num("ambient_c"),
-            ai1_v=num("ai1_v"),
-            ai2_v=num("ai2_v"),
-            inputs=inputs,
-            hall=None if hall is None else HallFault(hall),
-            held_fault=held_fault,
-        )
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name in ("values", "held_fault"):
+            raise AttributeError(name)
+        try:
+            value = self.values[name]
+        except KeyError:
+            raise AttributeError(f"no condition {name!r}; conditions: {', '.join(self.values)}") from None
+        condition = ops.CONDITIONS.get(name)
+        if condition is not None and condition.continuous and isinstance(value, int | float):
+            return float(value)
+        return value
+
+    @property
+    def inputs(self) -> int:
+        """The physical input terminals (not the virtual ones of 200AH)."""
+        value = self.values["terminal_inputs"]
+        assert isinstance(value, int)
+        return value
+
+    @property
+    def hall(self) -> HallFault | None:
+        value = self.values["hall_fault"]
+        return None if value is None else HallFault(value)
 
 
 @functools.cache
@@ -245,10 +246,8 @@ class Workbench:
                 key = str(len(self.forced) + 1)
                 self.forced[key] = (spec.code, spec.name)
                 self._latched_cause[key] = spec.cause.value
-        #: the device fault switches, the overheat's trip time worked out for this profile
-        self.device_switches = tuple(
-            replace(s, how=self._overheat_how()) if s.key == "o" else s for s in DEVICE_SWITCHES
-        )
+        #: the device fault switches, a cause's trip time (its ``eta``) worked out for this profile
+        self.device_switches = tuple(self._switch(s) for s in DEVICE_SWITCHES)
 
     # --- reading
 
@@ -429,10 +428,14 @@ class Workbench:
         """Seconds to the overheat trip with the overheat cause on, from ``from_c`` (the profile's ambient)."""
         return causes.overheat_seconds(self.profile, from_c)
 
-    def _overheat_how(self) -> str:
-        seconds = self.overheat_seconds()
+    def _switch(self, switch: Switch) -> Switch:
+        """A device switch as this profile shows it: with its cause's trip time where the cause has one."""
+        cause = causes.CAUSES[CAUSE_OF_KEY[switch.key]]
+        if cause.eta is None or not cause.dashboard:
+            return switch
+        seconds = cause.eta(self.profile, None)
         when = "never trips" if math.isinf(seconds) else f"trips in about {seconds:.0f} s"
-        return f"ambient {causes.HOT_AMBIENT:g} °C, the highest accepted: {when}; T/t advances virtual time"
+        return replace(switch, how=cause.dashboard.format(when=when))
 
     def _cause(self, key: str) -> str:
         if key in CAUSE_OF_KEY:
@@ -464,19 +467,25 @@ class Workbench:
         if key == "z":
             self.ops.call("clear_causes", address=address)
             return f"drive {address}: every fault cause cleared"
-        if key == "h":  # the Hall sensor cycles through its faults
-            now = self.conditions(address).hall
-            fault = HALL_CYCLE[(HALL_CYCLE.index(now) + 1) % len(HALL_CYCLE)]
-            self.set_conditions(address, {"hall_fault": None if fault is None else fault.value})
-            return f"drive {address}: Hall sensor {fault.value if fault else 'mended'}"
         cause = self._cause(key)
+        row = causes.CAUSES.get(cause)
+        if row is not None and row.cycle is not None:  # a switch that steps a condition (the Hall sensor's faults)
+            return self._step(address, row.label, row.cycle)
         if self.device_fault_active(address, key):
             return str(self.ops.call("clear_fault", address=address, cause=cause, reset=False)["note"])
         note = str(self.ops.call("fault", address=address, request={"cause": cause})["note"])
-        if cause == "overheat":
-            seconds = self.overheat_seconds(self.telemetry(address).temperature_c)
+        if row is not None and row.eta is not None:
+            seconds = row.eta(self.profile, self.telemetry(address).temperature_c)
             note += " (never trips)" if math.isinf(seconds) else f" (trips in about {seconds:.0f} s)"
         return note
+
+    def _step(self, address: int, label: str, cycle: Cycle) -> str:
+        """The next of the cycle's values for its condition; returns it in words."""
+        now = self.ops.conditions(address)[cycle.condition]
+        values = cycle.values
+        value = values[(values.index(now) + 1) % len(values)] if now in values else values[0]
+        self.set_conditions(address, {cycle.condition: value})
+        return f"drive {address}: {label} {cycle.off if value is None else value}"
 
     # --- link faults
 

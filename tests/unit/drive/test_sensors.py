@@ -73,7 +73,7 @@ def test_a_steady_segment_crosses_the_same_edges_as_its_steps() -> None:
     turn(skipped, 750.0, 10)
     skipped.mark_segment()
     rate = 750.0 * RPM * POLE_PAIRS * STEP
-    seg = Segment(10, 25.0, 25.0, 0.0, 0.0, 0.0, 0.0, 0.0, skipped.theta, rate, False, False)
+    seg = Segment(10, 25.0, 25.0, 0.0, 0.0, 0.0, 0.0, 0.0, skipped.theta, rate)
     turn(stepped, 750.0, 990, 10)
     skipped.skip(seg, 990, 10 * STEP, POLE_PAIRS)
     assert skipped.theta == pytest.approx(stepped.theta, abs=1e-9)
