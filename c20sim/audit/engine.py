@@ -29,7 +29,7 @@ events.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from ..drive.profile import Profile
 from ..wire.protocol import BROADCAST, SHEET_CHAR_BITS, FunctionCode, crc_ok, frame_time, transaction_time
@@ -67,9 +67,14 @@ class Auditor(Window):
         #: this stream's rules, one of each row of RULES, in its order
         self.rules: list[Rule] = [make() for make in RULES.values()]
         rules = self.rules
-        self._gap = hooked(rules, "gap")
-        self._peak_hooks = hooked(rules, "demand")
-        self._request_hooks = hooked(rules, "request")
+        # each hook's rules (bound methods where a frame calls them all: a lookup less a call)
+        self._gap: list[Callable[[Window, int, float, bytes], None]] = [r.gap for r in hooked(rules, "gap")]
+        self._peak_hooks: list[Callable[[Window, int, float, float], None]] = [
+            r.demand for r in hooked(rules, "demand")
+        ]
+        self._request_hooks: list[Callable[[Window, _Request, int, float], None]] = [
+            r.request for r in hooked(rules, "request")
+        ]
         self._writers = hooked(rules, "written")
         self._refusers = hooked(rules, "refused")
         self._storers = hooked(rules, "stored")
@@ -129,14 +134,18 @@ class Auditor(Window):
         if not meaning.good:
             self._line(seq, t, meaning.cost)  # noise still holds the line
             return
-        if self.pending is not None:
-            for rule in self._gap:
-                rule.gap(self, seq, t, data)
+        gap = self._gap
+        if self.pending is not None and gap:
+            for hook in gap:
+                hook(self, seq, t, data)
         self.pending, self.pending_seq, self.pending_t, self.pending_data = meaning, seq, t, data
         self.pending_reply = None
-        self._line(seq, t, meaning.cost)
-        for rule in self._request_hooks:
-            rule.request(self, meaning, seq, t)
+        percent = self._demand(seq, t, meaning.cost)
+        if percent > 0.0:
+            for peak in self._peak_hooks:
+                peak(self, seq, t, percent)
+        for hook_request in self._request_hooks:
+            hook_request(self, meaning, seq, t)
         if meaning.judged:
             slave = meaning.slave
             for register, value in meaning.writes:  # each register a 0x10 writes, in turn
@@ -150,8 +159,8 @@ class Auditor(Window):
         """The transaction takes the line-demand window; the demand hooks hear of a new peak."""
         percent = self._demand(seq, t, cost)
         if percent > 0.0:
-            for rule in self._peak_hooks:
-                rule.demand(self, seq, t, percent)
+            for peak in self._peak_hooks:
+                peak(self, seq, t, percent)
 
     def _meaning(self, data: bytes) -> _Request:
         """What the request ``data`` means, remembered: a master polls the same few frames over and over."""
