@@ -3,8 +3,8 @@ that is judged from the wire, and where the rule comes from.
 
 Pure: a row turns its parameters (and the master's learned poll period and timeout) into :class:`Step` values,
 the operations the runner plays at offsets from the incident's start (link faults, a cause, a power cycle, a
-function code), and names the checks (:mod:`c20sim.drill.judge`) its verdict is made of. To add an incident:
-a row in :data:`INCIDENTS`, and its section in docs/drill.md.
+function code), and names the checks (:mod:`c20sim.drill.checks`) its verdict is made of. To add an incident:
+a row in :data:`INCIDENTS`, and its row in docs/drill.md's tables; nothing else.
 """
 
 from __future__ import annotations
@@ -196,8 +196,10 @@ def _power(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, 
     return (Step(0.0, "power-off"), Step(off, "power-on")), off
 
 
-#: Every incident, by name. docs/drill.md has a section for each.
-INCIDENTS: Mapping[str, Incident] = {
+#: Every incident, by name: the table the plan (its names, the standard plan), the judge (each incident's checks),
+#: the reports, ``c20sim drill --list``, the scenarios' schema, the dashboard's F8 tab and docs/drill.md's check
+#: iterate. docs/drill.md has a row for each. A dict, so that a test can add a throwaway row and take it out.
+INCIDENTS: dict[str, Incident] = {
     i.name: i
     for i in (
         Incident(
