@@ -35,7 +35,7 @@ from ..drive.profile import Profile
 from ..wire.protocol import BROADCAST, SHEET_CHAR_BITS, FunctionCode, crc_ok, frame_time, transaction_time
 from ..wire.registers import Reg
 from .findings import Finding, FrameRef, Severity
-from .limits import F_COMM_TIMEOUT, F_MAX_SPEED, MAX_SUBJECTS, MAX_WINDOW, Limits, LineDemand
+from .limits import _EPSILON, _TIMER_SLACK, F_COMM_TIMEOUT, F_MAX_SPEED, MAX_SUBJECTS, MAX_WINDOW, Limits, LineDemand
 from .rules import RULES, Rule, hooked
 from .state import _NOT_A_REPLY, _Request
 from .window import Window
@@ -83,6 +83,8 @@ class Auditor(Window):
         # (slave, function, exception code or -1)
         self._requests: dict[bytes, _Request] = {}
         self._replies: dict[bytes, tuple[int, int, int]] = {}
+        # the rule that takes a refusal, by the request's bytes and the exception code (at most MAX_SUBJECTS)
+        self._claimed: dict[tuple[bytes, int], Callable[[Window, _Request, int, FrameRef], None]] = {}
 
     def set_baud(self, baud: int) -> None:
         """The line's baud changed (a 2009H write the line followed): judge the next transactions at it."""
@@ -134,10 +136,9 @@ class Auditor(Window):
         if not meaning.good:
             self._line(seq, t, meaning.cost)  # noise still holds the line
             return
-        gap = self._gap
-        if self.pending is not None and gap:
-            for hook in gap:
-                hook(self, seq, t, data)
+        pending = self.pending
+        if pending is not None and self._gap:
+            self._too_soon(pending, seq, t, data)
         self.pending, self.pending_seq, self.pending_t, self.pending_data = meaning, seq, t, data
         self.pending_reply = None
         percent = self._demand(seq, t, meaning.cost)
@@ -146,12 +147,8 @@ class Auditor(Window):
                 peak(self, seq, t, percent)
         for hook_request in self._request_hooks:
             hook_request(self, meaning, seq, t)
-        if meaning.judged:
-            slave = meaning.slave
-            for register, value in meaning.writes:  # each register a 0x10 writes, in turn
-                for rule in self._writers:
-                    if rule.judges(register, value):
-                        rule.written(self, slave, register, value, seq, t)
+        for written, register, value in meaning.judged:  # each register a 0x10 writes, in turn
+            written(self, meaning.slave, register, value, seq, t)
         if self.enabled:
             self.check_idle(t)
 
@@ -162,11 +159,29 @@ class Auditor(Window):
             for peak in self._peak_hooks:
                 peak(self, seq, t, percent)
 
+    def _too_soon(self, pending: _Request, seq: int, t: float, data: bytes) -> None:
+        """The gap hooks, for a request sent after a broadcast, or before the reply to the last request came out
+        (or, with no reply, before one could have finished on the line: :attr:`need` is the time it needed)."""
+        if pending.slave != BROADCAST:
+            last_t = self.pending_t
+            reply_t = self.pending_reply
+            if reply_t is not None:
+                if t >= reply_t - _TIMER_SLACK:
+                    return
+                self.need = reply_t - last_t
+            else:
+                need = pending.cost
+                if t - last_t >= need - _EPSILON:
+                    return
+                self.need = need
+        for hook in self._gap:
+            hook(self, seq, t, data)
+
     def _meaning(self, data: bytes) -> _Request:
         """What the request ``data`` means, remembered: a master polls the same few frames over and over."""
         n = len(data)
         if n < 4 or not crc_ok(data):
-            meaning = _Request(False, frame_time(n, self.baud, self.bits), -1, -1, -1, -1, False, False)
+            meaning = _Request(False, frame_time(n, self.baud, self.bits), -1, -1, -1, -1, (), False)
         else:
             slave, function = data[0], data[1]
             register, value, reply = -1, -1, 5
@@ -186,7 +201,12 @@ class Auditor(Window):
             if slave == BROADCAST:
                 reply = 0
             cost = transaction_time(n, reply, self.baud, self.bits, self.turnaround)
-            judged = slave != BROADCAST and any(rule.judges(r, v) for r, v in writes for rule in self._writers)
+            judged = tuple(
+                (rule.written, r, v)
+                for r, v in (writes if slave != BROADCAST else ())
+                for rule in self._writers
+                if rule.judges(r, v)
+            )
             stores = any(r in self._followed for r, _ in writes)
             meaning = _Request(True, cost, slave, function, register, value, judged, stores, writes)
         if len(self._requests) >= MAX_SUBJECTS:
@@ -210,13 +230,25 @@ class Auditor(Window):
             return  # a dropped reply (no bytes), noise, or not the answer to the last request
         self.pending_reply = t
         if code >= 0:
-            ref = FrameRef(self.frames, t)
-            for rule in self._refusers:
-                if rule.claims(self, pending, code):
-                    rule.refused(self, pending, code, ref)
-                    break
+            refused = self._claimed.get((self.pending_data, code))
+            if refused is None:
+                refused = self._claimant(pending, code)
+            refused(self, pending, code, FrameRef(self.frames, t))
         elif pending.stores:
             self._stored(pending)
+
+    def _claimant(self, request: _Request, code: int) -> Callable[[Window, _Request, int, FrameRef], None]:
+        """The refused hook of the first rule that claims the refusal ``code`` of ``request`` (a fallback rule
+        last), remembered by the request's bytes and the code; a refusal no rule claims goes nowhere."""
+        refused: Callable[[Window, _Request, int, FrameRef], None] = _unclaimed
+        for rule in self._refusers:
+            if rule.claims(self, request, code):
+                refused = rule.refused
+                break
+        if len(self._claimed) >= MAX_SUBJECTS:
+            self._claimed.clear()
+        self._claimed[(self.pending_data, code)] = refused
+        return refused
 
     def _reply_meaning(self, data: bytes) -> tuple[int, int, int]:
         """(slave, function, exception code or -1) of the reply ``data``, remembered like a request's meaning."""
@@ -266,3 +298,7 @@ class Auditor(Window):
         (offline: with the last frame's time), or now and then live."""
         for rule in self._idlers:
             rule.idle(self, t)
+
+
+def _unclaimed(audit: Window, request: _Request, code: int, ref: FrameRef) -> None:
+    """A refusal no rule claims (none while the table has its fallback, refused-repeat)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from .findings import FrameRef
@@ -20,7 +21,9 @@ class _Request:
     function: int
     register: int  #: the register read or written (the first of a 0x10), else -1
     value: int  #: the value written (0x06, first of a 0x10), else -1
-    judged: bool  #: a write to one drive that :meth:`Auditor._written` judges (2001H, 2000H = 7)
+    #: the writes to one drive a rule judges, in turn: (the rule's ``written`` hook, register, value), as the
+    #: rules' ``judges`` said once for this frame
+    judged: tuple[tuple[Callable[..., None], int, int], ...]
     stores: bool  #: a write that :meth:`Auditor._stored` follows once the drive takes it
     #: every (register, value) a write carries: one for 0x06, each register of a 0x10 in turn
     writes: tuple[tuple[int, int], ...] = ()

@@ -76,6 +76,8 @@ class Window:
         self.pending_t = 0.0
         self.pending_data = b""
         self.pending_reply: float | None = None
+        #: a request sent too soon (the gap hooks): the seconds the last transaction needed before it
+        self.need = 0.0
         self.drives: dict[int, _Drive] = {}
         self._counts: dict[tuple[str, int, int, int], _Count] = {}
         self._findings: dict[tuple[str, int | None, str], Finding] = {}

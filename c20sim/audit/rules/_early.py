@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ...wire.protocol import BROADCAST
 from ..findings import FrameRef, Severity
-from ..limits import _EPSILON, _TIMER_SLACK, _format
+from ..limits import _format
 from ..window import Window
 from .base import Rule
 
@@ -21,17 +21,8 @@ class EarlyRule(Rule):
         last = audit.pending
         if last is None or last.slave == BROADCAST or (data == audit.pending_data) is not self.retry:
             return
-        last_t = audit.pending_t
-        gap = t - last_t
-        reply_t = audit.pending_reply
-        if reply_t is not None:
-            early = t < reply_t - _TIMER_SLACK  # sent before the reply to the last one came out
-            need = reply_t - last_t
-        else:
-            need = last.cost
-            early = gap < need - _EPSILON  # no reply: sent before one could have finished on the line
-        if not early:
-            return
+        gap = t - audit.pending_t
+        need = audit.need
         what = "a retry" if self.retry else "a request"
         self.report(
             audit,

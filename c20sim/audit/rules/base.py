@@ -4,7 +4,9 @@ The :class:`~c20sim.audit.engine.Auditor` makes one of each rule of :data:`c20si
 each stream and calls, for every frame, the hooks its rules define (a hook a rule leaves as the base's is
 never called), in this order:
 
-- ``gap``: a request after another (the last one is still :attr:`Window.pending`): how soon it came.
+- ``gap``: a request sent too soon after the last (still :attr:`Window.pending`): after a broadcast, or
+  before the last one's reply came out (with none, before one could have finished on the line;
+  :attr:`Window.need`: the seconds it needed).
 - ``demand``: the line-demand window reached a new peak (percent); noise frames hold the line too.
 - ``request``: a request (CRC good) now the window's pending one, after the line-demand window took it.
 - ``written``: each (register, value) a request to one drive writes that the rule :meth:`Rule.judges`.
@@ -68,7 +70,7 @@ class Rule:
     # -- the hooks (see the module's text); the base's do nothing and are not called
 
     def gap(self, audit: Window, seq: int, t: float, data: bytes) -> None:
-        """A request (``data``, at ``seq``, ``t``) after the pending one."""
+        """A request (``data``, at ``seq``, ``t``) too soon after the pending one (see the module's text)."""
 
     def demand(self, audit: Window, seq: int, t: float, percent: float) -> None:
         """The line-demand window's new peak, ``percent`` of the line, on the frame at ``seq``, ``t``."""
@@ -84,7 +86,8 @@ class Rule:
         """A write to one drive that :meth:`judges` said yes to, as the master sent it."""
 
     def claims(self, audit: Window, request: _Request, code: int) -> bool:
-        """Whether the refusal ``code`` of ``request`` is this rule's to judge."""
+        """Whether the refusal ``code`` of ``request`` is this rule's to judge: from the request and the code
+        alone (asked once per distinct request frame and code; the answer is remembered)."""
         return False
 
     def refused(self, audit: Window, request: _Request, code: int, ref: FrameRef) -> None:

@@ -32,7 +32,8 @@ class CommWatchdogRule(Rule):
             for address in list(drives):
                 self._silence(audit, drives[address], address, seq, t)
         else:
-            self._silence(audit, audit.drive(slave), slave, seq, t)
+            drive = audit.drives.get(slave)
+            self._silence(audit, drive if drive is not None else audit.drive(slave), slave, seq, t)
 
     def _silence(self, audit: Window, drive: _Drive, address: int, seq: int, t: float) -> None:
         last = drive.last_t
