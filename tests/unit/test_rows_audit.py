@@ -3,14 +3,14 @@ reaches every front end that shows rules, findings or incidents, and is gone onc
 
 The audit rule (a file's worth of class, as one under c20sim/audit/rules/ would be) finds a write of 2001H = 1234.
 It reaches: ``c20sim audit`` (text, JSON, JUnit, ``--ignore``), serve's live audit through the control API
-(``GET /audit``) and ``c20sim ctl audit``, the dashboard's audit tab (F7), the scenarios' schema
+(``GET /audit``), ``c20sim ctl audit`` and the MCP tool ``audit``, the dashboard's audit tab (F7), the scenarios' schema
 (``expect_findings``), the test handle's ``ignore`` and docs/audit.md's check. The OpenAPI document lists no
 rule (``GET /audit`` answers findings whose ``rule`` is a string), so it has nothing to show.
 
 The drill incident (a row as one in c20sim/drill/incidents.py) slows the replies for a while. It reaches: a plan
 (by name, with its parameters checked), the standard plan, the judge (a verdict of its checks), the reports
-(text, JSON, JUnit, Markdown), ``c20sim drill --list``, the scenarios' schema, the dashboard's drill tab (F8)
-and docs/drill.md's check.
+(text, JSON, JUnit, Markdown), ``c20sim drill --list``, ``POST /drill``, the scenarios' schema, the dashboard's
+drill tab (F8) and docs/drill.md's check.
 """
 
 from __future__ import annotations
@@ -18,19 +18,26 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
+from mcp.shared.memory import create_connected_server_and_client_session
+from mcp.types import TextContent
 from textual.widgets import DataTable
 
 from c20sim.audit import RULES, Auditor, FrameRef, Rule, Severity
 from c20sim.audit.window import Window
 from c20sim.cli import main
+from c20sim.control.client import ControlClient
+from c20sim.core.clock import RealtimeClock
 from c20sim.drill import INCIDENTS, Incident, Learned, Step, judge, read_plan, standard_plan
 from c20sim.drill.incidents import Param
 from c20sim.drill.report import json_report, junit_xml, markdown, text_report
 from c20sim.drive.profile import load_profile
+from c20sim.mcpserver import Bench as McpBench
+from c20sim.mcpserver import build_server
 from c20sim.scenario.schema import scenario_schema
 from c20sim.testing import C20Sim
 from c20sim.tui.audit import AuditPanel
@@ -160,7 +167,7 @@ def test_a_throwaway_rule_reaches_the_schema_the_handle_and_the_docs_check(probe
         test_audit.test_every_rule_has_a_section_in_the_docs()
 
 
-async def test_a_throwaway_rule_reaches_the_live_audit_the_api_ctl_and_the_dashboard(probe_rule: None) -> None:
+async def test_a_throwaway_rule_reaches_the_live_audit_the_api_ctl_mcp_and_the_dashboard(probe_rule: None) -> None:
     async with running() as bench:
         await bench.write(0x2001, 1234)
         report = bench.served.remote().call("audit")
@@ -171,6 +178,13 @@ async def test_a_throwaway_rule_reaches_the_live_audit_the_api_ctl_and_the_dashb
             assert main(["ctl", "--url", bench.served.url, "--format", "json", "audit"]) == 0
         shown = json.loads(out.getvalue())
         assert [f["rule"] for f in shown["findings"]] == [RULE_ID]
+        mcp = build_server(McpBench(ControlClient(bench.served.url)))
+        async with create_connected_server_and_client_session(mcp) as session:
+            result = await session.call_tool("audit", {})
+            assert not result.isError
+            (content,) = result.content
+            assert isinstance(content, TextContent)
+            assert [f["rule"] for f in json.loads(content.text)["findings"]] == [RULE_ID]
         await bench.press("f7")
         panel = bench.app.get_screen_main().query_one(AuditPanel)
         table = panel.query_one(DataTable)
@@ -251,6 +265,18 @@ async def test_a_throwaway_incident_reaches_the_dashboard_tab(throwaway_incident
             await until(lambda: table.row_count == len(INCIDENTS), "the incidents listed")
             last = [str(cell) for cell in table.get_row_at(table.row_count - 1)]
             assert last == [INCIDENT, "line", "-", THROWAWAY.does]
+
+
+def test_a_throwaway_incident_reaches_the_drill_api(throwaway_incident: None) -> None:
+    """POST /drill reads the row (its parameter's range here, so that no master is needed: the plan is refused)."""
+    with serving(clock=RealtimeClock()) as served:
+        remote = served.remote()
+        remote.call("start_drill", plan=[{"incident": INCIDENT, "seconds": 99}])
+        deadline = time.monotonic() + 10.0
+        while (status := remote.call("drill"))["state"] == "running":
+            assert time.monotonic() < deadline, f"the drill still runs: {status}"
+            time.sleep(0.02)
+        assert (status["state"], status["error"]) == ("failed", "POST /drill: drill 1: seconds: 99 is outside 0.1-10")
 
 
 def test_an_incident_taken_out_is_gone() -> None:
