@@ -3,9 +3,9 @@ reaches every front end that shows rules, findings or incidents, and is gone onc
 
 The audit rule (a file's worth of class, as one under c20sim/audit/rules/ would be) finds a write of 2001H = 1234.
 It reaches: ``c20sim audit`` (text, JSON, JUnit, ``--ignore``), serve's live audit through the control API
-(``GET /audit``), ``c20sim ctl audit`` and the MCP tool ``audit``, the dashboard's audit tab (F7), the scenarios' schema
-(``expect_findings``), the test handle's ``ignore`` and docs/audit.md's check. The OpenAPI document lists no
-rule (``GET /audit`` answers findings whose ``rule`` is a string), so it has nothing to show.
+(``GET /audit``), ``c20sim ctl audit`` and the MCP tool ``audit``, the dashboard's audit tab (F7), the
+scenarios' schema (``expect_findings``), the test handle's ``ignore`` and docs/audit.md's check. The OpenAPI
+document lists no rule (``GET /audit`` answers findings whose ``rule`` is a string): it has nothing to show.
 
 The drill incident (a row as one in c20sim/drill/incidents.py) slows the replies for a while. It reaches: a plan
 (by name, with its parameters checked), the standard plan, the judge (a verdict of its checks), the reports
