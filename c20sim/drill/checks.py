@@ -1,20 +1,21 @@
 """The drill's checks over the frames of one played drill: what a robust master does, judged from the wire.
 
-:class:`_Drill` holds the transactions of one drill's span and a method per check; :data:`_CHECKERS` names
-them as :data:`~c20sim.drill.incidents.CHECKS` does.
+:class:`_Drill` holds the transactions of one drill's span and a method per check; :data:`CHECKS` is the table
+of checks, one row each (its name, when it passes, its source, the method that judges it), that the incidents
+name and the judge runs.
 """
 
 from __future__ import annotations
 
 import itertools
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from ..audit.findings import FrameRef
 from ..wire.protocol import crc_ok, transaction_time
 from ..wire.registers import Command, Reg
-from .incidents import CHECKS, SOURCES, Learned
+from .incidents import SOURCES, Learned
 from .plan import Drill
 
 #: Retries of one request in a row a robust master stops at; assumed (the guide gives no figure; 3 is the usual
@@ -135,7 +136,7 @@ class _Line:
 
 
 def _check(name: str, passed: bool, figure: str, value: float, frames: Iterable[FrameRef] = ()) -> CheckResult:
-    return CheckResult(name, passed, figure, value, tuple(frames)[:4], SOURCES[CHECKS[name][1]])
+    return CheckResult(name, passed, figure, value, tuple(frames)[:4], SOURCES[CHECKS[name].source])
 
 
 class _Drill:
@@ -411,17 +412,79 @@ class _Drill:
         )
 
 
-_CHECKERS = {
-    "retries": _Drill.retries,
-    "no-storm": _Drill.no_storm,
-    "bounded": _Drill.bounded,
-    "takes-replies": _Drill.takes_replies,
-    "waits-own-id": _Drill.waits_own_id,
-    "keeps-polling": _Drill.keeps_polling,
-    "backs-off": _Drill.backs_off,
-    "recovers": _Drill.recovers,
-    "notices": _Drill.notices,
-    "no-run-into-fault": _Drill.no_run_into_fault,
-    "resets-once": _Drill.resets_once,
-    "restores-ram": _Drill.restores_ram,
+@dataclass(frozen=True, slots=True)
+class Check:
+    """A check a verdict can be made of: one row of :data:`CHECKS`."""
+
+    name: str
+    passes: str  #: when it passes, in words
+    source: str  #: a key of :data:`~c20sim.drill.incidents.SOURCES`: where its limit comes from
+    judge: Callable[[_Drill], CheckResult]  #: the check over a played drill's frames
+
+
+#: Every check, by name: an incident's ``checks`` name them, the judge runs them, docs/drill.md has a row for
+#: each. A dict, so that a test can add a throwaway row and take it out.
+CHECKS: dict[str, Check] = {
+    check.name: check
+    for check in (
+        Check(
+            "retries",
+            "asks a failed request again before moving on (a reply not its own is discarded)",
+            "guide",
+            _Drill.retries,
+        ),
+        Check(
+            "no-storm",
+            "no retry sooner than the line could answer; no more than 3x its usual request rate",
+            "guide",
+            _Drill.no_storm,
+        ),
+        Check("bounded", "at most 3 retries of one request in a row", "assumed", _Drill.bounded),
+        Check(
+            "takes-replies",
+            "asks no request again whose reply was good (a split or late reply is taken)",
+            "guide",
+            _Drill.takes_replies,
+        ),
+        Check(
+            "waits-own-id",
+            "sends nothing new before its own transaction id's reply comes (Modbus TCP)",
+            "tcp",
+            _Drill.waits_own_id,
+        ),
+        Check(
+            "keeps-polling",
+            "keeps at least half its usual request rate while the incident lasts",
+            "assumed",
+            _Drill.keeps_polling,
+        ),
+        Check("backs-off", "asks no faster than its usual rate while the drive is silent", "assumed", _Drill.backs_off),
+        Check(
+            "recovers",
+            "a good reply again within its timeout plus 5 poll periods after the incident",
+            "assumed",
+            _Drill.recovers,
+        ),
+        Check(
+            "notices",
+            "reads 2100H or 2102H within its timeout plus 3 poll periods after the trip",
+            "sheet",
+            _Drill.notices,
+        ),
+        Check(
+            "no-run-into-fault",
+            "sends no run command (2000H = 1-4) that the faulted drive refuses",
+            "sheet",
+            _Drill.no_run_into_fault,
+        ),
+        Check(
+            "resets-once", "at most one fault reset (2000H = 7) while the cause is present", "invt", _Drill.resets_once
+        ),
+        Check(
+            "restores-ram",
+            "writes 2001H (RAM, lost at power-off) before the first run command after power-up",
+            "sheet",
+            _Drill.restores_ram,
+        ),
+    )
 }

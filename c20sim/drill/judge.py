@@ -18,7 +18,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from .checks import (
-    _CHECKERS,
+    CHECKS,
     MAX_RETRIES,
     RECOVER_POLLS,
     RESET_WATCH,
@@ -185,7 +185,7 @@ def judge(
         watched = by.get((drill.index, "watched"), end + watch_seconds(drill, learned))
         played = _Drill(drill, txns, start, end, watched, learned, line)
         played.repeats_when_warm = repeats_when_warm
-        checks = tuple(_CHECKERS[name](played) for name in drill.incident.checks)
+        checks = tuple(CHECKS[name].judge(played) for name in drill.incident.checks)
         verdicts.append(Verdict(drill.index, drill.name, all(c.passed for c in checks), checks, start, end, source))
     return Judgement(learned, tuple(verdicts), len(txns))
 

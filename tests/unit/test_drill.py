@@ -9,8 +9,8 @@ import pytest
 
 from c20sim.core.bus import Bus
 from c20sim.drill import INCIDENTS, Mark, judge, learn, read_plan, standard_plan
-from c20sim.drill.incidents import CHECKS
-from c20sim.drill.judge import _CHECKERS
+from c20sim.drill.checks import CHECKS
+from c20sim.drill.checks import CHECKS as _CHECKERS  # one table now: a check is one row
 from c20sim.drive.profile import Profile
 from c20sim.wire.errors import C20SimError
 from c20sim.wire.protocol import ExceptionCode, ReadRequest, ReadResponse, crc16, encode

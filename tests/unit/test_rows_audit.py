@@ -7,7 +7,8 @@ It reaches: ``c20sim audit`` (text, JSON, JUnit, ``--ignore``), serve's live aud
 scenarios' schema (``expect_findings``), the test handle's ``ignore`` and docs/audit.md's check. The OpenAPI
 document lists no rule (``GET /audit`` answers findings whose ``rule`` is a string): it has nothing to show.
 
-The drill incident (a row as one in c20sim/drill/incidents.py) slows the replies for a while. It reaches: a plan
+The drill incident (a row as one in c20sim/drill/incidents.py) slows the replies for a while, and is judged by a
+throwaway check (a row as one in c20sim/drill/checks.py) besides three of the table's. It reaches: a plan
 (by name, with its parameters checked), the standard plan, the judge (a verdict of its checks), the reports
 (text, JSON, JUnit, Markdown), ``c20sim drill --list``, ``POST /drill``, the scenarios' schema, the dashboard's
 drill tab (F8) and docs/drill.md's check.
@@ -21,6 +22,7 @@ import json
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mcp.shared.memory import create_connected_server_and_client_session
@@ -32,7 +34,7 @@ from c20sim.audit.window import Window
 from c20sim.cli import main
 from c20sim.control.client import ControlClient
 from c20sim.core.clock import RealtimeClock
-from c20sim.drill import INCIDENTS, Incident, Learned, Step, judge, read_plan, standard_plan
+from c20sim.drill import CHECKS, INCIDENTS, Check, CheckResult, Incident, Learned, Step, judge, read_plan, standard_plan
 from c20sim.drill.incidents import Param
 from c20sim.drill.report import json_report, junit_xml, markdown, text_report
 from c20sim.drive.profile import load_profile
@@ -49,6 +51,7 @@ from tests.unit import test_audit, test_drill
 
 RULE_ID = "throwaway-probe"
 INCIDENT = "throwaway-slow"
+CHECK = "throwaway-count"
 
 
 class ProbeRule(Rule):
@@ -81,13 +84,23 @@ def _slow(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, .
     return (Step(0.0, "link", {"delay": 0.01}), Step(seconds, "clear-link")), seconds
 
 
+def _count(drill: Any) -> CheckResult:
+    """The throwaway check: the requests while the incident lasted (at least one)."""
+    during = drill.during
+    return CheckResult(
+        CHECK, len(during) > 0, f"{len(during)} requests during the incident", len(during), (), "assumed"
+    )
+
+
+THROWAWAY_CHECK = Check(CHECK, "the master asked something while the incident lasted", "assumed", _count)
+
 THROWAWAY = Incident(
     INCIDENT,
     "line",
     "a throwaway incident of tests/unit/test_rows_audit.py: every reply 10 ms late",
     "the incident's seconds, then its timeout plus 5 poll periods",
     "waits for the later reply and keeps polling",
-    ("keeps-polling", "no-storm", "recovers"),
+    ("keeps-polling", "no-storm", "recovers", CHECK),
     "assumed",
     _slow,
     {"seconds": Param(1.0, 0.1, 10.0, "seconds")},
@@ -107,12 +120,15 @@ def probe_rule() -> Iterator[None]:
 
 @pytest.fixture
 def throwaway_incident() -> Iterator[None]:
+    """The throwaway incident and its own check registered, and taken out after."""
+    CHECKS[CHECK] = THROWAWAY_CHECK
     INCIDENTS[INCIDENT] = THROWAWAY
     try:
         yield
     finally:
         del INCIDENTS[INCIDENT]
-    assert INCIDENT not in INCIDENTS
+        del CHECKS[CHECK]
+    assert INCIDENT not in INCIDENTS and CHECK not in CHECKS
 
 
 WRITE = encode(WriteSingleRequest(1, 0x2001, 1234))
@@ -237,12 +253,15 @@ def test_a_throwaway_incident_reaches_the_plan_the_judge_and_the_reports(throwaw
     judgement = judge(s.frames, plan, s.marks)  # type: ignore[arg-type]
     (verdict,) = judgement.verdicts
     assert (verdict.incident, verdict.passed) == (INCIDENT, True), verdict.line()
-    assert [c.check for c in verdict.checks] == ["keeps-polling", "no-storm", "recovers"]
+    assert [c.check for c in verdict.checks] == ["keeps-polling", "no-storm", "recovers", CHECK]
+    # 20 in the incident's second, and the one sent the instant it ended (the judge counts its end in)
+    assert verdict.checks[-1].figure == "21 requests during the incident"
     assert verdict.source == "assumed"
     assert f"pass 1 {INCIDENT}: keeps-polling: " in text_report(judgement)
     assert json.loads(json_report(judgement))["verdicts"][0]["incident"] == INCIDENT
     assert f'<testcase name="1 {INCIDENT}" classname="drill.{INCIDENT}">' in junit_xml(judgement).decode()
     assert f"## 1 {INCIDENT}: pass" in markdown(judgement, plan)  # type: ignore[arg-type]
+    assert f"- {CHECK}: pass: 21 requests during the incident [assumed]" in markdown(judgement, plan)  # type: ignore[arg-type]
 
 
 def test_a_throwaway_incident_reaches_the_list_the_schema_and_the_docs_check(
@@ -252,7 +271,7 @@ def test_a_throwaway_incident_reaches_the_list_the_schema_and_the_docs_check(
     assert capsys.readouterr().out.splitlines()[-1] == f"{INCIDENT:<17} line   {THROWAWAY.does}"
     drill = scenario_schema()["properties"]["step"]["items"]["properties"]["drill"]["oneOf"]
     assert INCIDENT in drill[0]["enum"]
-    with pytest.raises(AssertionError, match=INCIDENT):
+    with pytest.raises(AssertionError, match=f"no row for {INCIDENT}, {CHECK}\n"):
         test_drill.test_every_incident_and_check_has_a_row_in_the_docs()
 
 
@@ -280,7 +299,7 @@ def test_a_throwaway_incident_reaches_the_drill_api(throwaway_incident: None) ->
 
 
 def test_an_incident_taken_out_is_gone() -> None:
-    assert INCIDENT not in INCIDENTS
+    assert INCIDENT not in INCIDENTS and CHECK not in CHECKS
     assert INCIDENT not in [d.name for d in standard_plan().drills]
     with pytest.raises(C20SimError, match=f"incident '{INCIDENT}' is unknown"):
         read_plan({"drill": [{"incident": INCIDENT}]}, "p.toml")
