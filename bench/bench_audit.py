@@ -36,7 +36,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import ChildServer, RawRtuClient, ServerSpec, cpu_seconds, machine, percentile, rss_kib
-from bench_tcp import run as transact_pairs
+
+try:
+    from bench_tcp import run as transact_pairs
+except ImportError:  # bench_tcp.py has no run() since its loadgen rewrite: --live cannot measure; the rest can
+    transact_pairs = None
 
 from c20sim.audit import Auditor
 from c20sim.drive.profile import load_profile
@@ -94,6 +98,8 @@ def write_log(path: Path, frames: int) -> None:
 
 def paced(client: RawRtuClient, count: int, first: int, rate: float) -> list[float]:
     """``count`` write/read pairs' latencies, a request every ``1 / rate`` s (0: back to back)."""
+    if transact_pairs is None:
+        raise SystemExit("bench_audit --live: bench_tcp.py no longer has run(), the sequential client it drives")
     if rate <= 0:
         return transact_pairs(client, count, first)
     latencies: list[float] = []

@@ -3,8 +3,8 @@ that is judged from the wire, and where the rule comes from.
 
 Pure: a row turns its parameters (and the master's learned poll period and timeout) into :class:`Step` values,
 the operations the runner plays at offsets from the incident's start (link faults, a cause, a power cycle, a
-function code), and names the checks (:mod:`c20sim.drill.judge`) its verdict is made of. To add an incident:
-a row in :data:`INCIDENTS`, and its section in docs/drill.md.
+function code), and names the checks (:mod:`c20sim.drill.checks`) its verdict is made of. To add an incident:
+a row in :data:`INCIDENTS`, and its row in docs/drill.md's tables; nothing else.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 __all__ = [
-    "CHECKS",
     "INCIDENTS",
     "SOURCES",
     "Incident",
@@ -29,22 +28,6 @@ SOURCES: Mapping[str, str] = {
     "sheet": "the C20 protocol sheet (2000H commands, 2100H/2102H status and fault, 0x06 frame error)",
     "invt": "INVT Goodrive/GD20 manuals (P14.04/P14.05 comm timeout and action; fault reset)",
     "assumed": "assumed",
-}
-
-#: The checks a verdict can be made of, with the figure each judges and where its limit comes from.
-CHECKS: Mapping[str, tuple[str, str]] = {
-    "retries": ("asks a failed request again before moving on (a reply not its own is discarded)", "guide"),
-    "no-storm": ("no retry sooner than the line could answer; no more than 3x its usual request rate", "guide"),
-    "bounded": ("at most 3 retries of one request in a row", "assumed"),
-    "takes-replies": ("asks no request again whose reply was good (a split or late reply is taken)", "guide"),
-    "waits-own-id": ("sends nothing new before its own transaction id's reply comes (Modbus TCP)", "tcp"),
-    "keeps-polling": ("keeps at least half its usual request rate while the incident lasts", "assumed"),
-    "backs-off": ("asks no faster than its usual rate while the drive is silent", "assumed"),
-    "recovers": ("a good reply again within its timeout plus 5 poll periods after the incident", "assumed"),
-    "notices": ("reads 2100H or 2102H within its timeout plus 3 poll periods after the trip", "sheet"),
-    "no-run-into-fault": ("sends no run command (2000H = 1-4) that the faulted drive refuses", "sheet"),
-    "resets-once": ("at most one fault reset (2000H = 7) while the cause is present", "invt"),
-    "restores-ram": ("writes 2001H (RAM, lost at power-off) before the first run command after power-up", "sheet"),
 }
 
 
@@ -106,7 +89,7 @@ class Incident:
     does: str  #: what c20sim does, in words
     watch: str  #: how long it watches, in words
     robust: str  #: what a robust master does, as seen on the wire
-    checks: tuple[str, ...]  #: the checks of :data:`CHECKS` its verdict is made of
+    checks: tuple[str, ...]  #: the checks (:data:`c20sim.drill.checks.CHECKS`) its verdict is made of
     source: str  #: a key of :data:`SOURCES`
     plan: Plan
     params: Mapping[str, Param] = field(default_factory=dict)
@@ -196,8 +179,10 @@ def _power(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, 
     return (Step(0.0, "power-off"), Step(off, "power-on")), off
 
 
-#: Every incident, by name. docs/drill.md has a section for each.
-INCIDENTS: Mapping[str, Incident] = {
+#: Every incident, by name: the table the plan (its names, the standard plan), the judge (each incident's checks),
+#: the reports, ``c20sim drill --list``, the scenarios' schema, the dashboard's F8 tab and docs/drill.md's check
+#: iterate. docs/drill.md has a row for each. A dict, so that a test can add a throwaway row and take it out.
+INCIDENTS: dict[str, Incident] = {
     i.name: i
     for i in (
         Incident(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from ..audit import RULES
@@ -74,13 +75,15 @@ def _within(value: object, reading: Reading) -> dict[str, object]:
     return {"within": float(value)}
 
 
-def _findings(key: str, allowed: tuple[str, ...]) -> Any:
+def _findings(key: str, allowed: Callable[[], tuple[str, ...]]) -> Any:
+    """The parser of a findings key; ``allowed`` is asked at each read, so a rule added to RULES is taken."""
+
     def parse(value: object, reading: Reading) -> dict[str, object]:
         if not isinstance(value, list) or not all(isinstance(x, str) for x in value):
             raise reading.fail(key, 'expected a list of the audit\'s rules, such as ["eeprom-wear"]')
         for name in value:
-            if name not in allowed:
-                raise reading.fail(key, str(ops.unknown("rule", name, allowed)))
+            if name not in allowed():
+                raise reading.fail(key, str(ops.unknown("rule", name, allowed())))
         both = set(value) & set(reading.read.get("expect_findings", ()))
         if key == "forbid_findings" and both:
             raise reading.fail(key, f"{sorted(both)[0]} is expected and forbidden at once; give one of the two")
@@ -132,8 +135,13 @@ def _audited(step: Step, sim: Simulator, address: int, t: float) -> list[Outcome
     return out
 
 
-def _rules(allowed: list[str], description: str) -> Any:
-    return lambda: {"type": "array", "items": {"enum": allowed}, "uniqueItems": True, "description": description}
+def _rules(allowed: Callable[[], tuple[str, ...]], description: str) -> Any:
+    return lambda: {
+        "type": "array",
+        "items": {"enum": list(allowed())},
+        "uniqueItems": True,
+        "description": description,
+    }
 
 
 _RAW_OR_TOLERANCE = {
@@ -197,8 +205,8 @@ CHECKS = (
     ),
     StepKind(
         "expect_findings",
-        _findings("expect_findings", tuple(RULES)),
-        _rules(list(RULES), "the audit's rules that must have found something by this step (docs/audit.md)"),
+        _findings("expect_findings", lambda: tuple(RULES)),
+        _rules(lambda: tuple(RULES), "the audit's rules that must have found something by this step (docs/audit.md)"),
         "list of the audit's rules",
         'each must have found something by this step: `["eeprom-wear"]` ([audit.md](audit.md))',
         _audited,
@@ -206,8 +214,8 @@ CHECKS = (
     ),
     StepKind(
         "forbid_findings",
-        _findings("forbid_findings", ("any", *RULES)),
-        _rules(["any", *RULES], 'rules that must have found nothing by this step; "any": no finding at all'),
+        _findings("forbid_findings", lambda: ("any", *RULES)),
+        _rules(lambda: ("any", *RULES), 'rules that must have found nothing by this step; "any": no finding at all'),
         'list of rules, or `["any"]`',
         'none of them may have found anything by this step; `"any"`: no finding at all',
         _audited,
