@@ -54,6 +54,7 @@ from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS
 from .fitcapture import Capture, _consistency, _load_records, load_capture
+from .fitdialect import learn_dialect, quirk_values
 from .fitlink import LINKS
 from .fitmodel import FitResult, Fitted, given_settings, simulate, with_values
 from .fitreport import summary, write_profile, write_report
@@ -83,6 +84,8 @@ def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | No
     found = turnaround(capture, problem.base)
     if found is not None:
         final = with_values(final, {"protocol.turnaround_ms": found.value})
+    dialect = learn_dialect(capture.probes, problem.base)
+    final = with_values(final, quirk_values(dialect))
     after, states = solution.after, solution.states
     if final != solution.profile:
         after, states = simulate(final, capture, events, solution.load)
@@ -108,6 +111,7 @@ def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | No
         time.perf_counter() - started,
         notes,
         final,
+        dialect,
     )
 
 

@@ -11,6 +11,7 @@ from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
 from .fitcapture import Capture, _units
+from .fitdialect import quirk_changes, quirk_lines
 from .fitmodel import COMPARED, FitResult
 
 # --- The new profile.
@@ -36,6 +37,7 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
         changes[("protocol", "turnaround_ms")] = (
             f"{t.value:.3g}  # fitted from {log_name}, +-{t.sigma:.2g} (was {_format(t.base)})"
         )
+    changes |= quirk_changes(result.dialect, log_name)
     temps = result.capture.reads.get(Reg.TEMPERATURE)
     if temps:
         changes[("thermal", "ambient_c")] = (
@@ -116,6 +118,7 @@ def summary(result: FitResult) -> list[str]:
         lines.append(
             f"  {'protocol.turnaround_ms':<34} not identifiable from this capture: fewer than 5 answered requests"
         )
+    lines += quirk_lines(result.dialect)
     if result.load_nm is not None:
         lines.append(f"  the load applied by hand: {result.load_nm[0]:.3g} N m +-{result.load_nm[1]:.2g} (not written)")
     for address, (_, recorded, before) in result.before.items():

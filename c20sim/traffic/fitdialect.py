@@ -1,0 +1,103 @@
+"""The dialect a capture shows (:mod:`c20sim.traffic.dialect`), as ``fit`` reports and writes it.
+
+Per quirk: the value learned, the base profile's, whether it is written into the fitted profile and why not when
+not, and the capture's lines that showed it. A quirk with a key in the profile's [protocol] table is written with
+a comment ``# source = "capture": lines ...`` (the [protocol] table has no ``source`` key, as [[parameter]] and
+[[fault]] rows do); a quirk the format cannot express is reported only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from ..drive.profile import Profile
+from .dialect import Frame, Learned, Quirk, learn
+
+__all__ = ["QuirkResult", "learn_dialect", "lines_words", "quirk_changes", "quirk_lines", "quirk_values"]
+
+
+@dataclass(frozen=True)
+class QuirkResult:
+    quirk: Quirk
+    learned: Learned
+    base: object | None  #: the base profile's value; None where the format has no key
+    lines: tuple[int, ...]  #: of the capture: the requests that showed it
+
+    @property
+    def written(self) -> bool:
+        return self.quirk.key is not None and self.learned.value is not None
+
+    @property
+    def why_not(self) -> str:
+        """Why it is not written ("" when it is)."""
+        if self.written:
+            return ""
+        if self.learned.value is None:
+            return self.learned.why
+        return "the profile format has no key for it"
+
+
+def learn_dialect(probes: Sequence[tuple[str, Frame]], base: Profile) -> list[QuirkResult]:
+    """Each quirk of :data:`~c20sim.traffic.dialect.QUIRKS`, learned from the capture's probe frames."""
+    out = []
+    for quirk, learned, lines in learn(probes, base):
+        value = getattr(base.protocol, quirk.key) if quirk.key is not None else None
+        out.append(QuirkResult(quirk, learned, value, tuple(lines)))
+    return out
+
+
+def quirk_values(results: Sequence[QuirkResult]) -> dict[str, float]:
+    """The learned values to put in the fitted profile, as ``protocol.KEY``."""
+    values: dict[str, float] = {}
+    for r in results:
+        if r.written and r.quirk.key is not None and isinstance(r.learned.value, int | float):
+            values[f"protocol.{r.quirk.key}"] = r.learned.value
+    return values
+
+
+def lines_words(lines: Sequence[int]) -> str:
+    """Log lines as runs: ``lines 3, 5-9``."""
+    runs: list[str] = []
+    start = previous = None
+    for line in sorted(lines):
+        if previous is not None and line == previous + 1:
+            previous = line
+            continue
+        if start is not None:
+            runs.append(f"{start}-{previous}" if previous != start else f"{start}")
+        start = previous = line
+    if start is not None:
+        runs.append(f"{start}-{previous}" if previous != start else f"{start}")
+    if len(runs) > 6:  # a long probe (every register, one request each): its span
+        return f"{len(lines)} requests, lines {min(lines)}-{max(lines)}"
+    return ("line " if len(lines) == 1 else "lines ") + ", ".join(runs) if runs else "no frames"
+
+
+def _toml(value: object) -> str:
+    return ("true" if value else "false") if isinstance(value, bool) else str(value)
+
+
+def quirk_changes(results: Sequence[QuirkResult], log_name: str) -> dict[tuple[str, str], str]:
+    """The fitted profile's [protocol] lines for the learned quirks: ``value  # source = "capture": ...``."""
+    changes: dict[tuple[str, str], str] = {}
+    for r in results:
+        if r.written and r.quirk.key is not None:
+            changes[("protocol", r.quirk.key)] = (
+                f'{_toml(r.learned.value)}  # source = "capture": {log_name} {lines_words(r.lines)}: {r.learned.why} '
+                f"(was {_toml(r.base)})"
+            )
+    return changes
+
+
+def quirk_lines(results: Sequence[QuirkResult]) -> list[str]:
+    """The report's lines: per quirk, the value learned, the base's, written or why not, the frames."""
+    out = []
+    for r in results:
+        learned = "not learned" if r.learned.value is None else _toml(r.learned.value)
+        base = _toml(r.base) if r.quirk.key is not None else "-"
+        written = "written" if r.written else f"not written: {r.why_not}"
+        why = f"; {r.learned.why}" if r.learned.why != r.why_not else ""
+        shown = f"{why}; {lines_words(r.lines)}" if r.lines else why
+        out.append(f"  dialect {r.quirk.name:<21} {learned:<12} (base {base}) {written}{shown}")
+    return out
