@@ -70,7 +70,7 @@ def lines_words(lines: Sequence[int]) -> str:
     if start is not None:
         runs.append(f"{start}-{previous}" if previous != start else f"{start}")
     if len(runs) > 6:  # a long probe (every register, one request each): its span
-        return f"{len(lines)} requests, lines {min(lines)}-{max(lines)}"
+        return f"lines {min(lines)}-{max(lines)} ({len(lines)} requests)"
     return ("line " if len(lines) == 1 else "lines ") + ", ".join(runs) if runs else "no frames"
 
 
