@@ -15,7 +15,7 @@ import pytest
 from c20sim.drive.profile import load_profile
 from c20sim.traffic.capture import load_frame_log
 from tests.conftest import wait_for_ready_file
-from tests.integration.conftest import c20sim_command, c20sim_run
+from tests.integration.conftest import c20sim_command, c20sim_run, one_line
 
 #: Two drives whose dialects differ from the shipped profile's (true, 1, 6, true), each in a way the format holds.
 DIALECTS = {
@@ -105,3 +105,40 @@ def test_fit_learns_the_dialect_exercise_probes(
     # and against the shipped profile it differs: the probe's frames do tell the dialects apart
     shipped = c20sim_run("replay", str(out), cwd=tmp_path)
     assert shipped.returncode == 1, shipped.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (("read", "speed", "--dialect"), "--dialect: give --out FILE for the capture, and no action"),
+        (("--dialect-only",), "--dialect: give --out FILE for the capture, and no action"),
+        (("write", "setpoint", "100", "--dialect", "--out", "x.jsonl"), "--dialect: give --out FILE"),
+    ],
+)
+def test_dialect_misuse_is_one_line(tmp_path: Path, args: tuple[str, ...], said: str) -> None:
+    done = c20sim_run("exercise", "tcp://127.0.0.1:9", *args, cwd=tmp_path)
+    assert said in one_line(done)
+    assert not (tmp_path / "x.jsonl").exists()  # refused before the port is opened or the file written
+
+
+def test_the_probe_then_the_programme_on_the_pty(served: tuple[str, dict[str, str]], tmp_path: Path) -> None:
+    """exercise --dialect: the probe, then the programme, in one capture; fit learns the dialect and the physics;
+    replay against the fitted profile differs in no probe request's reply."""
+    name, ports = served
+    out, fitted = tmp_path / "both.jsonl", tmp_path / "fitted.toml"
+    args = ("--dialect", "--out", str(out), "--speeds", "1000,2000", "--hold", "1", "--rate", "20")
+    done = c20sim_run("exercise", ports["pty"], *args, cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr
+    records = load_frame_log(str(out))
+    notes = [r.note for r in records if r.direction == "rx" and r.data]
+    probed = [n for n in notes if n.startswith("dialect ")]
+    assert probed and notes.index(probed[-1]) < notes.index("", 1)  # the probe first, then the programme
+    done = c20sim_run("fit", str(out), "--out", str(fitted), cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr
+    protocol = tomllib.loads(fitted.read_text())["protocol"]
+    assert {key: protocol[key] for key in DIALECTS[name]} == DIALECTS[name], done.stdout
+    assert any(line.startswith("  motor.kt_nm_per_a") and "+-" in line for line in done.stdout.splitlines())
+    replayed = c20sim_run("replay", str(out), "--profile", str(fitted), cwd=tmp_path)
+    by_line = {r.line: r.note for r in records}
+    differing = [int(line.split()[2]) for line in replayed.stdout.splitlines() if line.startswith("  DIFF line ")]
+    assert not [line for line in differing if by_line[line].startswith("dialect ")], replayed.stdout
