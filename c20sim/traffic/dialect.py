@@ -19,12 +19,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ..drive.profile import Profile
+from ..wire.errors import C20SimError
 from ..wire.protocol import ExceptionCode, ReadRequest, WriteSingleRequest, encode, with_crc
 from ..wire.registers import FIXED_REGISTERS, RAM_ONLY, Access, Reg
 
 __all__ = ["QUIRKS", "Frame", "Learned", "Prober", "Quirk", "learn", "probe"]
 
 NOTE = "dialect "
+#: Requests a drive answers that may go unanswered in a row before the probe ends.
+SILENT_LIMIT = 3
 #: The block the read limit is probed on: 3000H-3011H answer on every C20 (sheet), 18 registers in a row.
 BLOCK_START, BLOCK_RUN = 0x3000, 18
 #: The read-only register the refused writes go to: status word 1 (sheet: R).
@@ -64,9 +67,21 @@ class Prober:
         self.address = address
         self.profile = profile
         self.rtu = rtu  #: the link carries RTU frames as sent (a bad CRC reaches the drive); not Modbus TCP
+        self.silent = 0  #: requests a drive answers that got no reply, in a row
 
-    def frame(self, key: str, frame: bytes) -> bytes:
-        return self.send(frame, NOTE + key)
+    def frame(self, key: str, frame: bytes, *, answered: bool = True) -> bytes:
+        """``frame`` sent, its reply returned; ``answered``: a drive answers it (not a bad frame, not a broadcast).
+        Three of those in a row unanswered end the probe in one line (a drive that went away costs 1.5 s, not
+        a timeout for each of the probe's hundred requests)."""
+        reply = self.send(frame, NOTE + key)
+        if answered:
+            self.silent = 0 if reply else self.silent + 1
+            if self.silent >= SILENT_LIMIT:
+                raise C20SimError(
+                    f"the drive stopped answering during the dialect probe ({key}): {SILENT_LIMIT} requests in a row "
+                    "got no reply; the capture so far is kept"
+                )
+        return reply
 
     def read(self, key: str, start: int, count: int = 1) -> bytes:
         return self.frame(key, encode(ReadRequest(self.address, start, count)))
@@ -90,8 +105,8 @@ def _bad_crc_send(p: Prober) -> None:
     if not p.rtu:
         return  # a Modbus TCP gateway computes the CRC itself: a bad one never reaches the drive
     good = encode(ReadRequest(p.address, BLOCK_START, 1))
-    p.frame("reply_to_bad_crc", good[:-2] + bytes((good[-2] ^ 0xFF, good[-1])))  # a bad CRC
-    p.frame("reply_to_bad_crc", good[:-1])  # a bad length: a read one byte short, then silence
+    p.frame("reply_to_bad_crc", good[:-2] + bytes((good[-2] ^ 0xFF, good[-1])), answered=False)  # a bad CRC
+    p.frame("reply_to_bad_crc", good[:-1], answered=False)  # a bad length: a read one byte short, then silence
 
 
 def _bad_crc_learn(frames: Sequence[Frame], base: Profile) -> Learned:
@@ -297,7 +312,7 @@ def _order_learn(frames: Sequence[Frame], base: Profile) -> Learned:
 
 def _broadcast_send(p: Prober) -> None:
     # every drive on the line refuses a write to a read-only register; none answers a broadcast
-    p.frame("broadcast", encode(WriteSingleRequest(0, READ_ONLY, 0)))
+    p.frame("broadcast", encode(WriteSingleRequest(0, READ_ONLY, 0)), answered=False)
 
 
 def _broadcast_learn(frames: Sequence[Frame], base: Profile) -> Learned:

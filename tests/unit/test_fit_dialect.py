@@ -23,6 +23,7 @@ from c20sim.traffic.master import Master
 from c20sim.traffic.masterlinks import SimulatedLink, SimulatedTime
 from c20sim.traffic.programme import simulated_capture
 from c20sim.traffic.replay import replay
+from c20sim.wire.errors import C20SimError
 from c20sim.wire.protocol import ReadRequest, ReadResponse, WriteSingleRequest
 
 SHIPPED = load_profile()
@@ -216,3 +217,31 @@ def test_a_quirk_grows_by_one_row(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     assert (
         'broadcast_delay_ms = 150.0  # source = "capture": dialect.jsonl line ' in path.with_suffix(".toml").read_text()
     )
+
+
+def test_a_drive_that_goes_silent_ends_the_probe_in_one_line(tmp_path: Path) -> None:
+    """After 20 exchanges the link carries nothing: three requests a drive answers go unanswered, and the probe
+    ends saying so (not a timeout for each of its hundred requests); the frames so far are in the capture."""
+    sim = Simulator(SHIPPED, [1], clock=VirtualClock())
+    link = SimulatedLink(sim)
+    real = link.exchange
+    count = [0]
+
+    def exchange(frame: bytes, timeout: float) -> bytes:
+        count[0] += 1
+        if count[0] > 20:
+            sim.advance(timeout)
+            return b""
+        return real(frame, timeout)
+
+    link.exchange = exchange  # type: ignore[method-assign]
+    log = io.StringIO()
+    master = Master(link, SHIPPED.registers, 1, clock=SimulatedTime(sim), log=log)
+    with pytest.raises(C20SimError) as caught:
+        probe(Prober(master.probe, 1, SHIPPED, rtu=True))
+    assert str(caught.value) == (
+        "the drive stopped answering during the dialect probe (registers): 3 requests in a row got no reply; "
+        "the capture so far is kept"
+    )
+    assert count[0] == 23
+    assert len(log.getvalue().splitlines()) == 23 + 20  # each request, and the 20 replies that came
