@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.protocol import ExceptionCode, ReadRequest, WriteSingleRequest, encode, with_crc
-from ..wire.registers import FIXED_REGISTERS, RAM_ONLY, Access, Reg
+from ..wire.registers import FIXED_REGISTERS, RAM_ONLY, Access, Reg, is_fcode
 
 __all__ = ["QUIRKS", "Frame", "Learned", "Prober", "Quirk", "learn", "probe"]
 
@@ -57,6 +57,8 @@ class Learned:
 
     value: object | None
     why: str
+    #: the base profile's function codes that answered 0x02: ``fit`` drops their [[parameter]] rows
+    absent: tuple[int, ...] = ()
 
 
 class Prober:
@@ -277,13 +279,17 @@ def _absent_learn(frames: Sequence[Frame], base: Profile) -> Learned:
             answered.append(address)
     expected = [a for a in absent if a in base.registers or a in FIXED_REGISTERS]
     surprise = [a for a in answered if a not in base.registers]
+    # a function code's [[parameter]] row can go; not a fixed register's, nor one a 20xxH register mirrors
+    droppable = tuple(a for a in expected if is_fcode(a) and a not in base.registers.mirrored_by)
     value = "as the base" if not expected and not surprise else "differs"
     words = f"answer: {_ranges(answered)}; 0x02: {_ranges(absent)}"
     if expected:
         words += f"; the base has {_ranges(expected)}, which did not answer"
+    if kept := [a for a in expected if a not in droppable]:
+        words += f" ({_ranges(kept)}: the format cannot drop them)"
     if surprise:
         words += f"; the base lacks {_ranges(surprise)}, which answered"
-    return Learned(value, words)
+    return Learned(value, words, droppable)
 
 
 def _order_send(p: Prober) -> None:

@@ -12,9 +12,18 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..drive.profile import Profile
+from ..wire.registers import format_fcode
 from .dialect import Frame, Learned, Quirk, learn
 
-__all__ = ["QuirkResult", "learn_dialect", "lines_words", "quirk_changes", "quirk_lines", "quirk_values"]
+__all__ = [
+    "QuirkResult",
+    "drop_parameters",
+    "learn_dialect",
+    "lines_words",
+    "quirk_changes",
+    "quirk_lines",
+    "quirk_values",
+]
 
 
 @dataclass(frozen=True)
@@ -26,7 +35,8 @@ class QuirkResult:
 
     @property
     def written(self) -> bool:
-        return self.quirk.key is not None and self.learned.value is not None
+        """Its key's value is written, or the rows of the function codes that did not answer are dropped."""
+        return (self.quirk.key is not None and self.learned.value is not None) or bool(self.learned.absent)
 
     @property
     def why_not(self) -> str:
@@ -72,6 +82,33 @@ def lines_words(lines: Sequence[int]) -> str:
     if len(runs) > 6:  # a long probe (every register, one request each): its span
         return f"lines {min(lines)}-{max(lines)} ({len(lines)} requests)"
     return ("line " if len(lines) == 1 else "lines ") + ", ".join(runs) if runs else "no frames"
+
+
+def drop_parameters(text: str, results: Sequence[QuirkResult], log_name: str) -> str:
+    """``text`` (a profile) without the [[parameter]] rows of the function codes the drive answered 0x02 to; a
+    comment in each one's place says so."""
+    gone = {format_fcode(a): r for r in results for a in r.learned.absent}
+    out: list[str] = []
+    block: list[str] = []
+
+    def close() -> None:
+        code = next((line.split("=", 1)[1].strip().strip('"') for line in block if line.startswith("code")), "")
+        if block and code in gone:
+            r = gone[code]
+            out.append(
+                f'# [[parameter]] {code} dropped: source = "capture": {log_name} {lines_words(r.lines)}: it '
+                "answered 0x02"
+            )
+        else:
+            out.extend(block)
+        block.clear()
+
+    for line in text.splitlines():
+        if block and (not line.strip() or line.startswith(("[", "#"))):
+            close()  # a row is its header and its keys: a blank line, a comment or a table ends it
+        (block if line.startswith("[[parameter]]") or block else out).append(line)
+    close()
+    return "\n".join(out) + "\n"
 
 
 def _toml(value: object) -> str:

@@ -11,7 +11,7 @@ from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
 from .fitcapture import Capture, _units
-from .fitdialect import quirk_changes, quirk_lines
+from .fitdialect import drop_parameters, quirk_changes, quirk_lines
 from .fitmodel import COMPARED, FitResult
 
 # --- The new profile.
@@ -66,7 +66,7 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
         else:
             out_lines.append(line)
     _add_missing(out_lines, section, changes, done)
-    new_text = "\n".join(out_lines) + "\n"
+    new_text = drop_parameters("\n".join(out_lines) + "\n", result.dialect, log_name)
     if missing := [f"{s}.{k}" for s, k in changes if (s, k) not in done]:
         raise C20SimError(f"{base.path}: no [{missing[0].split('.')[0]}] table to put {missing[0]} in")
     from ..drive.profile import parse_profile

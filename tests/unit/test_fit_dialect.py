@@ -245,3 +245,24 @@ def test_a_drive_that_goes_silent_ends_the_probe_in_one_line(tmp_path: Path) -> 
     )
     assert count[0] == 23
     assert len(log.getvalue().splitlines()) == 23 + 20  # each request, and the 20 replies that came
+
+
+def test_a_function_code_the_drive_lacks_is_dropped(tmp_path: Path) -> None:
+    """The drive has no F00.03 (maximum speed): fit drops its [[parameter]] row, says so in its place, keeps the
+    rest; replay against the fitted profile then matches every reply."""
+    text = Path(SHIPPED.path).read_text()
+    start = text.index('[[parameter]]\ncode = "F00.03"')
+    end = text.index("[[parameter]]", start + 1)
+    truth = parse_profile(text[:start] + text[end:], SHIPPED.path)
+    assert 0x0003 not in truth.registers
+    path = _probed(tmp_path, truth)
+    _, words, fitted = _fit(path)
+    assert 0x0003 not in fitted.registers and 0x000A in fitted.registers
+    assert len(fitted.registers.parameters()) == len(SHIPPED.registers.parameters()) - 1
+    row = next(w for w in words if w.startswith("  dialect registers"))
+    assert "(base -) written; answer: 0000H-0002H, 000AH-000DH," in row
+    assert "; the base has 0003H, which did not answer;" in row
+    written = path.with_suffix(".toml").read_text()
+    assert '# [[parameter]] F00.03 dropped: source = "capture": dialect.jsonl lines' in written
+    assert 'code = "F00.03"' not in written and 'code = "F00.10"' in written
+    assert _replays(path, fitted) == 0
