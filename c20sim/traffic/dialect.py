@@ -135,12 +135,13 @@ def _limit_send(p: Prober) -> None:
     count = 2
     while accepted + 1 < refused:
         reply = p.read("max_read_registers", BLOCK_START, count)
-        if len(reply) == 5 and reply[1] & 0x80 and reply[2] == ExceptionCode.ILLEGAL_VALUE:
+        code = reply[2] if len(reply) == 5 and reply[1] & 0x80 else None
+        if code == ExceptionCode.ILLEGAL_VALUE:
             refused = count
-        elif reply:
-            accepted = count
+        elif reply and code in (None, ExceptionCode.ILLEGAL_ADDRESS):
+            accepted = count  # answered, or past the count's check to the addresses'
         else:
-            return  # silence: the probe cannot tell; fit says so
+            return  # silence or another refusal: the probe cannot tell; fit says so
         count = min(2 * count, 125) if refused == 126 else (accepted + refused) // 2
 
 
@@ -150,8 +151,11 @@ def _limit_learn(frames: Sequence[Frame], base: Profile) -> Learned:
         count = struct.unpack(">H", frame.request[4:6])[0]
         if frame.code == ExceptionCode.ILLEGAL_VALUE:
             refused = min(refused, count)
-        elif frame.reply:
+        elif frame.reply and frame.code in (None, ExceptionCode.ILLEGAL_ADDRESS):
             accepted = max(accepted, count)
+        else:
+            answer = f"exception 0x{frame.code:02X}" if frame.code is not None else "silence"
+            return Learned(None, f"{answer} to a read of {count}: it does not tell")
     if not frames:
         return Learned(None, "not probed")
     if accepted + 1 != refused and refused != 126:
@@ -159,6 +163,8 @@ def _limit_learn(frames: Sequence[Frame], base: Profile) -> Learned:
     if accepted + 1 != refused:
         return Learned(None, "no read was refused, and 125 was not probed")
     how = f"a read of {accepted} answered, of {refused} refused with 0x03" if refused <= 125 else "125 answered"
+    if accepted == 1:
+        how = "a read of 2 refused with 0x03: one register a read"
     if accepted > BLOCK_RUN:
         how += f" (counts above {BLOCK_RUN} reach past 3011H: learned if the drive checks the count first)"
     return Learned(accepted, how)

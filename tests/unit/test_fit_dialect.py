@@ -266,3 +266,26 @@ def test_a_function_code_the_drive_lacks_is_dropped(tmp_path: Path) -> None:
     assert '# [[parameter]] F00.03 dropped: source = "capture": dialect.jsonl lines' in written
     assert 'code = "F00.03"' not in written and 'code = "F00.10"' in written
     assert _replays(path, fitted) == 0
+
+
+@pytest.mark.parametrize(
+    ("replies", "value", "why"),
+    [
+        ([b"\x01\x03\x04", b"\x01\x83\x03"], 2, "a read of 2 answered, of 3 refused with 0x03"),
+        ([b"\x01\x83\x03"], 1, "a read of 2 refused with 0x03: one register a read"),
+        ([b"\x01\x03\x04", b"\x01\x83\x01"], None, "exception 0x01 to a read of 3: it does not tell"),
+        ([b"\x01\x03\x04", b""], None, "silence to a read of 3: it does not tell"),
+        ([b"\x01\x03\x04", b"\x01\x83\x02", b"\x01\x83\x03"], None, "reads of 3 answered, of 5 refused"),
+    ],
+)
+def test_the_read_limit_from_its_frames(replies: list[bytes], value: int | None, why: str) -> None:
+    """What the read-limit row learns from the replies to reads of 2, 3, 5 registers (hand-made frames: a
+    refusal other than 0x03, or silence, tells nothing; a gap between the counts answered and refused is named)."""
+    counts = (2, 3, 5)
+    frames = [
+        Frame(4 + 2 * i, bytes((1, 3, 0x30, 0, 0, counts[i], 0, 0)), reply + b"\x00\x00" if reply else b"")
+        for i, reply in enumerate(replies)
+    ]
+    learned = dialect._limit_learn(frames, SHIPPED)
+    assert learned.value == value
+    assert learned.why.startswith(why), learned.why
