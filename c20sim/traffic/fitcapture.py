@@ -153,7 +153,8 @@ def load_capture(
             # transaction held up); the link's own part is the same for every request, and left out
             fixed = model.fixed(len(record.data), len(exchange.reply), line_baud, bits)
             t += max(0.0, reply_t - record.t - fixed - net)
-        if record.note.startswith(NOTE):
+        mine = record.data[:1] in (bytes((address,)), b"\x00")  # the fitted drive's request, or a broadcast
+        if record.note.startswith(NOTE) and mine:
             capture.probes.append((record.note, Frame(record.line, record.data, exchange.reply)))
             if record.data[1:2] != b"\x03":
                 continue  # the probe's writes are refused, or change nothing: not the model's events
