@@ -18,10 +18,11 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from ..drive.config import F_ANSWER_DELAY
 from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.protocol import ExceptionCode, ReadRequest, WriteSingleRequest, encode, with_crc
-from ..wire.registers import FIXED_REGISTERS, RAM_ONLY, Access, Reg, is_fcode
+from ..wire.registers import FIXED_REGISTERS, RAM_ONLY, Access, Reg, format_fcode, is_fcode
 
 __all__ = ["QUIRKS", "Frame", "Learned", "Prober", "Quirk", "learn", "probe"]
 
@@ -59,6 +60,8 @@ class Learned:
     why: str
     #: the base profile's function codes that answered 0x02: ``fit`` drops their [[parameter]] rows
     absent: tuple[int, ...] = ()
+    #: function codes read, as (address, raw): ``fit`` writes each as its [[parameter]] row's default
+    defaults: tuple[tuple[int, int], ...] = ()
 
 
 class Prober:
@@ -248,6 +251,27 @@ def _gate_learn(frames: Sequence[Frame], base: Profile) -> Learned:
     return Learned(None, f"exception 0x{frame.code:02X} to a read of 200EH")
 
 
+def _delay_send(p: Prober) -> None:
+    if F_ANSWER_DELAY in p.profile.registers:
+        p.read("answer_delay", F_ANSWER_DELAY)
+
+
+def _delay_learn(frames: Sequence[Frame], base: Profile) -> Learned:
+    spec = base.registers.get(F_ANSWER_DELAY)
+    if not frames or spec is None:
+        return Learned(
+            None, "not probed" + ("" if spec is not None else f": the base has no {format_fcode(F_ANSWER_DELAY)}")
+        )
+    frame = frames[-1]
+    if frame.code is None and len(frame.reply) == 7:
+        raw = struct.unpack(">H", frame.reply[3:5])[0]
+        ms: float = raw * spec.scale
+        ms = int(ms) if float(ms).is_integer() else ms
+        return Learned(ms, f"{spec.label} reads {ms:g} ms", defaults=((F_ANSWER_DELAY, raw),))
+    answer = f"exception 0x{frame.code:02X}" if frame.code is not None else "silence"
+    return Learned(None, f"{answer} to a read of {spec.label}")
+
+
 #: The fixed ranges probed one register at a time, and the first address past each (which should not answer).
 RANGES = ((0x2000, 0x2010), (0x2100, 0x2104), (0x3000, 0x3012))
 
@@ -343,6 +367,7 @@ QUIRKS: tuple[Quirk, ...] = (
     Quirk("ram_only_alias", "ram_only_alias", _alias_send, _alias_learn, "a function code at its address | 8000H"),
     Quirk("password", "password", lambda p: None, _password_learn, "a password guarding the function codes"),
     Quirk("write_enable", None, _gate_send, _gate_learn, "the write-enable gate 200EH"),
+    Quirk("answer_delay", None, _delay_send, _delay_learn, "the answer delay a master set (F08.04)"),
     Quirk("registers", None, _absent_send, _absent_learn, "which registers answer"),
     Quirk("exception_order", None, _order_send, _order_learn, "the order of exception checks"),
     Quirk("broadcast", None, _broadcast_send, _broadcast_learn, "no reply to a broadcast"),

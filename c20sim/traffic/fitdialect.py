@@ -36,7 +36,8 @@ class QuirkResult:
     @property
     def written(self) -> bool:
         """Its key's value is written, or the rows of the function codes that did not answer are dropped."""
-        return (self.quirk.key is not None and self.learned.value is not None) or bool(self.learned.absent)
+        learned = self.learned
+        return (self.quirk.key is not None and learned.value is not None) or bool(learned.absent or learned.defaults)
 
     @property
     def why_not(self) -> str:
@@ -85,20 +86,27 @@ def lines_words(lines: Sequence[int]) -> str:
 
 
 def drop_parameters(text: str, results: Sequence[QuirkResult], log_name: str) -> str:
-    """``text`` (a profile) without the [[parameter]] rows of the function codes the drive answered 0x02 to; a
-    comment in each one's place says so."""
+    """``text`` (a profile) without the [[parameter]] rows of the function codes the drive answered 0x02 to (a
+    comment in each one's place says so), and with the defaults of those whose value was read (the answer delay)."""
     gone = {format_fcode(a): r for r in results for a in r.learned.absent}
+    defaults = {format_fcode(a): (raw, r) for r in results for a, raw in r.learned.defaults}
     out: list[str] = []
     block: list[str] = []
 
     def close() -> None:
-        code = next((line.split("=", 1)[1].strip().strip('"') for line in block if line.startswith("code")), "")
+        code = next(
+            (line.split("=", 1)[1].split("#")[0].strip().strip('"') for line in block if line.startswith("code")), ""
+        )
         if block and code in gone:
             r = gone[code]
             out.append(
                 f'# [[parameter]] {code} dropped: source = "capture": {log_name} {lines_words(r.lines)}: it '
                 "answered 0x02"
             )
+        elif block and code in defaults:
+            raw, r = defaults[code]
+            source = f'# source = "capture": {log_name} {lines_words(r.lines)}: {r.learned.why}'
+            out.extend(f"default = {raw}  {source}" if line.startswith("default") else line for line in block)
         else:
             out.extend(block)
         block.clear()

@@ -32,7 +32,7 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
             changes[(f.parameter.section, f.parameter.key)] = (
                 f"{value}  # fitted from {log_name}, +-{f.sigma:.2g} (was {_format(f.base)})"
             )
-    if result.turnaround is not None:
+    if result.turnaround is not None and result.turnaround.identified:
         t = result.turnaround
         changes[("protocol", "turnaround_ms")] = (
             f"{t.value:.3g}  # fitted from {log_name}, +-{t.sigma:.2g} (was {_format(t.base)})"
@@ -109,7 +109,13 @@ def summary(result: FitResult) -> list[str]:
             lines.append(f"  {p.name:<34} {_format(f.value):>10} {p.unit:<8} +-{f.sigma:.2g}  (base {_format(f.base)})")
         else:
             lines.append(f"  {p.name:<34} not identifiable from this capture: {f.why}; kept {_format(f.base)}")
-    if result.turnaround is not None:
+    if result.turnaround is not None and not result.turnaround.identified:
+        t = result.turnaround
+        lines.append(
+            f"  {'protocol.turnaround_ms':<34} not identifiable from this capture: {t.value:.3g} ms +-{t.sigma:.2g} "
+            f"found, but {t.why}; kept {_format(t.base)}"
+        )
+    elif result.turnaround is not None:
         t = result.turnaround
         lines.append(
             f"  {'protocol.turnaround_ms':<34} {t.value:>10.3g} ms       +-{t.sigma:.2g}  (base {_format(t.base)})"

@@ -289,3 +289,41 @@ def test_the_read_limit_from_its_frames(replies: list[bytes], value: int | None,
     learned = dialect._limit_learn(frames, SHIPPED)
     assert learned.value == value
     assert learned.why.startswith(why), learned.why
+
+
+def test_an_answer_delay_hides_the_turnaround(tmp_path: Path) -> None:
+    """F08.04 = 10 ms on the drive (its turnaround 2 ms): every reply comes 10 ms after its request, and a
+    turnaround fitted from that would be the delay. The probe reads F08.04: fit writes it as the fitted profile's
+    default, and does not write the 10 ms as the turnaround (the base's kept, the report says why)."""
+    text = Path(SHIPPED.path).read_text()
+    old = 'name = "answer delay"\ndefault = 0 '
+    assert old in text
+    truth = parse_profile(text.replace(old, 'name = "answer delay"\ndefault = 10 ', 1), SHIPPED.path)
+    path = _probed(tmp_path, truth)
+    capture = load_capture(str(path), SHIPPED)
+    result = fit(capture, SHIPPED)
+    assert result.turnaround is not None and result.turnaround.value == pytest.approx(10.0, abs=0.2)
+    assert not result.turnaround.identified
+    words = summary(result)
+    assert any(
+        w.startswith(f"  {'protocol.turnaround_ms':<34} not identifiable from this capture: 10 ms")
+        and "its answer delay (10 ms, read from F08.04)" in w
+        and w.endswith("; kept 2")
+        for w in words
+    ), words
+    row = next(w for w in words if w.startswith("  dialect answer_delay"))
+    assert row.startswith("  dialect answer_delay          10           (base -) written; F08.04 reads 10 ms; line ")
+    fitted = write_profile(result, tmp_path / "fitted.toml", path.name)
+    assert fitted.protocol.turnaround_ms == 2.0
+    assert fitted.default(0x0804) == 10
+    assert 'default = 10  # source = "capture": dialect.jsonl line ' in (tmp_path / "fitted.toml").read_text()
+    assert _replays(path, fitted) == 0
+
+
+def test_no_answer_delay_leaves_the_turnaround_fitted(tmp_path: Path) -> None:
+    truth = _profile(turnaround_ms=3.5)
+    result = fit(load_capture(str(_probed(tmp_path, truth)), SHIPPED), SHIPPED)
+    assert result.turnaround is not None and result.turnaround.identified
+    assert result.turnaround.value == pytest.approx(3.5, abs=0.2)
+    fitted = write_profile(result, tmp_path / "fitted.toml", "dialect.jsonl")
+    assert fitted.protocol.turnaround_ms == pytest.approx(3.5, abs=0.2) and fitted.default(0x0804) == 0
