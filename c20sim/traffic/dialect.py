@@ -101,6 +101,8 @@ class Quirk:
     send: Callable[[Prober], None]
     learn: Callable[[Sequence[Frame], Profile], Learned]
     doc: str
+    #: why the probe sends nothing for it over Modbus TCP ("": it does)
+    not_over_modbus_tcp: str = ""
 
 
 # --- Each quirk: its probe and what its frames show.
@@ -116,7 +118,7 @@ def _bad_crc_send(p: Prober) -> None:
 
 def _bad_crc_learn(frames: Sequence[Frame], base: Profile) -> Learned:
     if not frames:
-        return Learned(None, "not probed (Modbus TCP: the gateway makes the CRC, a bad frame cannot be sent)")
+        return Learned(None, "not probed")
     seen: dict[str, bool] = {}
     for frame in frames:
         what = "a bad length" if len(frame.request) < 8 else "a bad CRC"
@@ -361,7 +363,14 @@ def _broadcast_learn(frames: Sequence[Frame], base: Profile) -> Learned:
 
 
 QUIRKS: tuple[Quirk, ...] = (
-    Quirk("reply_to_bad_crc", "reply_to_bad_crc", _bad_crc_send, _bad_crc_learn, "0x06 or silence on a bad CRC"),
+    Quirk(
+        "reply_to_bad_crc",
+        "reply_to_bad_crc",
+        _bad_crc_send,
+        _bad_crc_learn,
+        "0x06 or silence on a bad CRC",
+        "the gateway makes the CRC and the length: a bad frame cannot be sent",
+    ),
     Quirk("max_read_registers", "max_read_registers", _limit_send, _limit_learn, "the most one 0x03 may read"),
     Quirk("byte_count_exception", "byte_count_exception", _byte_count_send, _byte_count_learn, "a bad 0x10 count"),
     Quirk("ram_only_alias", "ram_only_alias", _alias_send, _alias_learn, "a function code at its address | 8000H"),
@@ -380,9 +389,12 @@ def probe(prober: Prober) -> None:
         quirk.send(prober)
 
 
-def learn(frames: Sequence[tuple[str, Frame]], base: Profile) -> list[tuple[Quirk, Learned, list[int]]]:
+def learn(
+    frames: Sequence[tuple[str, Frame]], base: Profile, *, modbus_tcp: bool = False
+) -> list[tuple[Quirk, Learned, list[int]]]:
     """Each row learned from the capture's frames noted ``dialect NAME`` (the RAM-only write also tells the
-    password), with the log lines that showed it."""
+    password), with the log lines that showed it; ``modbus_tcp``: the capture was carried by Modbus TCP, over
+    which some rows send nothing (and say why)."""
     by_name: dict[str, list[Frame]] = {}
     for note, frame in frames:
         if note.startswith(NOTE):
@@ -390,5 +402,8 @@ def learn(frames: Sequence[tuple[str, Frame]], base: Profile) -> list[tuple[Quir
     out = []
     for quirk in QUIRKS:
         own = by_name.get("ram_only_alias" if quirk.name == "password" else quirk.name, [])
-        out.append((quirk, quirk.learn(own, base), [f.line for f in own]))
+        learned = quirk.learn(own, base)
+        if not own and frames and modbus_tcp and quirk.not_over_modbus_tcp:
+            learned = Learned(None, f"not probed: over Modbus TCP {quirk.not_over_modbus_tcp}")
+        out.append((quirk, learned, [f.line for f in own]))
     return out

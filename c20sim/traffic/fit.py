@@ -82,7 +82,7 @@ def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | No
     solution = solve(problem, unrevealed(capture, compared), progress or (lambda text: None))
     # the fitted profile holds only the identified values and the link's turnaround; it is what "after" shows
     final = with_values(problem.base, {f.parameter.name: f.value for f in solution.fitted if f.identified})
-    dialect = learn_dialect(capture.probes, problem.base)
+    dialect = learn_dialect(capture.probes, problem.base, modbus_tcp=capture.port == "modbus-tcp")
     found = masked_turnaround(turnaround(capture, problem.base), dialect)
     if found is not None and found.identified:
         final = with_values(final, {"protocol.turnaround_ms": found.value})

@@ -62,6 +62,7 @@ class Capture:
     bits: int = 10  #: of one character on the line
     turnaround: tuple[float, float, int] | None = None  #: (s, its uncertainty, late transactions); None: too few
     probes: list[tuple[str, Frame]] = field(default_factory=list)  #: the dialect probe's frames, with their notes
+    port: str = ""  #: the header's word for the link (serial, pty, tcp, modbus-tcp, ...); "" without a header
 
 
 # --- Reading the capture.
@@ -141,7 +142,7 @@ def load_capture(
     turnaround = turnaround_of(timings, model, line_baud, bits) if len(timings) >= 5 else None
     net = turnaround[0] if turnaround is not None else 0.0
     replies = {id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx"}
-    capture = Capture(path, address, [], {}, timings, 0, {}, 0.0, model, why, line_baud, bits, turnaround)
+    capture = Capture(path, address, [], {}, timings, 0, {}, 0.0, model, why, line_baud, bits, turnaround, port=port)
     t0 = found[0].record.t
     for exchange in found:
         record = exchange.record

@@ -49,10 +49,10 @@ class QuirkResult:
         return "the profile format has no key for it"
 
 
-def learn_dialect(probes: Sequence[tuple[str, Frame]], base: Profile) -> list[QuirkResult]:
+def learn_dialect(probes: Sequence[tuple[str, Frame]], base: Profile, *, modbus_tcp: bool = False) -> list[QuirkResult]:
     """Each quirk of :data:`~c20sim.traffic.dialect.QUIRKS`, learned from the capture's probe frames."""
     out = []
-    for quirk, learned, lines in learn(probes, base):
+    for quirk, learned, lines in learn(probes, base, modbus_tcp=modbus_tcp):
         value = getattr(base.protocol, quirk.key) if quirk.key is not None else None
         out.append(QuirkResult(quirk, learned, value, tuple(lines)))
     return out
