@@ -22,6 +22,7 @@ __all__ = [
     "lines_words",
     "quirk_changes",
     "quirk_lines",
+    "quirk_table",
     "quirk_values",
 ]
 
@@ -145,4 +146,20 @@ def quirk_lines(results: Sequence[QuirkResult]) -> list[str]:
         why = f"; {r.learned.why}" if r.learned.why != r.why_not else ""
         shown = f"{why}; {lines_words(r.lines)}" if r.lines else why
         out.append(f"  dialect {r.quirk.name:<21} {learned:<12} (base {base}) {written}{shown}")
+    return out
+
+
+def quirk_table(results: Sequence[QuirkResult]) -> list[str]:
+    """The report's table of the dialect (Markdown): each quirk, what it is, learned, base, written, the frames."""
+    out = [
+        "| quirk | what | learned | base | written | shown by |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        learned = "not learned" if r.learned.value is None else _toml(r.learned.value)
+        base = _toml(r.base) if r.quirk.key is not None else "-"
+        written = "yes" if r.written else f"no: {r.why_not}"
+        shown = f"{r.learned.why}; {lines_words(r.lines)}" if r.lines else "-"
+        cells = (r.quirk.name, r.quirk.doc, learned, base, written, shown)
+        out.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return out

@@ -11,7 +11,7 @@ from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
 from .fitcapture import Capture, _units
-from .fitdialect import drop_parameters, quirk_changes, quirk_lines
+from .fitdialect import drop_parameters, quirk_changes, quirk_lines, quirk_table
 from .fitmodel import COMPARED, FitResult
 
 # --- The new profile.
@@ -200,6 +200,7 @@ def write_report(result: FitResult, directory: Path, profile_path: Path | None) 
             plt.close(fig)
             pictures.append(f"![{name}]({stem}.png)")
     lines = ["# c20sim fit report", "", "```", *summary(result), "```", ""]
+    lines += ["## The dialect", "", *quirk_table(result.dialect), ""]
     if profile_path is not None:
         lines += [
             f"The fitted profile: `{profile_path}`. Compare it with the capture: "

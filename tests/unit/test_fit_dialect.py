@@ -18,7 +18,7 @@ from c20sim.traffic import dialect
 from c20sim.traffic.capture import load_frame_log
 from c20sim.traffic.dialect import Frame, Learned, Prober, Quirk, probe
 from c20sim.traffic.fit import fit, load_capture
-from c20sim.traffic.fitreport import summary, write_profile
+from c20sim.traffic.fitreport import summary, write_profile, write_report
 from c20sim.traffic.master import Master
 from c20sim.traffic.masterlinks import SimulatedLink, SimulatedTime
 from c20sim.traffic.programme import simulated_capture
@@ -329,3 +329,17 @@ def test_no_answer_delay_leaves_the_turnaround_fitted(tmp_path: Path) -> None:
     assert result.turnaround.value == pytest.approx(3.5, abs=0.2)
     fitted = write_profile(result, tmp_path / "fitted.toml", "dialect.jsonl")
     assert fitted.protocol.turnaround_ms == pytest.approx(3.5, abs=0.2) and fitted.default(0x0804) == 0
+
+
+def test_the_report_file_has_the_dialect_table(tmp_path: Path) -> None:
+    path = _probed(tmp_path, _profile(max_read_registers=8))
+    result = fit(load_capture(str(path), SHIPPED), SHIPPED)
+    written = write_report(result, tmp_path / "report", None)
+    text = written[0].read_text()
+    table = text[text.index("## The dialect") :].splitlines()[2:]
+    rows = [line for line in table if line.startswith("| ") and not line.startswith("| quirk")][: len(dialect.QUIRKS)]
+    assert [row.split(" | ")[0][2:] for row in rows] == [q.name for q in dialect.QUIRKS]
+    assert rows[1] == (
+        "| max_read_registers | the most one 0x03 may read | 8 | 1 | yes | a read of 8 answered, of 9 refused with "
+        "0x03; lines 6-18 (7 requests) |"
+    )
