@@ -12,6 +12,10 @@ the JSONL frame log ``c20sim record`` and ``serve --log-frames`` write
 (``t``, ``dir``, ``hex``, ``kind``, ``slave``, ``text``), which ``c20sim fit``
 and ``c20sim replay`` read.
 
+With ``--dialect`` (or ``--dialect-only``) the dialect probe (:mod:`c20sim.traffic.dialect`) comes first, in the
+same capture: reads, a write of the value a function code holds to its RAM-only address, writes every drive
+refuses; ``c20sim fit`` learns the drive's Modbus dialect from its frames.
+
 Safety: the programme refuses to start a drive that is not stopped, faulted,
 or not under communication control with the Modbus speed reference; a drive
 that answers an exception or stays silent, or trips, is told to stop and the
