@@ -12,6 +12,10 @@ the JSONL frame log ``c20sim record`` and ``serve --log-frames`` write
 (``t``, ``dir``, ``hex``, ``kind``, ``slave``, ``text``), which ``c20sim fit``
 and ``c20sim replay`` read.
 
+With ``--dialect`` (or ``--dialect-only``) the dialect probe (:mod:`c20sim.traffic.dialect`) comes first, in the
+same capture: reads, a write of the value a function code holds to its RAM-only address, writes every drive
+refuses; ``c20sim fit`` learns the drive's Modbus dialect from its frames.
+
 Safety: the programme refuses to start a drive that is not stopped, faulted,
 or not under communication control with the Modbus speed reference; a drive
 that answers an exception or stays silent, or trips, is told to stop and the
@@ -32,11 +36,12 @@ import sys
 from collections.abc import Callable
 from typing import TypeVar
 
-from ..drive.profile import DEFAULT_PROFILE, load_profile
+from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES, SHORT_NAMES, Reg, RegisterMap
+from .dialect import Prober, probe
 from .master import Interrupted, Master, NoReply, is_function_code, parse_value, register_of
-from .masterlinks import Link, link_port, open_link
+from .masterlinks import Link, MbapLink, link_port, open_link
 from .programme import Step, check_ready, programme, run_programme, time_the_link
 
 __all__ = ["NAMES", "add_exercise_command", "cmd_exercise"]
@@ -65,6 +70,8 @@ def cmd_exercise(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile)
     registers = profile.registers
     action = args.action
+    if (args.dialect or args.dialect_only) and (action is not None or not args.out):
+        raise C20SimError("--dialect: give --out FILE for the capture, and no action")
     if action is None:
         if not args.out:
             raise C20SimError("give --out FILE for the capture, or an action: read NAME..., write NAME VALUE")
@@ -90,7 +97,7 @@ def cmd_exercise(args: argparse.Namespace) -> int:
     if not 1 <= args.address <= 247:
         raise C20SimError(f"--address {args.address}: give the drive's address, 1-247 (2008H)")
     speeds = _speeds(args.speeds, profile.motor.rated_speed_rpm) if action is None else []
-    baud = args.baud or BAUD_RATES[min(profile.default(Reg.BAUD), len(BAUD_RATES) - 1)]
+    baud = _baud(args, profile)
     link = open_link(args.port, baud, args.parity, args.stopbits)
     try:
         if action == "read":
@@ -108,7 +115,7 @@ def cmd_exercise(args: argparse.Namespace) -> int:
                 print(f"writing {words}")
             _first(master.write, spec.address, args, baud, value)
             return 0
-        return _run(args, link, registers, speeds, profile.motor.rated_speed_rpm, baud)
+        return _run(args, link, profile, speeds, baud)
     finally:
         link.close()
 
@@ -141,9 +148,23 @@ def _speeds(text: str | None, rated: float) -> list[float]:
     return out
 
 
-def _run(
-    args: argparse.Namespace, link: Link, registers: RegisterMap, speeds: list[float], rated: float, link_baud: int
-) -> int:
+def _probe_dialect(args: argparse.Namespace, master: Master, link: Link, profile: Profile) -> None:
+    """The dialect probe (:mod:`c20sim.traffic.dialect`): reads, writes of held values, writes every drive refuses."""
+    print(
+        f"exercise {args.port}: probing the dialect: reads, a write of the value F00.10 holds to its RAM-only "
+        "address, writes to a read-only register (refused), one frame with a bad CRC, one broadcast",
+        flush=True,
+    )
+    _first(master.read, Reg.STATUS1, args, _baud(args, profile))
+    probe(Prober(master.probe, args.address, profile, rtu=not isinstance(link, MbapLink)))
+
+
+def _baud(args: argparse.Namespace, profile: Profile) -> int:
+    return int(args.baud or BAUD_RATES[min(profile.default(Reg.BAUD), len(BAUD_RATES) - 1)])
+
+
+def _run(args: argparse.Namespace, link: Link, profile: Profile, speeds: list[float], link_baud: int) -> int:
+    registers, rated = profile.registers, profile.motor.rated_speed_rpm
     try:
         out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115 - closed below, after the stop
     except OSError as exc:
@@ -152,6 +173,11 @@ def _run(
     with out:
         master = Master(link, registers, args.address, timeout=args.timeout, log=out)
         master.header(link_port(link), link_baud, f"8{args.parity}{args.stopbits}")
+        if args.dialect or args.dialect_only:
+            _probe_dialect(args, master, link, profile)
+            if args.dialect_only:
+                print(f"done: {master.frames} frames written to {args.out}; fit it: c20sim fit {args.out}")
+                return 0
         settings = check_ready(master)
         time_the_link(master)
         accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
@@ -217,6 +243,12 @@ def add_exercise_command(sub: argparse._SubParsersAction[argparse.ArgumentParser
     parser.add_argument(
         "--speeds", metavar="LIST", help="speeds to step through, rpm (default 30,60,90,50 %% of rated)"
     )
+    parser.add_argument(
+        "--dialect",
+        action="store_true",
+        help="probe the drive's Modbus dialect first (harmless: docs/fit.md, 'The dialect probe'), then the programme",
+    )
+    parser.add_argument("--dialect-only", action="store_true", help="probe the dialect only, no programme")
     parser.add_argument("--load-change", action="store_true", help="ask for a load change by hand, and hold with it")
     parser.set_defaults(func=cmd_exercise, trailing_words=_trailing_words)
 

@@ -43,9 +43,10 @@ fitted too and reported, not written (it belongs to the bench, not the drive).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..core.clock import VirtualClock
@@ -54,6 +55,7 @@ from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS
 from .fitcapture import Capture, _consistency, _load_records, load_capture
+from .fitdialect import QuirkResult, learn_dialect, quirk_values
 from .fitlink import LINKS
 from .fitmodel import FitResult, Fitted, given_settings, simulate, with_values
 from .fitreport import summary, write_profile, write_report
@@ -80,9 +82,11 @@ def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | No
     solution = solve(problem, unrevealed(capture, compared), progress or (lambda text: None))
     # the fitted profile holds only the identified values and the link's turnaround; it is what "after" shows
     final = with_values(problem.base, {f.parameter.name: f.value for f in solution.fitted if f.identified})
-    found = turnaround(capture, problem.base)
-    if found is not None:
+    dialect = learn_dialect(capture.probes, problem.base, modbus_tcp=capture.port == "modbus-tcp")
+    found = masked_turnaround(turnaround(capture, problem.base), dialect)
+    if found is not None and found.identified:
         final = with_values(final, {"protocol.turnaround_ms": found.value})
+    final = with_values(final, quirk_values(dialect))
     after, states = solution.after, solution.states
     if final != solution.profile:
         after, states = simulate(final, capture, events, solution.load)
@@ -108,7 +112,23 @@ def fit(capture: Capture, base: Profile, *, progress: Callable[[str], None] | No
         time.perf_counter() - started,
         notes,
         final,
+        dialect,
     )
+
+
+def masked_turnaround(found: Fitted | None, results: Sequence[QuirkResult]) -> Fitted | None:
+    """The turnaround fitted, or not identified where the answer delay read (F08.04) is as long: the drive then
+    answers after the delay it was told to keep, which hides its own processing time."""
+    delay = next((r.learned.value for r in results if r.quirk.name == "answer_delay"), None)
+    if found is None or not isinstance(delay, int | float) or not delay:
+        return found
+    if found.value > delay + 3 * found.sigma:
+        return found
+    why = (
+        f"the drive answers after its answer delay ({delay:g} ms, read from F08.04), which hides its own "
+        "turnaround: set F08.04 to 0 on the drive for a capture that shows it"
+    )
+    return dataclasses.replace(found, identified=False, why=why)
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

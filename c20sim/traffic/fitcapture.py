@@ -24,6 +24,7 @@ from ..wire.protocol import (
 )
 from ..wire.registers import BAUD_RATES, FIXED_REGISTERS, Reg
 from .capture import LogRecord, _read_text, parse_log
+from .dialect import NOTE, Frame
 from .fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link, format_bits, turnaround_of
 from .programme import LOAD_OFF, LOAD_ON
 from .replay import Exchange, exchanges
@@ -60,6 +61,8 @@ class Capture:
     baud: int = 19200
     bits: int = 10  #: of one character on the line
     turnaround: tuple[float, float, int] | None = None  #: (s, its uncertainty, late transactions); None: too few
+    probes: list[tuple[str, Frame]] = field(default_factory=list)  #: the dialect probe's frames, with their notes
+    port: str = ""  #: the header's word for the link (serial, pty, tcp, modbus-tcp, ...); "" without a header
 
 
 # --- Reading the capture.
@@ -139,7 +142,7 @@ def load_capture(
     turnaround = turnaround_of(timings, model, line_baud, bits) if len(timings) >= 5 else None
     net = turnaround[0] if turnaround is not None else 0.0
     replies = {id(r): n.t for r, n in itertools.pairwise(records) if r.direction == "rx" and n.direction == "tx"}
-    capture = Capture(path, address, [], {}, timings, 0, {}, 0.0, model, why, line_baud, bits, turnaround)
+    capture = Capture(path, address, [], {}, timings, 0, {}, 0.0, model, why, line_baud, bits, turnaround, port=port)
     t0 = found[0].record.t
     for exchange in found:
         record = exchange.record
@@ -151,6 +154,11 @@ def load_capture(
             # transaction held up); the link's own part is the same for every request, and left out
             fixed = model.fixed(len(record.data), len(exchange.reply), line_baud, bits)
             t += max(0.0, reply_t - record.t - fixed - net)
+        mine = record.data[:1] in (bytes((address,)), b"\x00")  # the fitted drive's request, or a broadcast
+        if record.note.startswith(NOTE) and mine:
+            capture.probes.append((record.note, Frame(record.line, record.data, exchange.reply)))
+            if record.data[1:2] != b"\x03":
+                continue  # the probe's writes are refused, or change nothing: not the model's events
         _add_exchange(capture, exchange, t, record.t - t0)
     if not capture.reads:
         raise C20SimError(

@@ -19,6 +19,7 @@ from ..wire.protocol import (
 )
 from ..wire.registers import FIXED_REGISTERS, Reg
 from .fitcapture import Capture, Event
+from .fitdialect import QuirkResult
 
 #: The quantities the least squares compare: register -> (name, unit, resolution of one raw unit).
 COMPARED: dict[int, tuple[str, str, float]] = {
@@ -95,6 +96,7 @@ class FitResult:
     seconds: float
     notes: list[str] = field(default_factory=list)
     profile: Profile | None = None
+    dialect: list[QuirkResult] = field(default_factory=list)  #: the quirks the dialect probe's frames show
 
 
 # --- The model, played along the capture.

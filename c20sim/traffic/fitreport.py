@@ -11,6 +11,7 @@ from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.registers import Reg
 from .fitcapture import Capture, _units
+from .fitdialect import drop_parameters, quirk_changes, quirk_lines, quirk_table
 from .fitmodel import COMPARED, FitResult
 
 # --- The new profile.
@@ -31,11 +32,12 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
             changes[(f.parameter.section, f.parameter.key)] = (
                 f"{value}  # fitted from {log_name}, +-{f.sigma:.2g} (was {_format(f.base)})"
             )
-    if result.turnaround is not None:
+    if result.turnaround is not None and result.turnaround.identified:
         t = result.turnaround
         changes[("protocol", "turnaround_ms")] = (
             f"{t.value:.3g}  # fitted from {log_name}, +-{t.sigma:.2g} (was {_format(t.base)})"
         )
+    changes |= quirk_changes(result.dialect, log_name)
     temps = result.capture.reads.get(Reg.TEMPERATURE)
     if temps:
         changes[("thermal", "ambient_c")] = (
@@ -64,7 +66,7 @@ def write_profile(result: FitResult, out: Path, log_name: str) -> Profile:
         else:
             out_lines.append(line)
     _add_missing(out_lines, section, changes, done)
-    new_text = "\n".join(out_lines) + "\n"
+    new_text = drop_parameters("\n".join(out_lines) + "\n", result.dialect, log_name)
     if missing := [f"{s}.{k}" for s, k in changes if (s, k) not in done]:
         raise C20SimError(f"{base.path}: no [{missing[0].split('.')[0]}] table to put {missing[0]} in")
     from ..drive.profile import parse_profile
@@ -107,7 +109,13 @@ def summary(result: FitResult) -> list[str]:
             lines.append(f"  {p.name:<34} {_format(f.value):>10} {p.unit:<8} +-{f.sigma:.2g}  (base {_format(f.base)})")
         else:
             lines.append(f"  {p.name:<34} not identifiable from this capture: {f.why}; kept {_format(f.base)}")
-    if result.turnaround is not None:
+    if result.turnaround is not None and not result.turnaround.identified:
+        t = result.turnaround
+        lines.append(
+            f"  {'protocol.turnaround_ms':<34} not identifiable from this capture: {t.value:.3g} ms +-{t.sigma:.2g} "
+            f"found, but {t.why}; kept {_format(t.base)}"
+        )
+    elif result.turnaround is not None:
         t = result.turnaround
         lines.append(
             f"  {'protocol.turnaround_ms':<34} {t.value:>10.3g} ms       +-{t.sigma:.2g}  (base {_format(t.base)})"
@@ -116,6 +124,7 @@ def summary(result: FitResult) -> list[str]:
         lines.append(
             f"  {'protocol.turnaround_ms':<34} not identifiable from this capture: fewer than 5 answered requests"
         )
+    lines += quirk_lines(result.dialect)
     if result.load_nm is not None:
         lines.append(f"  the load applied by hand: {result.load_nm[0]:.3g} N m +-{result.load_nm[1]:.2g} (not written)")
     for address, (_, recorded, before) in result.before.items():
@@ -191,6 +200,7 @@ def write_report(result: FitResult, directory: Path, profile_path: Path | None) 
             plt.close(fig)
             pictures.append(f"![{name}]({stem}.png)")
     lines = ["# c20sim fit report", "", "```", *summary(result), "```", ""]
+    lines += ["## The dialect", "", *quirk_table(result.dialect), ""]
     if profile_path is not None:
         lines += [
             f"The fitted profile: `{profile_path}`. Compare it with the capture: "

@@ -21,6 +21,7 @@ from ..wire.protocol import (
     Response,
     WriteSingleRequest,
     crc_ok,
+    decode_request,
     decode_response,
     encode,
 )
@@ -240,6 +241,27 @@ class Master:
             raise DriveSilent(f"a broken reply to {what}: {exc}: {reply.hex(' ').upper()}") from None
         self._record(t, "tx", reply, response, request)
         return response
+
+    def probe(self, frame: bytes, note: str) -> bytes:
+        """Send ``frame`` as it is (a bad CRC, a short frame, a broadcast: the dialect probe's) and return what came
+        back, b"" for silence; both logged, the request with ``note``. An exception reply is returned, not raised."""
+        try:
+            request: Request | None = decode_request(frame)
+        except ValueError:
+            request = None
+        words = "" if request is not None else "a broken frame, sent on purpose"
+        self._record(self.clock.now(), "rx", frame, request, None, words, note=note)
+        reply = self.link.exchange(frame, self.timeout)
+        if not reply:
+            return b""
+        t = self.clock.now()
+        words = f"exception 0x{reply[2]:02X}" if len(reply) == 5 and reply[1] & 0x80 and crc_ok(reply) else ""
+        try:
+            response: Response | None = None if words or not crc_ok(reply) else decode_response(reply)
+        except ValueError:
+            response = None
+        self._record(t, "tx", reply, response, request, words)
+        return reply
 
     def read(self, address: int) -> int:
         response = self.transact(ReadRequest(self.address, address, 1))

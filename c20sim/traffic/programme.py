@@ -12,9 +12,11 @@ from dataclasses import dataclass
 from typing import IO, TypeVar
 
 from ..core.simulator import Simulator
+from ..drive.profile import Profile
 from ..wire.errors import C20SimError
 from ..wire.protocol import ReadRequest
 from ..wire.registers import Command, Reg
+from .dialect import Prober, probe
 from .master import DriveRefused, DriveSilent, Interrupted, Master
 from .masterlinks import SimulatedLink, SimulatedTime
 
@@ -314,12 +316,16 @@ def simulated_capture(
     rate: float = 10.0,
     load_nm: float | None = None,
     address: int = 1,
+    dialect: Profile | None = None,
 ) -> int:
     """The programme run on c20sim in this process, in virtual time, its capture written to ``out``; the load
-    change (``load_nm``) made as a user would when told. Returns the reads made. Tests and benchmarks use it."""
+    change (``load_nm``) made as a user would when told; with ``dialect`` (the base profile the user has), the
+    dialect probe first, as ``exercise --dialect``. Returns the reads made. Tests and benchmarks use it."""
     registers = sim.profile.registers
     master = Master(SimulatedLink(sim), registers, address, clock=SimulatedTime(sim), log=out)
     master.header("simulated", sim.bus.line_baud, "8N1")
+    if dialect is not None:
+        probe(Prober(master.probe, address, dialect, rtu=True))
     settings = check_ready(master)
     time_the_link(master)
     accel = settings[Reg.ACCEL_TIME] * registers[Reg.ACCEL_TIME].scale
