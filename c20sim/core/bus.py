@@ -16,8 +16,10 @@ request is served, and :attr:`Reply.baud` keeps the baud the reply goes out
 at. With several drives, a drive set to another baud than the line's goes
 deaf, as it would on a real multi-drop line.
 
-Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
-and is passed to each listener (the JSON-lines writer, the dashboard).
+Every frame in and out becomes a :class:`FrameRecord` in a bounded ring
+(:class:`~c20sim.core.framering.FrameRing`: kept as bytes and numbers, which
+no garbage collection walks), and is passed to each listener (the JSON-lines
+writer, the dashboard).
 
 Every event also has its time on a real RS485 line
 (:func:`~c20sim.wire.protocol.transaction_time` at the line's baud and
@@ -34,7 +36,6 @@ import enum
 import functools
 import logging
 import random
-from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -58,6 +59,7 @@ from ..wire.protocol import (
 )
 from ..wire.registers import RegisterMap
 from ..wire.values import quick_init
+from .framering import FrameRing
 from .linkfaults import LinkFaults
 from .slave import Slave
 
@@ -237,7 +239,7 @@ class Bus:
         self._link_of = dict(zip(self.slaves, self.drive_links, strict=True))
         self._at: dict[int, Slave] = {}  #: address -> drive, a cache checked on every use
         self.rng = random.Random(seed)
-        self.records: deque[FrameRecord] = deque(maxlen=log_size)
+        self.records: FrameRing[FrameRecord] = FrameRing(log_size, FrameRecord)
         #: the listeners, a tuple made anew when one comes or goes: a record calls each without a copy
         self._listening: tuple[Callable[[FrameRecord], None], ...] = ()
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame
