@@ -337,6 +337,18 @@ class FrameRing(Generic[R]):
         for slot in self._slot_numbers():
             yield self._record(slot, recent)
 
+    def popleft(self) -> R:
+        """Take the oldest record out (IndexError when empty): a queue's end, for a consumer that drains it."""
+        if not self._len:
+            raise IndexError("pop from an empty frame ring")
+        slot = self._start
+        record = self._record(slot)
+        self._data[slot] = self._request[slot] = b""
+        self._words[slot] = self._note[slot] = ""
+        self._start = (slot + 1) % self._maxlen
+        self._len -= 1
+        return record
+
     def clear(self) -> None:
         """Forget every record (the storage stays, for the next)."""
         self._start = self._len = 0

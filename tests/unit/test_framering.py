@@ -191,3 +191,41 @@ def test_a_reply_names_the_very_request_its_request_record_holds(profile: Profil
     first_tx = next(iter(bus.records))
     assert first_tx.direction == "tx" and first_tx.request == WriteSingleRequest(1, Reg.SPEED_SETPOINT, 300)
     assert bus.records[-1].request == ReadRequest(1, Reg.STATUS1, 1)
+
+
+def test_popleft_drains_oldest_first(profile: Profile) -> None:
+    """The frame log's writer drains its buffer from the oldest end: each record once, equal, then empty."""
+    bus = make_bus(profile, (1,))
+    ring: FrameRing[FrameRecord] = FrameRing(6, FrameRecord)
+    made: list[FrameRecord] = []
+    bus.subscribe(made.append)
+    bus.subscribe(ring.append)
+    line = Line(bus)
+    for v in range(2):
+        line.send(encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 100 + v)))
+    first = ring.popleft()
+    same(first, made[0])
+    line.send(encode(ReadRequest(1, Reg.STATUS1, 1)))  # wraps around the slot popped
+    drained = [ring.popleft() for _ in range(len(ring))]
+    assert drained == made[1:] and len(ring) == 0
+    with pytest.raises(IndexError):
+        ring.popleft()
+
+
+def test_what_waits_for_the_frame_log_writer_is_no_tracked_object(profile: Profile, tmp_path: Any) -> None:
+    """--log-frames: records queued for the writer thread (here not started: a sink that has not taken them)
+    add nothing the collector walks, up to the buffer's bound and past it (the newest refused, counted)."""
+    from c20sim.transport.framelog import FrameLog
+
+    bus = make_bus(profile, (1,))
+    frame_log = FrameLog(str(tmp_path / "frames.jsonl"), buffer_records=1000)
+    bus.subscribe(frame_log.put)
+    frame = encode(ReadRequest(1, Reg.STATUS1, 1))
+    bus.handle(FrameEvent(FrameKind.FRAME, frame, 0.0))
+    gc.collect()
+    before = len(gc.get_objects())
+    for i in range(1000):  # 2000 records: 1000 wait, 1000 refused
+        bus.handle(FrameEvent(FrameKind.FRAME, frame, i * 0.01))
+    gc.collect()
+    assert len(gc.get_objects()) - before < 20
+    assert (len(frame_log._buffer), frame_log.dropped) == (1000, 1002)
