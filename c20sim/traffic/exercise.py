@@ -45,13 +45,13 @@ from ..core.simulator import Simulator
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.decode import describe
 from ..wire.errors import C20SimError
+from ..wire.framing import RtuFramer
 from ..wire.protocol import (
     ExceptionCode,
     ReadRequest,
     ReadResponse,
     Request,
     Response,
-    RtuFramer,
     WriteSingleRequest,
     crc_ok,
     decode_response,

@@ -58,7 +58,8 @@ from typing import Any, cast
 
 from ..core.bus import Direction, FrameRecord, RecordKind, Reply
 from ..wire.errors import C20SimError
-from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, expected_length, mbap_adus, with_crc
+from ..wire.framing import RtuFramer
+from ..wire.protocol import BROADCAST, MbapHeader, crc_ok, expected_length, mbap_adus, with_crc
 from .endpoint import RtuEndpoint, stream_framer
 from .line import Line
 
