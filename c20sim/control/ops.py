@@ -36,16 +36,8 @@ from ..drive.model import Drive, HallFault, Telemetry
 from ..drive.params import ParameterStore, StateFileError
 from ..wire.errors import C20SimError, ModbusError
 from ..wire.protocol import ExceptionCode, ExceptionResponse, WriteSingleRequest
-from ..wire.registers import (
-    Access,
-    Command,
-    Reg,
-    RunChannel,
-    UnknownRegister,
-    address_label,
-    is_fcode,
-    resolve_register,
-)
+from ..wire.registers import Access, Command, Reg, RunChannel, address_label, is_fcode
+from ..wire.vocabulary import UnknownRegister, resolve_register
 
 __all__ = [
     "CONDITIONS",
@@ -209,7 +201,7 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
 
 def register_address(text: object) -> int:
     """A register's address from its spelling alone, in the one vocabulary of every tool
-    (:func:`~c20sim.wire.registers.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
+    (:func:`~c20sim.wire.vocabulary.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
     ``0x3006``, ``12294``, ``F00.10`` or an int.
 
     The spelling only: whether a profile has the register is :func:`parse_register`'s question.

@@ -77,7 +77,8 @@ from ..wire.protocol import (
     decode_response,
     encode,
 )
-from ..wire.registers import Reg, UnknownRegister, resolve_register
+from ..wire.registers import Reg
+from ..wire.vocabulary import UnknownRegister, resolve_register
 
 if TYPE_CHECKING:
     from ..core.bus import Reply

@@ -59,18 +59,8 @@ from ..wire.protocol import (
     expected_length,
     with_crc,
 )
-from ..wire.registers import (
-    BAUD_RATES,
-    SHORT_NAMES,
-    Command,
-    Reg,
-    RegisterMap,
-    RegisterSpec,
-    UnknownRegister,
-    address_label,
-    is_fcode,
-    resolve_register,
-)
+from ..wire.registers import BAUD_RATES, Command, Reg, RegisterMap, RegisterSpec, address_label, is_fcode
+from ..wire.vocabulary import SHORT_NAMES, UnknownRegister, resolve_register
 
 __all__ = [
     "NAMES",
@@ -174,7 +164,7 @@ class DriveRefused(C20SimError):
 
 
 def register_of(word: str, registers: RegisterMap, owner: str = "the profile") -> RegisterSpec:
-    """A register in the one vocabulary of every tool (:func:`~c20sim.wire.registers.resolve_register`): a short
+    """A register in the one vocabulary of every tool (:func:`~c20sim.wire.vocabulary.resolve_register`): a short
     name (``speed``), the sheet's name, an address (``3006H``, ``0x3006``, ``12294``) or a function code."""
     try:
         return registers[resolve_register(word, registers, owner)]
