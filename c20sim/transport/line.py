@@ -64,6 +64,7 @@ from collections.abc import Callable
 from ..core.bus import Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
+from .due import DueEntry, due_timer
 
 __all__ = ["EARLY", "LATENCY_BUCKETS", "PEER_QUEUE", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
 
@@ -220,7 +221,7 @@ class Line:
         self.expired = 0
         self.cancelled = 0
         self._busy = False
-        self._timer: DueTimer | None = None
+        self._timer: DueEntry | None = None
         #: when the last held transaction ends (``time.perf_counter``): its reply may be handed over up to
         #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
         self._held_until = 0.0
@@ -472,7 +473,7 @@ class Line:
                 self._busy = True
                 due = max(time.perf_counter(), self._held_until) + hold
                 self._held_until = due
-                self._timer = DueTimer(self._loop(), due, self._release, reply, respond, asked)
+                self._timer = due_timer(self._loop(), due, self._release, reply, respond, asked)
                 return
             if reply is not None:
                 self.latency.observe(time.perf_counter() - asked)
