@@ -49,7 +49,9 @@ class LiveAudit:
         self.auditor = self._fresh()
         # the records the audit has still to see, and the line's baud they all went at (a baud change audits
         # the queue first: it is seldom, and a record then needs no baud of its own)
-        self._queue: list[FrameRecord] = []
+        #: (t, data, is a request) of each record queued: numbers and bytes, not the record and its decoded
+        #: message, which a collection would walk while they wait (a tuple of them the collector stops tracking)
+        self._queue: list[tuple[float, bytes, bool]] = []
         self._baud = self._bus.line_baud
         self._scheduled = False
         #: the loop the batches were last scheduled on, and its thread: asking for the running loop is a getpid()
@@ -79,7 +81,7 @@ class LiveAudit:
             self.drain()  # those queued went at the old baud (a 2009H write the line followed)
             self._baud = self._bus.line_baud
         queue = self._queue
-        queue.append(record)
+        queue.append((record.t, record.data, record.direction is Direction.RX))
         if len(queue) < BATCH:
             return
         if self._scheduled:
@@ -108,12 +110,12 @@ class LiveAudit:
         auditor = self.auditor
         if self._baud != auditor.baud:
             auditor.set_baud(self._baud)
-        request, reply, rx = auditor.request, auditor.reply, Direction.RX
-        for record in records:
-            if record.direction is rx:
-                request(record.t, record.data)
+        request, reply = auditor.request, auditor.reply
+        for t, data, is_request in records:
+            if is_request:
+                request(t, data)
             else:
-                reply(record.t, record.data)
+                reply(t, data)
 
     def findings(self) -> list[Finding]:
         """The findings so far; 200EH left on is judged at the line's time now (the monotonic clock the ports

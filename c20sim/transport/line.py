@@ -348,6 +348,8 @@ class Line:
         closes connections costs no memory beyond what waits (the heap forgets served and cancelled requests
         lazily, at their deadline, and each holds its connection until then)."""
         heap = self._deadlines
+        while heap and not heap[0][2].waiting:  # the one served is most often the earliest: it goes at once
+            heapq.heappop(heap)
         if len(heap) > 2 * self._count + 64:
             heap[:] = [entry for entry in heap if entry[2].waiting]  # in place: a caller may hold the list
             heapq.heapify(heap)
