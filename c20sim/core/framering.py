@@ -259,8 +259,12 @@ class FrameRing(Generic[R]):
         self._model_t[slot] = math.nan if model_t is None else model_t
         self._wall[slot] = math.nan if wall is None else wall
         self._slave[slot] = _NONE if record.slave is None else record.slave
-        self._direction[slot] = self._intern(record.direction)
-        self._kind[slot] = self._intern(record.kind)
+        index = self._index
+        direction, kind = record.direction, record.kind
+        found = index.get(id(direction))
+        self._direction[slot] = self._intern(direction) if found is None else found
+        found = index.get(id(kind))
+        self._kind[slot] = self._intern(kind) if found is None else found
         registers = record.registers
         self._registers[slot] = _NONE if registers is None else self._intern(registers)
         self._transaction[slot] = _NONE if mbap is None else mbap.transaction

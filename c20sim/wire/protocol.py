@@ -19,7 +19,7 @@ import functools
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 from .values import quick_init
 
@@ -259,28 +259,36 @@ Response = ReadResponse | WriteSingleResponse | WriteMultipleResponse | Exceptio
 
 def encode(message: Request | Response) -> bytes:
     """The RTU frame of a request or response, CRC included."""
-    match message:
-        case ReadRequest(slave, start, count):
-            body = struct.pack(">BBHH", slave, FunctionCode.READ_REGISTERS, start, count)
-        case WriteSingleRequest(slave, register, value):
-            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_SINGLE, register, value)
-        case WriteMultipleRequest(slave, start, values, count, byte_count):
-            body = struct.pack(">BBHHB", slave, FunctionCode.WRITE_MULTIPLE, start, count, byte_count) + struct.pack(
-                f">{len(values)}H", *values
-            )
-        case UnsupportedRequest(slave, function, data):
-            body = bytes((slave, function)) + data
-        case ReadResponse(slave, values):
-            body = struct.pack(f">BBB{len(values)}H", slave, FunctionCode.READ_REGISTERS, 2 * len(values), *values)
-        case WriteSingleResponse(slave, register, value):
-            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_SINGLE, register, value)
-        case WriteMultipleResponse(slave, start, count):
-            body = struct.pack(">BBHH", slave, FunctionCode.WRITE_MULTIPLE, start, count)
-        case ExceptionResponse(slave, _, code):
-            body = bytes((slave, message.function, code))
-        case _:  # pragma: no cover - exhaustive over the unions
-            raise TypeError(f"cannot encode {message!r}")
-    return with_crc(body)
+    encoder = _ENCODERS.get(message.__class__)
+    if encoder is None:  # pragma: no cover - exhaustive over the unions
+        raise TypeError(f"cannot encode {message!r}")
+    return with_crc(encoder(message))
+
+
+_SIX = struct.Struct(">BBHH").pack
+
+
+def _read_response(m: ReadResponse) -> bytes:
+    values = m.values
+    return struct.pack(f">BBB{len(values)}H", m.slave, FunctionCode.READ_REGISTERS, 2 * len(values), *values)
+
+
+def _write_multiple_request(m: WriteMultipleRequest) -> bytes:
+    head = struct.pack(">BBHHB", m.slave, FunctionCode.WRITE_MULTIPLE, m.start, m.count, m.byte_count)
+    return head + struct.pack(f">{len(m.values)}H", *m.values)
+
+
+#: The body (without CRC) of each message, by its class: a dict, not a match, since every reply is encoded.
+_ENCODERS: dict[type, Callable[[Any], bytes]] = {
+    ReadRequest: lambda m: _SIX(m.slave, FunctionCode.READ_REGISTERS, m.start, m.count),
+    WriteSingleRequest: lambda m: _SIX(m.slave, FunctionCode.WRITE_SINGLE, m.register, m.value),
+    WriteMultipleRequest: _write_multiple_request,
+    UnsupportedRequest: lambda m: bytes((m.slave, m.function)) + m.data,
+    ReadResponse: _read_response,
+    WriteSingleResponse: lambda m: _SIX(m.slave, FunctionCode.WRITE_SINGLE, m.register, m.value),
+    WriteMultipleResponse: lambda m: _SIX(m.slave, FunctionCode.WRITE_MULTIPLE, m.start, m.count),
+    ExceptionResponse: lambda m: bytes((m.slave, m.function, m.code)),
+}
 
 
 Direction = Literal["request", "response"]
