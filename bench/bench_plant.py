@@ -27,6 +27,10 @@ turnaround)`` (13.458 ms at 19200 8N1 with 2 ms: 74.3 transactions/s per bus).
    tracks (``gc.get_objects``: start-up frozen, and what the serving added), the collections of each
    generation those requests caused and their longest pause (``gc.callbacks``), and one full collection
    timed. This is the part a collection costs every bus at once, without the machine's noise of parts 1-3.
+5. The same over the wire: N buses served by ``Server`` in this process (serve's defaults: bus timing, the live
+   audit), polled by loadgen (pinned to the other core) for ``--seconds``; the collections in that time and their
+   longest pause in CPU time (``time.thread_time``: not the time another process held the core), and the tracked
+   objects beside the frozen start-up at the end, by type (the five commonest).
 
 Beside each figure, what else held the server: "core taken" is the time it was ready to run but its core ran
 another process (run queue wait, /proc/PID/task/*/schedstat) or the hypervisor ran something else (steal,
@@ -53,10 +57,11 @@ import time
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import ChildServer, ServerSpec, loadgen, machine, percentile, pin_process
+from _common import ChildServer, ServerSpec, loadgen, loadgen_binary, machine, percentile, pin_process
 
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
@@ -707,6 +712,102 @@ def part4(steps: Sequence[int], per_bus: int) -> None:
     )
 
 
+# --- part 5: collections while serving over TCP
+
+
+class _Collections:
+    """gc.callbacks: collections per generation and the longest of each, in this thread's CPU time."""
+
+    def __init__(self) -> None:
+        self.counts = [0, 0, 0]
+        self.longest = [0.0, 0.0, 0.0]
+        self._began = 0.0
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._began = time.thread_time()
+            return
+        g = info["generation"]
+        self.counts[g] += 1
+        self.longest[g] = max(self.longest[g], time.thread_time() - self._began)
+
+
+async def serving_collections(buses: int, seconds: float, client_cores: set[int] | None) -> tuple[Any, ...]:
+    """Serve ``buses`` buses over TCP in this process while loadgen polls each; what the collector did."""
+    import collections
+
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.serve import Server
+
+    profile = load_profile()
+    servers = []
+    try:
+        for i in range(buses):
+            sim = Simulator(profile, (1,), clock=RealtimeClock(), seed=i)
+            server = Server(sim, ServeOptions(tcp="127.0.0.1:0"))
+            await server.start()
+            servers.append(server)
+        gc.collect()
+        gc.freeze()  # as serve does at the end of its start-up
+        args = [str(loadgen_binary()), "--conns", str(buses), "--seconds", str(seconds), "--warmup", "0.5"]
+        args += ["--frame", encode(ReadRequest(1, Reg.STATUS1, 1)).hex()]
+        for server in servers:
+            args += ["--port", str(server.endpoints.tcp.port)]  # type: ignore[union-attr]
+        if client_cores:
+            args = ["taskset", "-c", ",".join(map(str, sorted(client_cores))), *args]
+        watch = _Collections()
+        client = await asyncio.create_subprocess_exec(*args, stdout=asyncio.subprocess.PIPE)
+        await asyncio.sleep(0.5)  # its warm-up
+        gc.callbacks.append(watch)
+        try:
+            await asyncio.sleep(seconds)
+        finally:
+            gc.callbacks.remove(watch)
+        tracked = gc.get_objects()
+        kinds = collections.Counter(type(o).__qualname__ for o in tracked).most_common(5)
+        count = len(tracked)
+        del tracked
+        await client.communicate()
+        return watch.counts, watch.longest, count, kinds
+    finally:
+        for server in servers:
+            await server.aclose()
+        gc.unfreeze()
+
+
+def part5(steps: Sequence[int], seconds: float, server_cores: set[int], client_cores: set[int] | None) -> None:
+    import uvloop
+
+    print(f"## 5. Collections while serving over TCP: N buses in this process, loadgen polling each, {seconds:g} s\n")
+    rows = []
+    allowed = os.sched_getaffinity(0)
+    for n in steps:
+        os.sched_setaffinity(0, server_cores)  # this process serves: on the server's core, as parts 1-3's child
+        try:
+            counts, longest, count, kinds = uvloop.run(serving_collections(n, seconds, client_cores))
+        finally:
+            os.sched_setaffinity(0, allowed)
+        rows.append(
+            [
+                str(n),
+                " / ".join(map(str, counts)),
+                " / ".join(f"{x * 1e3:.2f}" for x in longest),
+                str(count),
+                ", ".join(f"{name} {k}" for name, k in kinds),
+            ]
+        )
+    table(
+        [
+            "buses",
+            "collections gen 0 / 1 / 2",
+            "longest, ms of CPU, gen 0 / 1 / 2",
+            "tracked beside the frozen start-up",
+            "commonest tracked",
+        ],
+        rows,
+    )
+
+
 def cores() -> tuple[set[int], set[int] | None]:
     """The server's core and the client's: the first two this process may use; one core: both on it."""
     allowed = sorted(os.sched_getaffinity(0))
@@ -737,7 +838,7 @@ def main() -> None:
     parser.add_argument(
         "--plant-requests", type=int, default=2000, help="part 4's reads a bus after the rings are full (default 2000)"
     )
-    parser.add_argument("--parts", type=_ints, default=(0, 1, 2, 3, 4), help="which parts, comma-separated")
+    parser.add_argument("--parts", type=_ints, default=(0, 1, 2, 3, 4, 5), help="which parts, comma-separated")
     args = parser.parse_args()
     server_cores, client_cores = cores()
     line = line_figures()
@@ -751,6 +852,7 @@ def main() -> None:
             2: lambda: part2(bench, args.line_seconds),
             3: lambda: part3(bench, line, args.conns_per_bus),
             4: lambda: part4(steps, args.plant_requests),
+            5: lambda: part5(steps, args.seconds, server_cores, client_cores),
         }
         began = time.monotonic()
         for part in args.parts:
