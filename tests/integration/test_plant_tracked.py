@@ -43,6 +43,7 @@ async def test_frames_served_leave_no_tracked_object_behind() -> None:
     base = load_profile()
     profile = dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, turnaround_ms=0.5))
     servers = []
+    before = per_frame_objects()  # what other tests left in this process
     try:
         for i in range(BUSES):
             sim = Simulator(profile, (1,), clock=RealtimeClock(), seed=i)
@@ -51,7 +52,8 @@ async def test_frames_served_leave_no_tracked_object_behind() -> None:
             servers.append(server)
         frame = encode(ReadRequest(1, Reg.STATUS1, 1))
         await asyncio.gather(*(_poll(s.endpoints.tcp.port, frame) for s in servers))  # type: ignore[union-attr]
-        left = per_frame_objects()
+        after = per_frame_objects()
+        left = {kind: after[kind] - before[kind] for kind in after}
         assert all(len(s.sim.bus.records) == 2 * READS for s in servers)  # every frame is in the rings
         # what waits in the line, the live audit's queue and the rings is bytes and numbers: at most the
         # objects of one transaction a bus (a request the line still names as its last) stay tracked
