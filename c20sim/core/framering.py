@@ -4,9 +4,9 @@ A serving process keeps every bus's last ``log_size`` frames (2000 by default) f
 dashboard and the tests. Kept as objects (a record, its decoded request or response), that is four to five
 thousand objects a bus that the garbage collector tracks, and a full collection walks all of them while every
 bus waits: 1,024,770 of them and 344 ms at 256 buses (bench/bench_plant.py part 4). The ring keeps each record
-as the numbers and bytes it is made of, one tuple of them in a list made at start, which the collector stops
-tracking the first time it sees it (bytes, str, floats and ints hold no references), and makes the record anew
-when it is read. What reads it (GET /frames, a test, the dashboard's first look) is rare beside what writes it (two records
+as the numbers and bytes it is made of, in arrays and lists made at start and written in place, none of which
+the collector tracks (bytes, str, floats and ints hold no references), and makes the record anew when it is
+read. What reads it (GET /frames, a test, the dashboard's first look) is rare beside what writes it (two records
 a request).
 
 A record read back equals the one appended (dataclass equality, and every field the equality leaves out), for
@@ -18,7 +18,9 @@ direction and kind, the drive's register map) are interned in tables of a few en
 
 from __future__ import annotations
 
+import math
 import struct
+from array import array
 from collections.abc import Iterator
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -40,10 +42,14 @@ from ..wire.protocol import (
 
 __all__ = ["FrameRing", "pack_message", "unpack_message"]
 
-#: How ``words`` is kept: its text, nothing (decoded from the frame again), or packed (:func:`pack_message`)
+#: How ``words`` is kept (the low bits of a slot's flags)
 _TEXT, _SAME_AS_DATA, _PACKED = 0, 1, 2
+_WORDS = 3
+_FROM_GATEWAY = 4
+_REQUEST_FRAME = 8  #: the request is kept as its frame (that of a request record), not packed
 #: Distinct objects (directions, kinds, register maps) a ring interns before it renumbers what it holds.
 MAX_INTERNED = 256
+_NONE = -1
 _FOUR = struct.Struct("<BBHH").pack
 #: Request records an iteration remembers, so that a reply's request is the very object its request record holds
 _RECENT = 16
@@ -143,15 +149,14 @@ def unpack_message(packed: bytes) -> Request | Response:
     return ExceptionResponse(slave, a, code)
 
 
+def _numbers(typecode: str, size: int, fill: float) -> array[Any]:
+    return array(typecode, [fill]) * size if typecode == "d" else array(typecode, [int(fill)]) * size
+
+
 class FrameRing(Generic[R]):
     """The newest ``maxlen`` records, as a ``deque(maxlen=...)`` of them reads: ``len``, iteration oldest first,
-    an index (negative from the newest), ``append`` (the oldest goes when full), ``popleft`` and ``clear``.
-    ``make`` builds a record from its fields (the record's class).
-
-    A slot holds one tuple of the record's atoms (numbers, bytes, str, None; the objects it names are table
-    indexes): the collector stops tracking such a tuple the first time it looks at it, and never walks it
-    again. One tuple a record costs the request path half what writing each field to an array of its own did.
-    """
+    an index (negative from the newest), ``append`` (the oldest goes when full) and ``clear``. ``make`` builds
+    a record from its fields (the record's class)."""
 
     def __init__(self, maxlen: int, make: Any) -> None:
         if maxlen < 0:
@@ -160,7 +165,23 @@ class FrameRing(Generic[R]):
         self._maxlen = maxlen
         self._start = 0
         self._len = 0
-        self._slots: list[tuple[Any, ...] | None] = [None] * maxlen
+        n = maxlen
+        self._t = _numbers("d", n, 0.0)
+        self._model_t = _numbers("d", n, math.nan)
+        self._wall = _numbers("d", n, math.nan)
+        self._slave = _numbers("h", n, _NONE)
+        self._flags = _numbers("b", n, 0)
+        self._direction = _numbers("h", n, 0)
+        self._kind = _numbers("h", n, 0)
+        self._registers = _numbers("h", n, _NONE)
+        self._transaction = _numbers("l", n, _NONE)
+        self._unit = _numbers("h", n, _NONE)
+        #: a reply's request, when it is the words of a request record still held: how many records back
+        self._back = _numbers("l", n, 0)
+        self._data: list[bytes] = [b""] * n
+        self._note: list[str] = [""] * n
+        self._words: list[bytes | str] = [b""] * n
+        self._request: list[bytes] = [b""] * n
         #: interned objects (directions, kinds, register maps): their index, by identity
         self._table: list[Any] = []
         self._index: dict[int, int] = {}
@@ -190,14 +211,14 @@ class FrameRing(Generic[R]):
 
     def _renumber(self) -> None:
         """The table is full: keep only what the records held refer to, numbered anew."""
-        held = [self._slots[slot] for slot in self._slot_numbers()]
-        used = sorted({ix for kept in held if kept is not None for ix in (kept[1], kept[3], kept[9]) if ix is not None})
-        new = {old: i for i, old in enumerate(used)}
-        for slot in self._slot_numbers():
-            kept = self._slots[slot]
-            assert kept is not None
-            registers = None if kept[9] is None else new[kept[9]]
-            self._slots[slot] = (*kept[:1], new[kept[1]], kept[2], new[kept[3]], *kept[4:9], registers, *kept[10:])
+        used = sorted(
+            {ix for arr in (self._direction, self._kind, self._registers) for ix in self._slots(arr) if ix >= 0}
+        )
+        renumbered = {old: new for new, old in enumerate(used)}
+        for arr in (self._direction, self._kind, self._registers):
+            for slot in self._slot_numbers():
+                if arr[slot] >= 0:
+                    arr[slot] = renumbered[arr[slot]]
         self._table = [self._table[old] for old in used]
         self._index = {id(obj): i for i, obj in enumerate(self._table)}
 
@@ -205,81 +226,71 @@ class FrameRing(Generic[R]):
         for i in range(self._len):
             yield (self._start + i) % self._maxlen
 
+    def _slots(self, arr: array[Any]) -> Iterator[int]:
+        for slot in self._slot_numbers():
+            yield arr[slot]
+
     def append(self, record: R) -> None:
         """Keep ``record`` (its fields), dropping the oldest when full."""
-        maxlen = self._maxlen
-        if not maxlen:
+        if not self._maxlen:
             return
-        if self._len < maxlen:
-            slot = (self._start + self._len) % maxlen
+        if self._len < self._maxlen:
+            slot = (self._start + self._len) % self._maxlen
             self._len += 1
         else:
             slot = self._start
-            self._start = (slot + 1) % maxlen
+            self._start = (self._start + 1) % self._maxlen
         words = record.words
-        kept: bytes | str | None
-        if words.__class__ is str:
-            how, kept = _TEXT, words
+        kept: bytes | str
+        if isinstance(words, str):
+            flags, kept = _TEXT, words
         elif record.request is None and words.__class__ in _REQUESTS and record.direction == "rx":
-            how, kept = _SAME_AS_DATA, None  # the bus decoded it from the frame: read back by decoding it again
-            self._rx_slot, self._rx_words = slot, words
+            flags, kept = _SAME_AS_DATA, b""  # the bus decoded it from the frame: read back by decoding it again
         else:
-            how, kept = _PACKED, pack_message(words)  # type: ignore[arg-type]
+            flags, kept = _PACKED, pack_message(words)
+        if flags == _SAME_AS_DATA:
+            self._rx_slot, self._rx_words = slot, words
+        if record.from_gateway:
+            flags |= _FROM_GATEWAY
+        self._flags[slot] = flags
+        self._words[slot] = kept
+        self._t[slot] = record.t
+        model_t, wall, mbap = record.model_t, record.wall, record.mbap
+        self._model_t[slot] = math.nan if model_t is None else model_t
+        self._wall[slot] = math.nan if wall is None else wall
+        self._slave[slot] = _NONE if record.slave is None else record.slave
         index = self._index
-        direction, kind, registers = record.direction, record.kind, record.registers
-        d = index.get(id(direction))
-        if d is None:
-            d = self._intern(direction)
-        k = index.get(id(kind))
-        if k is None:
-            k = self._intern(kind)
-        r = None
-        if registers is not None:
-            r = index.get(id(registers))
-            if r is None:
-                r = self._intern(registers)
+        direction, kind = record.direction, record.kind
+        found = index.get(id(direction))
+        self._direction[slot] = self._intern(direction) if found is None else found
+        found = index.get(id(kind))
+        self._kind[slot] = self._intern(kind) if found is None else found
+        registers = record.registers
+        self._registers[slot] = _NONE if registers is None else self._intern(registers)
+        self._transaction[slot] = _NONE if mbap is None else mbap.transaction
+        self._unit[slot] = _NONE if mbap is None else mbap.unit
+        self._data[slot] = record.data
+        self._note[slot] = record.note
         request = record.request
         back = 0
-        packed: bytes | None = None
-        if request is not None:
-            if request is self._rx_words and self._rx_slot != slot:
-                # its frame, which the request record holds already (bytes are shared, not copied); read back
-                # as that very object in one pass, as the bus made it
-                back = (slot - self._rx_slot) % maxlen
-                kept_rx = self._slots[self._rx_slot]
-                assert kept_rx is not None
-                packed = kept_rx[2]
-            else:
-                packed = pack_message(request)
-        mbap = record.mbap
-        self._slots[slot] = (
-            record.t,
-            d,
-            record.data,
-            k,
-            record.slave,
-            how,
-            kept,
-            record.note,
-            record.model_t,
-            r,
-            packed,
-            back,
-            record.wall,
-            None if mbap is None else mbap.transaction,
-            None if mbap is None else mbap.unit,
-            record.from_gateway,
-        )
+        if request is not None and request is self._rx_words and self._rx_slot != slot:
+            back = (slot - self._rx_slot) % self._maxlen  # read back as that very object, as the bus made it
+        self._back[slot] = back
+        if back:  # its frame, which the request record holds already (bytes are shared, not copied)
+            self._flags[slot] = flags | _REQUEST_FRAME
+            self._request[slot] = self._data[self._rx_slot]
+        else:
+            self._request[slot] = b"" if request is None else pack_message(request)
 
     def _record(self, slot: int, recent: dict[int, Any] | None = None) -> R:
         """The record in ``slot``; ``recent``: the requests read so far by slot (a reply's request is then that
         same object, as it was on the bus), filled in as it goes."""
-        kept = self._slots[slot]
-        assert kept is not None
-        t, d, data, k, slave, how, words_kept, note, model_t, r, packed, back, wall, transaction, unit, gateway = kept
+        flags, kept, data = self._flags[slot], self._words[slot], self._data[slot]
         words: str | Request | Response
+        how = flags & _WORDS
         if how == _TEXT:
-            words = words_kept
+            assert isinstance(kept, str)
+            words = kept
         elif how == _SAME_AS_DATA:
             words = decode_request(data, check_crc=False)
             if recent is not None:
@@ -287,30 +298,34 @@ class FrameRing(Generic[R]):
                 if len(recent) > _RECENT:
                     del recent[next(iter(recent))]
         else:
-            words = unpack_message(words_kept)
+            assert isinstance(kept, bytes)
+            words = unpack_message(kept)
+        model_t, wall, transaction = self._model_t[slot], self._wall[slot], self._transaction[slot]
+        registers = self._registers[slot]
+        packed = self._request[slot]
         request: Any = None
-        if back:
+        if flags & _REQUEST_FRAME:
+            back = self._back[slot]
             if back <= (slot - self._start) % self._maxlen:  # its request record is still held
                 request = (recent or {}).get((slot - back) % self._maxlen)
             if request is None:
                 request = decode_request(packed, check_crc=False)  # that record has gone, or is read alone
-        elif packed is not None:
+        elif packed:
             request = unpack_message(packed)
-        table = self._table
         record: R = self._make(
-            t,
-            table[d],
+            self._t[slot],
+            self._table[self._direction[slot]],
             data,
-            table[k],
-            slave,
+            self._table[self._kind[slot]],
+            None if self._slave[slot] == _NONE else self._slave[slot],
             words,
-            note,
-            model_t,
-            None if r is None else table[r],
+            self._note[slot],
+            None if model_t != model_t else model_t,
+            None if registers == _NONE else self._table[registers],
             request,
-            wall=wall,
-            mbap=None if transaction is None else MbapHeader(transaction, unit),
-            from_gateway=gateway,
+            wall=None if wall != wall else wall,
+            mbap=None if transaction == _NONE else MbapHeader(transaction, self._unit[slot]),
+            from_gateway=bool(flags & _FROM_GATEWAY),
         )
         return record
 
@@ -332,7 +347,8 @@ class FrameRing(Generic[R]):
             raise IndexError("pop from an empty frame ring")
         slot = self._start
         record = self._record(slot)
-        self._slots[slot] = None
+        self._data[slot] = self._request[slot] = b""
+        self._words[slot] = self._note[slot] = ""
         self._start = (slot + 1) % self._maxlen
         self._len -= 1
         return record
@@ -340,7 +356,10 @@ class FrameRing(Generic[R]):
     def clear(self) -> None:
         """Forget every record (the storage stays, for the next)."""
         self._start = self._len = 0
-        self._slots = [None] * self._maxlen
+        for i in range(self._maxlen):
+            self._data[i] = self._request[i] = b""
+            self._words[i] = b""
+            self._note[i] = ""
         self._table.clear()
         self._index.clear()
         self._rx_slot, self._rx_words = -1, None
