@@ -46,6 +46,8 @@ __all__ = ["FrameRing", "pack_message", "unpack_message"]
 _TEXT, _SAME_AS_DATA, _PACKED = 0, 1, 2
 _WORDS = 3
 _FROM_GATEWAY = 4
+_MBAP = 16  #: the record has a Modbus TCP header: its transaction and unit are in their arrays (else stale there)
+_WALL = 32  #: the record has a wall-clock time: in its array (else stale there)
 _REQUEST_FRAME = 8  #: the request is kept as its frame (that of a request record), not packed
 #: Distinct objects (directions, kinds, register maps) a ring interns before it renumbers what it holds.
 MAX_INTERNED = 256
@@ -252,12 +254,19 @@ class FrameRing(Generic[R]):
             self._rx_slot, self._rx_words = slot, words
         if record.from_gateway:
             flags |= _FROM_GATEWAY
+        wall, mbap = record.wall, record.mbap
+        if wall is not None:  # the rare fields are written only when there: a flag says which are
+            flags |= _WALL
+            self._wall[slot] = wall
+        if mbap is not None:
+            flags |= _MBAP
+            self._transaction[slot] = mbap.transaction
+            self._unit[slot] = mbap.unit
         self._flags[slot] = flags
         self._words[slot] = kept
         self._t[slot] = record.t
-        model_t, wall, mbap = record.model_t, record.wall, record.mbap
+        model_t = record.model_t
         self._model_t[slot] = math.nan if model_t is None else model_t
-        self._wall[slot] = math.nan if wall is None else wall
         self._slave[slot] = _NONE if record.slave is None else record.slave
         index = self._index
         direction, kind = record.direction, record.kind
@@ -267,8 +276,6 @@ class FrameRing(Generic[R]):
         self._kind[slot] = self._intern(kind) if found is None else found
         registers = record.registers
         self._registers[slot] = _NONE if registers is None else self._intern(registers)
-        self._transaction[slot] = _NONE if mbap is None else mbap.transaction
-        self._unit[slot] = _NONE if mbap is None else mbap.unit
         self._data[slot] = record.data
         self._note[slot] = record.note
         request = record.request
@@ -300,7 +307,9 @@ class FrameRing(Generic[R]):
         else:
             assert isinstance(kept, bytes)
             words = unpack_message(kept)
-        model_t, wall, transaction = self._model_t[slot], self._wall[slot], self._transaction[slot]
+        model_t = self._model_t[slot]
+        wall = self._wall[slot] if flags & _WALL else None
+        transaction = self._transaction[slot] if flags & _MBAP else _NONE
         registers = self._registers[slot]
         packed = self._request[slot]
         request: Any = None
@@ -323,7 +332,7 @@ class FrameRing(Generic[R]):
             None if model_t != model_t else model_t,
             None if registers == _NONE else self._table[registers],
             request,
-            wall=None if wall != wall else wall,
+            wall=wall,
             mbap=None if transaction == _NONE else MbapHeader(transaction, self._unit[slot]),
             from_gateway=bool(flags & _FROM_GATEWAY),
         )
