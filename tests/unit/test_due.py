@@ -167,3 +167,41 @@ def test_on_a_real_loop_replies_of_one_millisecond_leave_in_due_order(loop_name:
     assert ran == sorted(ran)
     assert min(lateness) >= -EARLY
     assert queue.released == 120 and len(queue) == 0
+
+
+async def test_many_lines_on_one_loop_hand_their_held_replies_over_from_one_queue_in_due_order() -> None:
+    """40 buses under bus timing, a read submitted to each in turn: each line holds its reply for the transaction's
+    time on its line; the replies come from the loop's one queue, in the order they were due, none early."""
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.core.simulator import Simulator
+    from c20sim.drive.profile import load_profile
+    from c20sim.transport.line import Line
+    from c20sim.wire.protocol import FrameEvent, FrameKind, ReadRequest, encode
+
+    loop = asyncio.get_running_loop()
+    queue = queue_of(loop)
+    released = queue.released
+    profile = load_profile()
+    lines = [Line(Simulator(profile, (1,), clock=RealtimeClock(), seed=i), bus_timing=True) for i in range(40)]
+    frame = encode(ReadRequest(1, 0x2100, 1))
+    handed: list[tuple[int, float]] = []
+    dues: dict[int, float] = {}
+    done = loop.create_future()
+
+    def respond(i: int, reply: object) -> None:
+        assert reply is not None
+        handed.append((i, time.perf_counter()))
+        if len(handed) == len(lines) and not done.done():
+            done.set_result(None)
+
+    for i, line in enumerate(lines):
+        line.submit(FrameEvent(FrameKind.FRAME, frame, time.perf_counter()), lambda r, i=i: respond(i, r))
+        assert line.busy and line.free_at is not None
+        dues[i] = line.free_at
+    assert len(queue) >= len(lines)  # held in the loop's queue, not a loop timer each
+    await asyncio.wait_for(done, 5.0)
+    assert [i for i, _ in handed] == sorted(dues, key=lambda i: dues[i])
+    assert all(at >= dues[i] - EARLY for i, at in handed)
+    assert queue.released - released == len(lines)
+    for line in lines:
+        line.close()
