@@ -40,7 +40,7 @@ from tests.browser.chromium import CHROMIUM, PYODIDE, Browser, serve_site  # noq
 WORKLOAD = r"""
 import json, time
 from c20sim.browser.page import start
-from c20sim.wire.protocol import RtuFramer
+from c20sim.wire.framing import RtuFramer
 
 def bench():
     out = {}

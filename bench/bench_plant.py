@@ -21,6 +21,16 @@ turnaround)`` (13.458 ms at 19200 8N1 with 2 ms: 74.3 transactions/s per bus).
    (line-bound): requests/s, CPU us per request, latency, and the fewest and most requests any connection got.
 3. 8 buses x 32 drives polled at once (a read of each of the 32 addresses, round robin, ``--conns-per-bus`` per
    bus), bus timing on and off (turnaround 0).
+4. Collections of a long-running plant, in this process, no sockets: N simulators (one drive each, the default
+   ring of 2000 frame records) served a read of 2100H until every ring is full, start-up frozen as serve
+   freezes it (``gc.freeze``), then a fixed number of further requests per bus: the objects the collector
+   tracks (``gc.get_objects``: start-up frozen, and what the serving added), the collections of each
+   generation those requests caused and their longest pause (``gc.callbacks``), and one full collection
+   timed. This is the part a collection costs every bus at once, without the machine's noise of parts 1-3.
+5. The same over the wire: N buses served by ``Server`` in this process (serve's defaults: bus timing, the live
+   audit), polled by loadgen (pinned to the other core) for ``--seconds``; the collections in that time and their
+   longest pause in CPU time (``time.thread_time``: not the time another process held the core), and the tracked
+   objects beside the frozen start-up at the end, by type (the five commonest).
 
 Beside each figure, what else held the server: "core taken" is the time it was ready to run but its core ran
 another process (run queue wait, /proc/PID/task/*/schedstat) or the hypervisor ran something else (steal,
@@ -39,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import os
 import sys
 import tempfile
@@ -46,10 +57,11 @@ import time
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import ChildServer, ServerSpec, loadgen, machine, percentile, pin_process
+from _common import ChildServer, ServerSpec, loadgen, loadgen_binary, machine, percentile, pin_process
 
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
@@ -590,6 +602,212 @@ def part3(bench: Bench, line: LineFigures, conns_per_bus: int) -> None:
     )
 
 
+# --- part 4: collections of a long-running plant
+
+
+@dataclass
+class Collections:
+    """What the collector did while ``requests`` requests were served (:func:`plant_collections`)."""
+
+    buses: int
+    tracked_frozen: int  #: objects tracked at the end of start-up, frozen
+    tracked_serving: int  #: tracked objects not frozen, with every ring full
+    requests: int
+    counts: tuple[int, int, int]  #: collections of generations 0, 1, 2
+    longest: tuple[float, float, float]  #: the longest pause of each generation, seconds
+    full: float  #: one gc.collect() with every ring full, seconds
+
+
+def plant_collections(buses: int, per_bus: int, log_size: int = 2000) -> Collections:
+    """N simulators served in this process (no I/O): start-up frozen, the rings filled, then ``per_bus``
+    requests a bus, timed by the collector's own callbacks."""
+    from c20sim.wire.protocol import FrameEvent, FrameKind
+
+    profile = load_profile()
+    gc.collect()
+    sims = [Simulator(profile, (1,), seed=i, log_size=log_size) for i in range(buses)]
+    frame = encode(ReadRequest(1, Reg.STATUS1, 1))
+    gc.collect()
+    gc.freeze()  # as serve does at the end of its start-up
+    frozen = gc.get_freeze_count()
+    t = 0.0
+
+    def serve(rounds: int) -> None:
+        nonlocal t
+        for _ in range(rounds):
+            t += 0.0135
+            for sim in sims:
+                sim.bus.handle(FrameEvent(FrameKind.FRAME, frame, t), t)
+
+    try:
+        serve(log_size // 2 + 1)  # two records a request: every ring full
+        gc.collect()
+        serving = len(gc.get_objects())
+        began: list[float] = [0.0]
+        counts = [0, 0, 0]
+        longest = [0.0, 0.0, 0.0]
+
+        def timed(phase: str, info: dict[str, int]) -> None:
+            if phase == "start":
+                began[0] = time.perf_counter()
+                return
+            g = info["generation"]
+            counts[g] += 1
+            longest[g] = max(longest[g], time.perf_counter() - began[0])
+
+        gc.callbacks.append(timed)
+        try:
+            serve(per_bus)
+        finally:
+            gc.callbacks.remove(timed)
+        t0 = time.perf_counter()
+        gc.collect()
+        full = time.perf_counter() - t0
+    finally:
+        sims.clear()
+        gc.unfreeze()
+        gc.collect()
+    return Collections(
+        buses,
+        frozen,
+        serving,
+        buses * per_bus,
+        (counts[0], counts[1], counts[2]),
+        tuple(longest),
+        full,  # type: ignore[arg-type]
+    )
+
+
+def part4(steps: Sequence[int], per_bus: int) -> None:
+    print(
+        f"## 4. Collections of a long-running plant: N buses, every frame-log ring full (2000 records), then "
+        f"{per_bus} reads a bus, in this process\n"
+    )
+    rows = []
+    for n in steps:
+        c = plant_collections(n, per_bus)
+        print(f"  part 4 N={n}: {c.tracked_serving} tracked, full collection {c.full * 1e3:.1f} ms", file=sys.stderr)
+        rows.append(
+            [
+                str(n),
+                f"{c.tracked_frozen}",
+                f"{c.tracked_serving}",
+                f"{c.requests}",
+                " / ".join(str(x) for x in c.counts),
+                " / ".join(f"{x * 1e3:.2f}" for x in c.longest),
+                f"{c.full * 1e3:.2f}",
+            ]
+        )
+    table(
+        [
+            "buses",
+            "tracked, frozen at start-up",
+            "tracked while serving (rings full)",
+            "requests",
+            "collections gen 0 / 1 / 2",
+            "longest pause ms gen 0 / 1 / 2",
+            "one full collection ms",
+        ],
+        rows,
+    )
+
+
+# --- part 5: collections while serving over TCP
+
+
+class _Collections:
+    """gc.callbacks: collections per generation and the longest of each, in this thread's CPU time."""
+
+    def __init__(self) -> None:
+        self.counts = [0, 0, 0]
+        self.longest = [0.0, 0.0, 0.0]
+        self._began = 0.0
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._began = time.thread_time()
+            return
+        g = info["generation"]
+        self.counts[g] += 1
+        self.longest[g] = max(self.longest[g], time.thread_time() - self._began)
+
+
+async def serving_collections(buses: int, seconds: float, client_cores: set[int] | None) -> tuple[Any, ...]:
+    """Serve ``buses`` buses over TCP in this process while loadgen polls each; what the collector did."""
+    import collections
+
+    from c20sim.core.clock import RealtimeClock
+    from c20sim.serve import Server
+
+    profile = load_profile()
+    servers = []
+    try:
+        for i in range(buses):
+            sim = Simulator(profile, (1,), clock=RealtimeClock(), seed=i)
+            server = Server(sim, ServeOptions(tcp="127.0.0.1:0"))
+            await server.start()
+            servers.append(server)
+        gc.collect()
+        gc.freeze()  # as serve does at the end of its start-up
+        args = [str(loadgen_binary()), "--conns", str(buses), "--seconds", str(seconds), "--warmup", "0.5"]
+        args += ["--frame", encode(ReadRequest(1, Reg.STATUS1, 1)).hex()]
+        for server in servers:
+            args += ["--port", str(server.endpoints.tcp.port)]  # type: ignore[union-attr]
+        if client_cores:
+            args = ["taskset", "-c", ",".join(map(str, sorted(client_cores))), *args]
+        watch = _Collections()
+        client = await asyncio.create_subprocess_exec(*args, stdout=asyncio.subprocess.PIPE)
+        await asyncio.sleep(0.5)  # its warm-up
+        gc.callbacks.append(watch)
+        try:
+            await asyncio.sleep(seconds)
+        finally:
+            gc.callbacks.remove(watch)
+        tracked = gc.get_objects()
+        kinds = collections.Counter(type(o).__qualname__ for o in tracked).most_common(5)
+        count = len(tracked)
+        del tracked
+        await client.communicate()
+        return watch.counts, watch.longest, count, kinds
+    finally:
+        for server in servers:
+            await server.aclose()
+        gc.unfreeze()
+
+
+def part5(steps: Sequence[int], seconds: float, server_cores: set[int], client_cores: set[int] | None) -> None:
+    import uvloop
+
+    print(f"## 5. Collections while serving over TCP: N buses in this process, loadgen polling each, {seconds:g} s\n")
+    rows = []
+    allowed = os.sched_getaffinity(0)
+    for n in steps:
+        os.sched_setaffinity(0, server_cores)  # this process serves: on the server's core, as parts 1-3's child
+        try:
+            counts, longest, count, kinds = uvloop.run(serving_collections(n, seconds, client_cores))
+        finally:
+            os.sched_setaffinity(0, allowed)
+        rows.append(
+            [
+                str(n),
+                " / ".join(map(str, counts)),
+                " / ".join(f"{x * 1e3:.2f}" for x in longest),
+                str(count),
+                ", ".join(f"{name} {k}" for name, k in kinds),
+            ]
+        )
+    table(
+        [
+            "buses",
+            "collections gen 0 / 1 / 2",
+            "longest, ms of CPU, gen 0 / 1 / 2",
+            "tracked beside the frozen start-up",
+            "commonest tracked",
+        ],
+        rows,
+    )
+
+
 def cores() -> tuple[set[int], set[int] | None]:
     """The server's core and the client's: the first two this process may use; one core: both on it."""
     allowed = sorted(os.sched_getaffinity(0))
@@ -617,7 +835,10 @@ def main() -> None:
     )
     parser.add_argument("--conns-per-bus", type=int, default=4, help="part 3's connections per bus (default 4)")
     parser.add_argument("--timer-samples", type=int, default=60, help="calls per case of part 0 (default 60)")
-    parser.add_argument("--parts", type=_ints, default=(0, 1, 2, 3), help="which parts, comma-separated")
+    parser.add_argument(
+        "--plant-requests", type=int, default=2000, help="part 4's reads a bus after the rings are full (default 2000)"
+    )
+    parser.add_argument("--parts", type=_ints, default=(0, 1, 2, 3, 4, 5), help="which parts, comma-separated")
     args = parser.parse_args()
     server_cores, client_cores = cores()
     line = line_figures()
@@ -630,6 +851,8 @@ def main() -> None:
             1: lambda: part1(bench, line, steps, args.keep_up, args.paced_turnaround_ms / 1e3),
             2: lambda: part2(bench, args.line_seconds),
             3: lambda: part3(bench, line, args.conns_per_bus),
+            4: lambda: part4(steps, args.plant_requests),
+            5: lambda: part5(steps, args.seconds, server_cores, client_cores),
         }
         began = time.monotonic()
         for part in args.parts:

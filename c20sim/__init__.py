@@ -10,7 +10,8 @@ from .drive.model import Drive, HallFault, Telemetry
 from .drive.params import StateFileError
 from .drive.profile import DEFAULT_PROFILE, Profile, available_profiles, load_profile
 from .wire.errors import C20SimError, ModbusError, ProfileError
-from .wire.protocol import ExceptionCode, FunctionCode, RtuFramer, crc16
+from .wire.framing import RtuFramer
+from .wire.protocol import ExceptionCode, FunctionCode, crc16
 from .wire.registers import Access, Reg, RegisterMap
 
 __all__ = [

@@ -18,7 +18,7 @@ import pytest
 
 from c20sim.core.bus import Bus, Reply
 from c20sim.drive.profile import Profile, load_profile
-from c20sim.wire.protocol import RtuFramer
+from c20sim.wire.framing import RtuFramer
 
 
 @pytest.fixture(scope="session")

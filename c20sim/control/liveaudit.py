@@ -53,7 +53,9 @@ class LiveAudit:
         self.auditor = self._fresh()
         # the records the audit has still to see, all at the auditor's line settings (the bus tells a change,
         # which audits the queue first: it is seldom, and a record then needs no baud of its own)
-        self._queue: list[FrameRecord] = []
+        #: (t, data, is a request) of each record queued: numbers and bytes, not the record and its decoded
+        #: message, which a collection would walk while they wait (a tuple of them the collector stops tracking)
+        self._queue: list[tuple[float, bytes, bool]] = []
         self._scheduled = False
         #: the loop the batches were last scheduled on, and its thread: asking for the running loop is a getpid()
         #: system call on Python 3.11, so it is asked again only when that loop no longer runs, or for a record
@@ -81,7 +83,7 @@ class LiveAudit:
         if record.from_gateway:
             return  # the Modbus TCP gateway's own answer (0x0B after silence): never on the line
         queue = self._queue
-        queue.append(record)
+        queue.append((record.t, record.data, record.direction is Direction.RX))
         if len(queue) < BATCH:
             return
         if self._scheduled:
@@ -120,12 +122,12 @@ class LiveAudit:
             return
         self._queue = []
         auditor = self.auditor
-        request, reply, rx = auditor.request, auditor.reply, Direction.RX
-        for record in records:
-            if record.direction is rx:
-                request(record.t, record.data)
+        request, reply = auditor.request, auditor.reply
+        for t, data, is_request in records:
+            if is_request:
+                request(t, data)
             else:
-                reply(record.t, record.data)
+                reply(t, data)
 
     def findings(self) -> list[Finding]:
         """The findings so far; 200EH left on is judged at the line's time now (the monotonic clock the ports

@@ -34,11 +34,10 @@ from ..wire.registers import (
     Command,
     Reg,
     RunChannel,
-    UnknownRegister,
     address_label,
     is_fcode,
-    resolve_register,
 )
+from ..wire.vocabulary import UnknownRegister, resolve_register
 from .conditionops import (
     CONDITIONS,
     Condition,
@@ -140,7 +139,7 @@ def drive_state(sim: Simulator, address: int) -> dict[str, Any]:
 
 def register_address(text: object) -> int:
     """A register's address from its spelling alone, in the one vocabulary of every tool
-    (:func:`~c20sim.wire.registers.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
+    (:func:`~c20sim.wire.vocabulary.resolve_register`): ``speed``, ``motor_speed``, ``motor speed``, ``3006H``,
     ``0x3006``, ``12294``, ``F00.10`` or an int.
 
     The spelling only: whether a profile has the register is :func:`parse_register`'s question.

@@ -22,8 +22,10 @@ character size) whenever either changes, by a write the line followed (once
 the request is served, its reply recorded at the old baud), a reset, or the
 serial settings given to :attr:`Bus.char_bits`. Nobody polls the baud.
 
-Every frame in and out becomes a :class:`FrameRecord` in a bounded ring,
-and is passed to each listener (the JSON-lines writer, the dashboard).
+Every frame in and out becomes a :class:`FrameRecord` in a bounded ring
+(:class:`~c20sim.core.framering.FrameRing`: kept as bytes and numbers, which
+no garbage collection walks), and is passed to each listener (the JSON-lines
+writer, the dashboard).
 
 Every event also has its time on a real RS485 line
 (:func:`~c20sim.wire.protocol.transaction_time` at the line's baud and
@@ -40,7 +42,6 @@ import enum
 import functools
 import logging
 import random
-from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -64,6 +65,7 @@ from ..wire.protocol import (
 )
 from ..wire.registers import RegisterMap
 from ..wire.values import quick_init
+from .framering import FrameRing
 from .linkfaults import LinkFaults
 from .slave import Slave
 
@@ -257,7 +259,7 @@ class Bus:
         self._link_of = dict(zip(self.slaves, self.drive_links, strict=True))
         self._at: dict[int, Slave] = {}  #: address -> drive, a cache checked on every use
         self.rng = random.Random(seed)
-        self.records: deque[FrameRecord] = deque(maxlen=log_size)
+        self.records: FrameRing[FrameRecord] = FrameRing(log_size, FrameRecord)
         #: the listeners, a tuple made anew when one comes or goes: a record calls each without a copy
         self._listening: tuple[Callable[[FrameRecord], None], ...] = ()
         #: traffic per address on the frames (at most 256 entries), and bytes that were no frame

@@ -131,29 +131,43 @@ class Slave:
     # -- requests
 
     def _serve(self, request: Request) -> Response:
-        match request:
-            case ReadRequest(slave, start, count):
-                return ReadResponse(slave, self._read(start, count))
-            case WriteSingleRequest(slave, register, value):
-                self._write({register: value})
-                return WriteSingleResponse(slave, register, value)
-            case WriteMultipleRequest(slave, start, values, count, byte_count):
-                if byte_count != 2 * count or len(values) != count:
-                    # Sheet, 0x06: "The length of data frame is incorrect". Modbus-standard stacks answer
-                    # 0x03 instead; the profile chooses (protocol.byte_count_exception, 6 by default).
-                    raise ModbusError(
-                        ExceptionCode(self.profile.protocol.byte_count_exception),
-                        f"byte count {byte_count}, {count} registers need {2 * count}",
-                    )
-                if not 1 <= count <= MAX_WRITE_REGISTERS:
-                    raise ModbusError(ExceptionCode.ILLEGAL_VALUE, f"count {count}")
-                if start + count > 0x10000:
-                    raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, "write past FFFFH")
-                self._write({start + i: v for i, v in enumerate(values)})
-                return WriteMultipleResponse(slave, start, count)
-            case UnsupportedRequest(_, function, _):
-                raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, f"function 0x{function:02X}")
+        # by class, not a match: a match tries each case's class and reads its fields, on every request
+        kind = request.__class__
+        if kind is ReadRequest:
+            assert isinstance(request, ReadRequest)
+            return ReadResponse(request.slave, self._read(request.start, request.count))
+        if kind is WriteSingleRequest:
+            assert isinstance(request, WriteSingleRequest)
+            self._write({request.register: request.value})
+            return WriteSingleResponse(request.slave, request.register, request.value)
+        if kind is WriteMultipleRequest:
+            assert isinstance(request, WriteMultipleRequest)
+            return self._write_multiple(request)
+        if kind is UnsupportedRequest:
+            raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, f"function 0x{request.function:02X}")
         raise AssertionError(f"unhandled request {request!r}")  # pragma: no cover
+
+    def _write_multiple(self, request: WriteMultipleRequest) -> Response:
+        slave, start, values, count, byte_count = (
+            request.slave,
+            request.start,
+            request.values,
+            request.count,
+            request.byte_count,
+        )
+        if byte_count != 2 * count or len(values) != count:
+            # Sheet, 0x06: "The length of data frame is incorrect". Modbus-standard stacks answer
+            # 0x03 instead; the profile chooses (protocol.byte_count_exception, 6 by default).
+            raise ModbusError(
+                ExceptionCode(self.profile.protocol.byte_count_exception),
+                f"byte count {byte_count}, {count} registers need {2 * count}",
+            )
+        if not 1 <= count <= MAX_WRITE_REGISTERS:
+            raise ModbusError(ExceptionCode.ILLEGAL_VALUE, f"count {count}")
+        if start + count > 0x10000:
+            raise ModbusError(ExceptionCode.ILLEGAL_ADDRESS, "write past FFFFH")
+        self._write({start + i: v for i, v in enumerate(values)})
+        return WriteMultipleResponse(slave, start, count)
 
     def _read(self, start: int, count: int) -> tuple[int, ...]:
         if not 1 <= count <= self.profile.protocol.max_read_registers:

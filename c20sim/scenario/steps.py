@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from ..control import causes, ops
 from ..wire.errors import C20SimError
-from ..wire.registers import UnknownRegister, resolve_register
+from ..wire.vocabulary import UnknownRegister, resolve_register
 
 if TYPE_CHECKING:
     from ..core.simulator import Simulator

@@ -38,7 +38,8 @@ from typing import TypeVar
 
 from ..drive.profile import DEFAULT_PROFILE, Profile, load_profile
 from ..wire.errors import C20SimError
-from ..wire.registers import BAUD_RATES, SHORT_NAMES, Reg, RegisterMap
+from ..wire.registers import BAUD_RATES, Reg, RegisterMap
+from ..wire.vocabulary import SHORT_NAMES
 from .dialect import Prober, probe
 from .master import Interrupted, Master, NoReply, is_function_code, parse_value, register_of
 from .masterlinks import Link, MbapLink, link_port, open_link

@@ -30,11 +30,10 @@ from ..wire.registers import (
     Reg,
     RegisterMap,
     RegisterSpec,
-    UnknownRegister,
     address_label,
     is_fcode,
-    resolve_register,
 )
+from ..wire.vocabulary import UnknownRegister, resolve_register
 from .masterlinks import Link
 
 __all__ = [

@@ -11,7 +11,8 @@ from typing import Protocol
 
 from ..core.simulator import Simulator
 from ..wire.errors import C20SimError
-from ..wire.protocol import RtuFramer, expected_length, with_crc
+from ..wire.framing import RtuFramer
+from ..wire.protocol import expected_length, with_crc
 
 __all__ = ["Link", "MbapLink", "SerialLink", "SimulatedLink", "SimulatedTime", "TcpLink", "link_port", "open_link"]
 

@@ -33,7 +33,8 @@ from ..transport.endpoint import UNTIMED_SILENCE
 from ..transport.passthrough import PtySide, SerialSide, Side, TcpSide
 from ..wire.decode import decode_frame, describe
 from ..wire.errors import C20SimError
-from ..wire.protocol import FrameEvent, FrameKind, Request, RtuFramer, decode_request, decode_response
+from ..wire.framing import RtuFramer
+from ..wire.protocol import FrameEvent, FrameKind, Request, decode_request, decode_response
 from ..wire.registers import BAUD_RATES, RegisterMap
 
 __all__ = ["Recorder", "add_record_command"]

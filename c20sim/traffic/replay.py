@@ -24,7 +24,8 @@ from ..core.simulator import Simulator, parse_addresses
 from ..drive.profile import DEFAULT_PROFILE, load_profile
 from ..wire.decode import decode_frame, describe, split_frames
 from ..wire.errors import C20SimError
-from ..wire.protocol import Request, RtuFramer, decode_request
+from ..wire.framing import RtuFramer
+from ..wire.protocol import Request, decode_request
 from ..wire.registers import RegisterMap
 from .capture import LogRecord, load_frame_log, on_the_line
 

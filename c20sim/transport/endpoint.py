@@ -31,7 +31,8 @@ import time
 from collections.abc import Callable
 
 from ..core.bus import Reply
-from ..wire.protocol import SHEET_CHAR_BITS, FrameEvent, RtuFramer, char_time
+from ..wire.framing import RtuFramer
+from ..wire.protocol import SHEET_CHAR_BITS, FrameEvent, char_time
 from .line import Line
 
 __all__ = ["UNTIMED_SILENCE", "RtuEndpoint", "stream_framer"]

@@ -2,7 +2,10 @@
 
 ``--log-frames PATH`` writes every frame as a JSON line. The bus hands each
 record to :meth:`FrameLog.put` on the event loop, which only appends it to a
-bounded buffer; a thread turns records into lines and writes them. When the
+bounded buffer; a thread turns records into lines and writes them. The buffer
+is a :class:`~c20sim.core.framering.FrameRing`: what waits for the writer is
+bytes and numbers in storage made once, never an object per frame that a
+garbage collection would walk while the wire waits. When the
 sink is slow (a pipe nobody reads), full (ENOSPC) or gone (the reader exited,
 the file was deleted), records are dropped and counted, never the wire
 delayed. What is written is whole lines only: a write the disk cut short is
@@ -28,10 +31,10 @@ import select
 import stat
 import threading
 import time
-from collections import deque
 from pathlib import Path
 
 from ..core.bus import FrameRecord
+from ..core.framering import FrameRing
 from ..wire.errors import C20SimError
 from .wallclock import WALL_OFFSET
 
@@ -64,8 +67,10 @@ class FrameLog:
     def __init__(self, path: str, *, max_bytes: int | None = None, buffer_records: int = BUFFER_RECORDS) -> None:
         self.path = path
         self.max_bytes = max_bytes
-        self._buffer: deque[FrameRecord] = deque()
+        self._buffer: FrameRing[FrameRecord] = FrameRing(buffer_records, FrameRecord)
         self._limit = buffer_records
+        #: the buffer between the loop (append) and the writer thread (popleft, clear)
+        self._buffer_lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = False
         self._fd = -1
@@ -104,7 +109,8 @@ class FrameLog:
                 )
             self._refused += 1
             return
-        self._buffer.append(record)
+        with self._buffer_lock:
+            self._buffer.append(record)
         if not self._wake.is_set():
             self._wake.set()
 
@@ -167,7 +173,9 @@ class FrameLog:
             size = 0
             cap = 65536 if self.max_bytes is None else max(1, min(65536, self.max_bytes // 4))
             while self._buffer and size < cap:
-                line = (json.dumps(self._buffer.popleft().as_dict(WALL_OFFSET)) + "\n").encode()
+                with self._buffer_lock:
+                    record = self._buffer.popleft()
+                line = (json.dumps(record.as_dict(WALL_OFFSET)) + "\n").encode()
                 batch.append(line)
                 size += len(line)
             if not self._write_lines(batch):
@@ -263,8 +271,9 @@ class FrameLog:
     def _reopen_if_due(self) -> bool:
         """While failing: True when it is time to try again (a file is reopened if it was closed)."""
         if self._gone:
-            self._lost += len(self._buffer)  # nobody will read them
-            self._buffer.clear()
+            with self._buffer_lock:
+                self._lost += len(self._buffer)  # nobody will read them
+                self._buffer.clear()
             return False
         if self._fd < 0:
             try:

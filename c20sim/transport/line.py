@@ -65,6 +65,7 @@ from collections.abc import Callable
 from ..core.bus import LineSettings, Reply
 from ..core.simulator import Simulator
 from ..wire.protocol import FrameEvent
+from .due import DueEntry, due_timer
 
 __all__ = ["EARLY", "LATENCY_BUCKETS", "PEER_QUEUE", "DueTimer", "Latency", "Line", "Respond", "SelfTimed"]
 
@@ -221,7 +222,7 @@ class Line:
         self.expired = 0
         self.cancelled = 0
         self._busy = False
-        self._timer: DueTimer | None = None
+        self._timer: DueEntry | None = None
         #: when the last held transaction ends (``time.perf_counter``): its reply may be handed over up to
         #: :data:`EARLY` before, but the line is its until then, so the next one starts here at the earliest
         self._held_until = 0.0
@@ -354,6 +355,8 @@ class Line:
         closes connections costs no memory beyond what waits (the heap forgets served and cancelled requests
         lazily, at their deadline, and each holds its connection until then)."""
         heap = self._deadlines
+        while heap and not heap[0][2].waiting:  # the one served is most often the earliest: it goes at once
+            heapq.heappop(heap)
         if len(heap) > 2 * self._count + 64:
             heap[:] = [entry for entry in heap if entry[2].waiting]  # in place: a caller may hold the list
             heapq.heapify(heap)
@@ -484,7 +487,7 @@ class Line:
                 self._in_hand = False
                 due = max(time.perf_counter(), self._held_until) + hold
                 self._held_until = due
-                self._timer = DueTimer(self._loop(), due, self._release, reply, respond, asked)
+                self._timer = due_timer(self._loop(), due, self._release, reply, respond, asked)
                 return
             if reply is not None:
                 self.latency.observe(time.perf_counter() - asked)

@@ -22,7 +22,8 @@ import time
 from collections.abc import Callable
 
 from ..core.bus import Direction, FrameRecord, RecordKind, Reply
-from ..wire.protocol import BROADCAST, MbapHeader, RtuFramer, crc_ok, expected_length, with_crc
+from ..wire.framing import RtuFramer
+from ..wire.protocol import BROADCAST, MbapHeader, crc_ok, expected_length, with_crc
 from .line import Line
 from .tcp import GATEWAY_TIMEOUT, _Connection, _TcpServer
 

@@ -57,7 +57,8 @@ import time
 from collections.abc import Callable
 
 from ..core.bus import Reply
-from ..wire.protocol import MAX_ADU, FrameEvent, RtuFramer, char_time
+from ..wire.framing import RtuFramer
+from ..wire.protocol import MAX_ADU, FrameEvent, char_time
 from .line import Line, SelfTimed
 
 __all__ = ["TimedEndpoint"]

@@ -21,7 +21,8 @@ from textual.containers import Horizontal, Vertical
 from textual.reactive import reactive
 from textual.widgets import DataTable, Input, Label, Static
 
-from ..wire.registers import UnknownRegister, address_label, resolve_register
+from ..wire.registers import address_label
+from ..wire.vocabulary import UnknownRegister, resolve_register
 from .messages import ConditionsChanged
 from .workbench import Workbench
 

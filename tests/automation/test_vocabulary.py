@@ -21,14 +21,8 @@ from pymodbus.client import ModbusTcpClient
 from c20sim.drive.profile import load_profile
 from c20sim.testing import C20Sim
 from c20sim.wire.errors import C20SimError
-from c20sim.wire.registers import (
-    FIXED_REGISTERS,
-    SHORT_NAMES,
-    Reg,
-    UnknownRegister,
-    register_names,
-    resolve_register,
-)
+from c20sim.wire.registers import FIXED_REGISTERS, Reg
+from c20sim.wire.vocabulary import SHORT_NAMES, UnknownRegister, register_names, resolve_register
 from tests.conftest import wait_for_ready_file
 
 HELP = (

@@ -25,7 +25,8 @@ REPLIES = """
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import load_profile
-from c20sim.wire.protocol import RtuFramer, with_crc
+from c20sim.wire.framing import RtuFramer
+from c20sim.wire.protocol import with_crc
 sim = Simulator(load_profile(), (1, 2), clock=VirtualClock(), seed=3)
 for body in ["01 03 20 01 00 01", "01 06 20 01 05 DC", "01 06 20 01 05 DC", "01 06 20 00 00 01", "01 03 30 00 00 08",
              "02 06 F0 00 00 05", "01 04 20 00 00 01", "00 06 20 01 01 F4", "02 03 20 01 00 01", "01 10 20 00 00 02 04 00 07 00 00"]:
@@ -57,7 +58,7 @@ def compiled(tmp_path_factory: pytest.TempPathFactory) -> Path:
     shutil.copytree(ROOT, copy, ignore=shutil.ignore_patterns(*LEFT_OUT))
     built = run([str(copy / "tools" / "compile-core"), sys.executable], copy, pythonpath=None, timeout=900)
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
-    assert "24 modules compiled" in built.stdout
+    assert "25 modules compiled" in built.stdout
     return copy
 
 

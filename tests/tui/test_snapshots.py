@@ -15,7 +15,7 @@ from textual.widgets import RichLog
 from c20sim.control import httpstream
 from c20sim.tui import Dashboard, widgets
 from c20sim.tui.widgets import FrameLog
-from c20sim.wire.protocol import RtuFramer
+from c20sim.wire.framing import RtuFramer
 from c20sim.wire.registers import Reg
 from tests.tui.conftest import Served, serving, until
 

@@ -22,6 +22,7 @@ from c20sim.core.bus import Reply
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile
+from c20sim.wire.framing import RtuFramer
 from c20sim.wire.protocol import (
     BROADCAST,
     FrameEvent,
@@ -29,7 +30,6 @@ from c20sim.wire.protocol import (
     ReadRequest,
     ReadResponse,
     Request,
-    RtuFramer,
     UnsupportedRequest,
     WriteMultipleRequest,
     WriteSingleRequest,

@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from c20sim.transport.endpoint import stream_framer
+from c20sim.wire.framing import RtuFramer
 from c20sim.wire.protocol import (
     ExceptionCode,
     ExceptionResponse,
     FrameKind,
     ReadRequest,
     ReadResponse,
-    RtuFramer,
     UnsupportedRequest,
     WriteMultipleRequest,
     WriteMultipleResponse,
