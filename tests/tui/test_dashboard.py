@@ -278,6 +278,8 @@ async def test_closing_an_attached_dashboard_leaves_the_server_serving() -> None
     with serving() as served:
         async with attached(served) as (app, pilot):
             await pilot.press("f4", "u")  # act: undervoltage, through the API
+            supply = lambda: served.call(lambda: served.sim.drives[1].telemetry().supply_v)  # noqa: E731
+            await until(lambda: supply() == 10.0, "the undervoltage to reach the server")
             await pilot.press("q")
         assert not app.is_running
         client = AsyncModbusTcpClient("127.0.0.1", port=served.port, framer=FramerType.RTU, timeout=0.5, retries=0)
