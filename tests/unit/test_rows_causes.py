@@ -5,7 +5,9 @@ a row before it imports its front ends (they build their tables when imported), 
 interpreter: one row of each, registered first, then the profile parser and its schema, the drive's protection,
 the control API over HTTP (served on port 0), OpenAPI, ``c20sim ctl``, the scenarios and their schema, the
 dashboard's bench and its conditions view, and the docs checks. This process never sees them: the last test
-shows every front end here without them. The drive's own use of a row (protection iterates the rows) is shown in
+shows every front end here without them. The causes' front ends (the API's causes and OpenAPI, the scenarios
+and their schema, the dashboard's switches) read the cause rows when asked: a cause registered in this process,
+after they were imported, reaches them too (``warm_row``). The drive's own use of a row (protection iterates the rows) is shown in
 this process too, with a fixture that registers the row and takes it away.
 """
 
@@ -15,6 +17,7 @@ import json
 import subprocess
 import sys
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -27,8 +30,10 @@ from c20sim.drive.model import Drive
 from c20sim.drive.profile import FaultCause, load_profile, parse_profile
 from c20sim.drive.trips import docs_table
 from c20sim.scenario.schema import build
+from c20sim.scenario.steps import ScenarioError
+from c20sim.scenario.timeline import parse_scenario
 from c20sim.tui.widgets import CONDITION_FIELDS
-from c20sim.tui.workbench import DEVICE_SWITCHES
+from c20sim.tui.workbench import DEVICE_SWITCHES, Workbench
 from c20sim.wire.errors import ProfileError
 from c20sim.wire.registers import Command, Reg
 from tests.unit.throwaway_rows import (
@@ -117,6 +122,8 @@ WARM = trips.Trip(
     trips_at=lambda it, seg, n: seg.temp(n) >= 40.0,
 )
 WARM_FAULT = '\n[[fault]]\ncode = 98\nname = "WRM"\ncause = "warm"\n'
+#: The bench's causes of the shipped rows, in their rank.
+BUILT_IN = ["undervoltage", "overvoltage", "overcurrent", "overload", "stall", "overheat", "hall", "external"]
 
 
 class SteppedDrive(Drive):
@@ -161,6 +168,93 @@ def test_a_row_declared_twice_is_refused() -> None:
         trips.register(trips.Trip("stall", "again"))
     with pytest.raises(ValueError, match=r"^condition supply_v: declared twice$"):
         conditions.register(conditions.Condition("supply_v", "V", 0, 1))
+
+
+# --- The front ends read the cause rows when asked: a row registered after they were imported reaches them.
+
+#: A throwaway cause a bench brings about with a condition every drive has (the cabinet at 60 °C), so that it needs no
+#: throwaway condition: the module past 40 °C trips it.
+WARM_CABINET = trips.Trip(
+    "warm",
+    "the module past 40 °C (a test's throwaway cause)",
+    check=6.5,
+    detect=lambda p: lambda m, mo: bool(mo.temp >= 40.0),
+    present=lambda m: bool(m.motion.temp >= 40.0),
+    foresee=lambda it, seg: seg.temp_ss > 40.0,
+    trips_at=lambda it, seg, n: seg.temp(n) >= 40.0,
+    bench=trips.Bench(
+        "warm",
+        "w",
+        "warm cabinet",
+        "the cabinet at 60 °C",
+        lambda p, c: {"ambient_c": 60.0},
+        lambda p, c: {"ambient_c": 25.0},
+        rank=9,
+    ),
+)
+
+
+@pytest.fixture
+def warm_row() -> Iterator[None]:
+    trips.register(WARM_CABINET)
+    try:
+        yield
+    finally:
+        trips.unregister("warm")
+
+
+def _fault_body(spec: dict[str, Any]) -> dict[str, Any]:
+    post = spec["paths"]["/drives/{address}/fault"]["post"]
+    schema: dict[str, Any] = post["requestBody"]["content"]["application/json"]["schema"]["oneOf"][0]
+    return schema
+
+
+def test_a_cause_registered_after_import_reaches_the_api_scenarios_and_dashboard(warm_row: None) -> None:
+    """This process imported every front end at the top: the row registered now is in each, read when asked."""
+    assert list(causes.CAUSES)[-1] == "warm"
+    latched = ["power_stage_u", "power_stage_v", "power_stage_w", "drive_overload", "output_phase_loss"]
+    latched += ["communication", "current_detection", "eeprom"]
+    every = [*BUILT_IN, "warm", *latched]
+    assert causes.every_name() == tuple(every)
+    # OpenAPI: the fault body's cause is an enum of the rows
+    assert _fault_body(document(routes.table()))["properties"]["cause"]["enum"] == every
+    # the scenarios and their schema
+    steps = parse_scenario(
+        {"step": [{"at": 1, "fault": {"cause": "warm"}}, {"at": 2, "clear_fault": {"cause": "warm"}}]}, "w.toml"
+    ).steps
+    assert (steps[0].cause, steps[1].release) == ("warm", "warm")
+    fault = build("scenario")["properties"]["step"]["items"]["properties"]["fault"]["oneOf"][0]
+    assert fault["properties"]["cause"]["enum"] == every
+    # the dashboard: its switch, the switch's cause brought about, the trip, and what holds the reset
+    assert [(s.key, s.label) for s in DEVICE_SWITCHES][-1] == ("w", "warm cabinet")
+    sim = Simulator(parse_profile(PROFILE.read_text() + WARM_FAULT, "warm.toml"), (1,), clock=VirtualClock())
+    bench = Workbench(sim)
+    assert [s.key for s in bench.device_switches][-1] == "w"
+    assert bench.toggle_device_fault(1, "w") == "drive 1: warm: ambient_c 60"
+    assert bench.device_fault_active(1, "w") is False  # the module is still cool
+    sim.advance(200.0)
+    assert sim.drives[1].read(Reg.FAULT_CODE) == 98
+    assert bench.device_fault_active(1, "w") is True
+    assert bench.holding(1) == "its cause, warm, is still present; press w (F4) to end it"
+
+
+def test_a_cause_taken_away_after_import_is_gone_from_them(warm_row: None) -> None:
+    assert "warm" in causes.CAUSES
+    trips.unregister("warm")
+    try:
+        assert list(causes.CAUSES) == BUILT_IN
+        assert "w" not in [s.key for s in DEVICE_SWITCHES]
+        assert "warm" not in _fault_body(document(routes.table()))["properties"]["cause"]["enum"]
+        with pytest.raises(ScenarioError, match=r"unknown cause 'warm'"):
+            parse_scenario({"step": [{"at": 1, "fault": {"cause": "warm"}}]}, "w.toml")
+    finally:
+        trips.register(WARM_CABINET)
+
+
+def test_the_openapi_fault_body_lists_the_causes() -> None:
+    body = _fault_body(document(routes.table()))
+    assert body["properties"]["cause"]["enum"][: len(BUILT_IN)] == BUILT_IN
+    assert body["properties"]["cause"]["enum"][len(BUILT_IN) :] == [c.value for c in FaultCause if c.trip.bench is None]
 
 
 # --- Every front end: in a child interpreter, the rows registered before the front ends are imported.
