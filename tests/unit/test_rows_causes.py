@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -27,9 +27,9 @@ from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive import conditions, trips
 from c20sim.drive.model import Drive
-from c20sim.drive.profile import FaultCause, load_profile, parse_profile
+from c20sim.drive.profile import FaultCause, Profile, load_profile, parse_profile
 from c20sim.drive.trips import docs_table
-from c20sim.scenario.schema import build
+from c20sim.scenario.schema import build, shipped
 from c20sim.scenario.steps import ScenarioError
 from c20sim.scenario.timeline import parse_scenario
 from c20sim.tui.widgets import CONDITION_FIELDS
@@ -44,6 +44,7 @@ from tests.unit.throwaway_rows import (
     WET_FAULT,
     causes_block,
     undocumented_conditions,
+    unnamed_profile_keys,
 )
 
 # --- The docs checks: what a new row must say.
@@ -173,15 +174,30 @@ def test_a_row_declared_twice_is_refused() -> None:
 # --- The front ends read the cause rows when asked: a row registered after they were imported reaches them.
 
 #: A throwaway cause a bench brings about with a condition every drive has (the cabinet at 60 °C), so that it needs no
-#: throwaway condition: the module past 40 °C trips it.
+#: throwaway condition: the module past its own profile key, ``thermal.warm_trip_c`` (40 °C unless the profile says),
+#: trips it. Its row carries the key: the profile's parser, schema, docs check and errors take it from there.
+WARM_LEVEL = trips.Level(
+    "thermal", "warm_trip_c", 40.0, 30, 80, "degC", "the module's temperature the warm cause trips at"
+)
+
+
+def _warm(p: Any) -> float:
+    return float(p.level("thermal.warm_trip_c"))
+
+
+def _warm_detect(p: Any) -> Callable[[Any, Any], bool]:
+    level = _warm(p)  # armed once per drive, as the shipped rows' detectors
+    return lambda m, mo: bool(mo.temp >= level)
+
+
 WARM_CABINET = trips.Trip(
     "warm",
-    "the module past 40 °C (a test's throwaway cause)",
+    "the module past `thermal.warm_trip_c` (a test's throwaway cause)",
     check=6.5,
-    detect=lambda p: lambda m, mo: bool(mo.temp >= 40.0),
-    present=lambda m: bool(m.motion.temp >= 40.0),
-    foresee=lambda it, seg: seg.temp_ss > 40.0,
-    trips_at=lambda it, seg, n: seg.temp(n) >= 40.0,
+    detect=_warm_detect,
+    present=lambda m: bool(m.motion.temp >= _warm(m.profile)),
+    foresee=lambda it, seg: seg.temp_ss > _warm(it.profile),
+    trips_at=lambda it, seg, n: seg.temp(n) >= _warm(it.profile),
     bench=trips.Bench(
         "warm",
         "w",
@@ -191,6 +207,7 @@ WARM_CABINET = trips.Trip(
         lambda p, c: {"ambient_c": 25.0},
         rank=9,
     ),
+    levels=(WARM_LEVEL, trips.Level("cabinet", "door_open", False, doc="the cabinet's door is open", source="field")),
 )
 
 
@@ -249,6 +266,103 @@ def test_a_cause_taken_away_after_import_is_gone_from_them(warm_row: None) -> No
             parse_scenario({"step": [{"at": 1, "fault": {"cause": "warm"}}]}, "w.toml")
     finally:
         trips.register(WARM_CABINET)
+
+
+def _warm_profile(extra: str = "", thermal: str = "") -> Profile:
+    text = PROFILE.read_text().replace("[thermal]\n", f"[thermal]\n{thermal}")
+    return parse_profile(text + WARM_FAULT + extra, "warm.toml")
+
+
+def test_a_cause_rows_profile_keys_are_parsed_from_the_row(warm_row: None) -> None:
+    assert _warm_profile().levels == {"thermal.warm_trip_c": 40.0, "cabinet.door_open": False}  # the defaults
+    given = _warm_profile("\n[cabinet]\ndoor_open = true\n", "warm_trip_c = 45\n")
+    assert given.levels == {"thermal.warm_trip_c": 45.0, "cabinet.door_open": True}
+    assert given.level("thermal.warm_trip_c") == 45.0
+    # the profile's errors name the file, the key and the row's allowed range
+    errors = {
+        "warm.toml: thermal.warm_trip_c: 90 is out of range; allowed 30 to 80 degC": ("", "warm_trip_c = 90\n"),
+        "warm.toml: thermal.warm_trip_c: must be a number, not 'hot'": ("", 'warm_trip_c = "hot"\n'),
+        "warm.toml: cabinet.door_open: must be true or false, not 1": ("\n[cabinet]\ndoor_open = 1\n", ""),
+        "warm.toml: cabinet.door: unknown key (did you mean 'door_open'?); allowed: door_open": (
+            "\n[cabinet]\ndoor = true\n",
+            "",
+        ),
+    }
+    for message, (extra, thermal) in errors.items():
+        with pytest.raises(ProfileError) as caught:
+            _warm_profile(extra, thermal)
+        assert str(caught.value) == message
+    with pytest.raises(ProfileError, match=r"^warm\.toml: cabinet: must be a table, not int$"):
+        parse_profile("cabinet = 1\n" + PROFILE.read_text() + WARM_FAULT, "warm.toml")
+    with pytest.raises(
+        ProfileError, match=r"^warm\.toml: thermal\.warm_trip: unknown key \(did you mean 'warm_trip_c'"
+    ):
+        _warm_profile("", "warm_trip = 45\n")
+
+
+def test_a_cause_rows_profile_key_sets_where_it_trips(warm_row: None) -> None:
+    """The row's detector and its segment's foresight read the key: at 45 °C it trips later than at 40 °C (the
+    module heading for 60 °C from 25 °C with a 240 s time constant: 240 x ln(35 / 15) = 203 s)."""
+    stepped = []
+    for thermal in ("", "warm_trip_c = 45\n"):
+        drive = Drive(_warm_profile("", thermal))
+        steps: list[int] = []
+        drive.machine.on_trip = lambda code, steps=steps, drive=drive: steps.append(drive.motion.k)
+        drive.set_ambient(60.0)
+        drive.advance_to(250.0)
+        assert drive.read(Reg.FAULT_CODE) == 98
+        stepped.append(steps[0])
+    assert 134_000 <= stepped[0] <= 135_000
+    assert 203_000 <= stepped[1] <= 204_000
+
+
+def test_a_cause_rows_profile_keys_reach_the_schema_and_the_docs_check(warm_row: None) -> None:
+    schema = build("profile")
+    assert schema["properties"]["thermal"]["properties"]["warm_trip_c"] == {
+        "type": "number",
+        "minimum": 30,
+        "maximum": 80,
+        "default": 40.0,
+        "description": "degC; the module's temperature the warm cause trips at; source: assumed",
+    }
+    assert schema["properties"]["cabinet"] == {
+        "type": "object",
+        "properties": {
+            "door_open": {
+                "type": "boolean",
+                "default": False,
+                "description": "the cabinet's door is open; source: field",
+            }
+        },
+        "additionalProperties": False,
+    }
+    # the shipped file is what its tool (python -m c20sim.scenario.schema) writes: stale until it is run again
+    assert json.loads(shipped("profile")) != schema
+    assert json.loads(shipped("profile"))["properties"]["thermal"]["properties"].keys() < (
+        schema["properties"]["thermal"]["properties"].keys()
+    )
+    # docs/profile-format.md's check finds the row's keys it does not name
+    assert unnamed_profile_keys() == ["cabinet", "door_open", "warm_trip_c"]
+
+
+def test_a_profile_key_two_rows_declare_is_refused(warm_row: None) -> None:
+    with pytest.raises(ValueError, match=r"^fault cause warmer: profile key thermal.warm_trip_c is another row's$"):
+        trips.register(trips.Trip("warmer", "again", levels=(WARM_LEVEL,)))
+    bad = trips.Level("thermal", "x_c", 90.0, 30, 80)
+    with pytest.raises(
+        ValueError, match=r"^fault cause warmer: profile key thermal.x_c: its default outside its range$"
+    ):
+        trips.register(trips.Trip("warmer", "again", levels=(bad,)))
+    assert "warmer" not in trips.TRIPS
+
+
+def test_without_the_row_its_profile_keys_are_unknown() -> None:
+    with pytest.raises(ProfileError, match=r"^warm\.toml: thermal\.warm_trip_c: unknown key"):
+        parse_profile(PROFILE.read_text().replace("[thermal]\n", "[thermal]\nwarm_trip_c = 45\n"), "warm.toml")
+    with pytest.raises(ProfileError, match=r"^warm\.toml: cabinet: unknown key"):
+        parse_profile(PROFILE.read_text() + "\n[cabinet]\ndoor_open = true\n", "warm.toml")
+    assert "warm_trip_c" not in json.dumps(build("profile")) and unnamed_profile_keys() == []
+    assert load_profile().levels == {}
 
 
 def test_the_openapi_fault_body_lists_the_causes() -> None:

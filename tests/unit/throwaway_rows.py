@@ -37,6 +37,18 @@ def undocumented_conditions() -> list[str]:
     return sorted(k for k in step["set"]["properties"] if f"`{k}`" not in text)
 
 
+def unnamed_profile_keys() -> list[str]:
+    """The profile's keys docs/profile-format.md does not name (as tests/automation/test_schema.py checks it)."""
+    text = (ROOT / "docs" / "profile-format.md").read_text(encoding="utf-8")
+    from c20sim.scenario.schema import build  # a front end: imported once the rows are in
+
+    schema = build("profile")
+    keys = set(schema["properties"])
+    for prop in schema["properties"].values():
+        keys |= set(prop.get("properties", {})) | set(prop.get("items", {}).get("properties", {}))
+    return sorted(k for k in keys if f"`{k}`" not in text and f"[{k}]" not in text)
+
+
 def humid(m: Any) -> bool:
     """The throwaway cause's condition: the cabinet's humidity (the throwaway condition) above 95 %."""
     value = m.motion.bench.extra.get("humidity_pct", 0.0)
