@@ -305,7 +305,8 @@ class _Run:
         bus = self.sim.sim.bus
         unsubscribe = self.sim.call(lambda: bus.subscribe(self.recorder))
         try:
-            where = ", ".join(f"{k} {v}" for k, v in self.endpoints.items() if k in ("tcp", "modbus_tcp", "pty"))
+            keys = {row.key for row in rows()}  # the transports' ready-file keys (not {host}, {port}, {KEY_port})
+            where = ", ".join(f"{k} {v}" for k, v in self.endpoints.items() if k in keys)
             if options.master is not None:
                 self.master = _Master(options.master, self.endpoints)
                 options.echo(f"drill: master started: {self.master.command}")

@@ -9,14 +9,14 @@ rows as they are then.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from ..core.generators import MAX_SECONDS, MIN_PERIOD
 from ..core.linkfaults import KNOBS
 from . import causes, ops
 
-__all__ = ["cause_schema", "conditions_schema", "generator_schema", "link_schema"]
+__all__ = ["Live", "cause_schema", "conditions_schema", "generator_schema", "link_schema"]
 
 
 def generator_schema(low: float, high: float) -> dict[str, Any]:
@@ -66,6 +66,23 @@ def conditions_schema() -> dict[str, Any]:
         else:
             props[name] = {"type": "integer", "minimum": c.low, "maximum": c.high, "description": c.help}
     return {"type": "object", "properties": props, "additionalProperties": False, "minProperties": 1}
+
+
+class Live(Mapping[str, Any]):
+    """A schema built when read (``Live(cause_schema)``): for a route field, which is made at import, to describe
+    the rows as they are when the document is asked for."""
+
+    def __init__(self, build: Callable[[], Mapping[str, Any]]) -> None:
+        self._build = build
+
+    def __getitem__(self, key: str) -> Any:
+        return self._build()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._build())
+
+    def __len__(self) -> int:
+        return len(self._build())
 
 
 def cause_schema() -> dict[str, Any]:

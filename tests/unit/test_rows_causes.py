@@ -220,10 +220,11 @@ def warm_row() -> Iterator[None]:
         trips.unregister("warm")
 
 
-def _fault_body(spec: dict[str, Any]) -> dict[str, Any]:
-    post = spec["paths"]["/drives/{address}/fault"]["post"]
-    schema: dict[str, Any] = post["requestBody"]["content"]["application/json"]["schema"]["oneOf"][0]
-    return schema
+def _fault_body(spec: dict[str, Any], method: str = "post") -> dict[str, Any]:
+    """The fault route's body (POST: its ``{"cause": ...}`` form; DELETE: ``{"reset": ..., "cause": ...}``)."""
+    body: dict[str, Any] = spec["paths"]["/drives/{address}/fault"][method]["requestBody"]["content"]
+    schema: dict[str, Any] = body["application/json"]["schema"]
+    return schema["oneOf"][0] if method == "post" else schema
 
 
 def test_a_cause_registered_after_import_reaches_the_api_scenarios_and_dashboard(warm_row: None) -> None:
@@ -234,7 +235,9 @@ def test_a_cause_registered_after_import_reaches_the_api_scenarios_and_dashboard
     every = [*BUILT_IN, "warm", *latched]
     assert causes.every_name() == tuple(every)
     # OpenAPI: the fault body's cause is an enum of the rows
-    assert _fault_body(document(routes.table()))["properties"]["cause"]["enum"] == every
+    spec = document(routes.table())
+    assert _fault_body(spec)["properties"]["cause"]["enum"] == every
+    assert _fault_body(spec, "delete")["properties"]["cause"]["enum"] == every
     # the scenarios and their schema
     steps = parse_scenario(
         {"step": [{"at": 1, "fault": {"cause": "warm"}}, {"at": 2, "clear_fault": {"cause": "warm"}}]}, "w.toml"
@@ -261,7 +264,9 @@ def test_a_cause_taken_away_after_import_is_gone_from_them(warm_row: None) -> No
     try:
         assert list(causes.CAUSES) == BUILT_IN
         assert "w" not in [s.key for s in DEVICE_SWITCHES]
-        assert "warm" not in _fault_body(document(routes.table()))["properties"]["cause"]["enum"]
+        spec = document(routes.table())
+        assert "warm" not in _fault_body(spec)["properties"]["cause"]["enum"]
+        assert "warm" not in _fault_body(spec, "delete")["properties"]["cause"]["enum"]
         with pytest.raises(ScenarioError, match=r"unknown cause 'warm'"):
             parse_scenario({"step": [{"at": 1, "fault": {"cause": "warm"}}]}, "w.toml")
     finally:
