@@ -1,7 +1,7 @@
 """The throwaway rows of tests/unit/test_rows_causes.py, and its docs checks.
 
-Imports nothing but the drive's tables (the front ends build theirs when imported, so a child interpreter
-registers these rows before it imports any).
+Imports nothing but the drive's tables (the conditions' front ends build theirs when imported, so a child
+interpreter registers these rows before it imports any; the causes' front ends read the rows when asked).
 """
 
 from __future__ import annotations
