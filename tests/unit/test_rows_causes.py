@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 
+from c20sim.cli import render_profile
 from c20sim.control import causes, ops, routes
 from c20sim.control.openapi import document
 from c20sim.core.clock import VirtualClock
@@ -283,6 +284,10 @@ def test_a_cause_rows_profile_keys_are_parsed_from_the_row(warm_row: None) -> No
     given = _warm_profile("\n[cabinet]\ndoor_open = true\n", "warm_trip_c = 45\n")
     assert given.levels == {"thermal.warm_trip_c": 45.0, "cabinet.door_open": True}
     assert given.level("thermal.warm_trip_c") == 45.0
+    # c20sim profiles show
+    shown = render_profile(given)
+    assert "the fault causes' own keys\n  thermal.warm_trip_c      45.0\n  cabinet.door_open        True\n" in shown
+    assert "own keys\n  thermal.warm_trip_c      40.0\n" in render_profile(load_profile())  # the row's default
     # the profile's errors name the file, the key and the row's allowed range
     errors = {
         "warm.toml: thermal.warm_trip_c: 90 is out of range; allowed 30 to 80 degC": ("", "warm_trip_c = 90\n"),
@@ -368,6 +373,7 @@ def test_without_the_row_its_profile_keys_are_unknown() -> None:
         parse_profile(PROFILE.read_text() + "\n[cabinet]\ndoor_open = true\n", "warm.toml")
     assert "warm_trip_c" not in json.dumps(build("profile")) and unnamed_profile_keys() == []
     assert load_profile().levels == {}
+    assert "own keys" not in render_profile(load_profile())
 
 
 def test_the_openapi_fault_body_lists_the_causes() -> None:
