@@ -344,6 +344,10 @@ def render_profile(profile: Profile) -> str:
             for key, value in vars(section).items()
         ]
         lines.append("")
+    if profile.levels:  # the cause rows' own keys (c20sim.drive.trips.Level)
+        lines.append("the fault causes' own keys")
+        lines += [f"  {key:<24} {value}" for key, value in profile.levels.items()]
+        lines.append("")
     lines.append("faults (code, name, meaning, source)")
     for fault in profile.faults.values():
         lines.append(f"  0x{fault.code:02X} {fault.name:<6} {fault.meaning} [{fault.source}]")

@@ -14,6 +14,7 @@ from .drill import INCIDENTS
 from .drill.judge import Judgement
 from .drillrun import (
     RunOptions,
+    drill_transports,
     json_report,
     judge_log,
     junit_xml,
@@ -31,18 +32,20 @@ from .wire.errors import C20SimError
 
 __all__ = ["add_drill_command", "run_drill"]
 
-TRANSPORTS = ("tcp", "pty", "modbus-tcp")
-
 
 def _endpoints(sim: C20Sim) -> dict[str, str]:
+    """The master command's placeholders: each served transport's address by its ready-file key (``{tcp}``,
+    ``{pty}``, ``{modbus_tcp}``, a new row's own), ``{KEY_port}`` of a HOST:PORT, and ``{host}``/``{port}`` of the
+    first listener."""
     out: dict[str, str] = {}
+    for key, address in sim.endpoints.items():
+        out[key] = address
+        host, colon, port = address.rpartition(":")
+        if colon and port.isdigit():
+            out[f"{key}_port"] = port
+            out.setdefault("host", host)
     if sim.port is not None:
-        out.update(tcp=f"{sim.host}:{sim.port}", host=str(sim.host), port=str(sim.port))
-    if sim.modbus_tcp_port is not None:
-        out.update(modbus_tcp=f"127.0.0.1:{sim.modbus_tcp_port}", modbus_tcp_port=str(sim.modbus_tcp_port))
-        out.setdefault("host", "127.0.0.1")
-    if sim.pty is not None:
-        out["pty"] = sim.pty
+        out.update(host=str(sim.host), port=str(sim.port))
     return out
 
 
@@ -113,11 +116,14 @@ def add_drill_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--master",
         metavar="CMD",
-        help="the master to start, with placeholders {tcp} {host} {port} {modbus_tcp} {modbus_tcp_port} {pty}; "
-        "without it, wait for a master already running",
+        help="the master to start, with placeholders {host} {port} and the served transport's ready-file key: "
+        "{tcp} {pty} {modbus_tcp} {modbus_tcp_port}; without it, wait for a master already running",
     )
     parser.add_argument(
-        "--transport", choices=TRANSPORTS, default="tcp", help="where the drive is served (default tcp: RTU over TCP)"
+        "--transport",
+        choices=drill_transports(),
+        default="tcp",
+        help="where the drive is served (default tcp: RTU over TCP); the transports the test handle opens",
     )
     parser.add_argument("--profile", default=DEFAULT_PROFILE, help="the drive's profile")
     parser.add_argument("--seed", type=int, help="the faults' randomness (default: the plan's)")

@@ -34,11 +34,12 @@ from typing import Any, Protocol, TypeVar
 from .control import causes, ops
 from .core.bus import FrameRecord
 from .core.simulator import Simulator
-from .drill import Drill, Judgement, Learned, Mark, Plan, judge, learn, read_plan, standard_plan
+from .drill import Drill, Incident, Judgement, Learned, Mark, Plan, judge, learn, read_plan, standard_plan
 from .drill.judge import marks_of, watch_seconds
 from .drill.report import json_report, junit_xml, markdown, text_report
 from .drive.profile import DEFAULT_PROFILE, Profile
 from .traffic.auditlog import read_frames
+from .transport.rows import Transport, find, rows
 from .wire.errors import C20SimError
 
 __all__ = [
@@ -304,7 +305,8 @@ class _Run:
         bus = self.sim.sim.bus
         unsubscribe = self.sim.call(lambda: bus.subscribe(self.recorder))
         try:
-            where = ", ".join(f"{k} {v}" for k, v in self.endpoints.items() if k in ("tcp", "modbus_tcp", "pty"))
+            keys = {row.key for row in rows()}  # the transports' ready-file keys (not {host}, {port}, {KEY_port})
+            where = ", ".join(f"{k} {v}" for k, v in self.endpoints.items() if k in keys)
             if options.master is not None:
                 self.master = _Master(options.master, self.endpoints)
                 options.echo(f"drill: master started: {self.master.command}")
@@ -400,19 +402,48 @@ class _LoopHandle:
         return asyncio.run_coroutine_threadsafe(run(), self.loop).result(30.0)
 
 
+def drill_transports() -> tuple[str, ...]:
+    """The transports a drill can be played over, from the rows (:mod:`c20sim.transport.rows`): those the test
+    handle can open (a row's ``fixture``), usable here (a pty needs POSIX); ``c20sim drill --transport``'s choices."""
+    return tuple(row.name for row in rows() if row.fixture is not None and row.usable())
+
+
+def carries(incident: Incident, transport: str) -> bool:
+    """Whether ``incident`` can be played over ``transport``: the incident names it, or names a transport of the
+    same line model (a new RTU transport carries what RTU over TCP does)."""
+    if transport in incident.transports:
+        return True
+    row = find(transport)
+    return row is not None and any((o := find(n)) is not None and o.model == row.model for n in incident.transports)
+
+
+def _kept(plan: Plan, served: Sequence[str]) -> Plan:
+    """``plan`` with only the drills one of ``served`` carries, numbered again."""
+    kept = [d for d in plan.drills if any(carries(d.incident, t) for t in served)]
+    drills = tuple(Drill(i, d.incident, d.values) for i, d in enumerate(kept, 1))
+    return Plan(plan.name, plan.seed, plan.warmup, plan.settle, drills, plan.poll_period, plan.timeout)
+
+
+def standard_for(seed: int, transport: str | None) -> Plan:
+    """The standard plan; for ``transport`` (a transport row's name), only the incidents it carries."""
+    plan = standard_plan(seed)
+    return plan if transport is None else _kept(plan, (transport,))
+
+
 def serve_runner(
-    sim: Simulator, loop: asyncio.AbstractEventLoop, transport: str = "tcp"
+    sim: Simulator, loop: asyncio.AbstractEventLoop, served: Sequence[Transport] = ()
 ) -> Callable[[Mapping[str, Any], Callable[[str], None], threading.Event], dict[str, Any]]:
     """The drill runner ``serve`` gives its simulator (:mod:`c20sim.control.drills`): a request's plan played on
-    the master that polls the serve, in the calling (worker) thread; the report as JSON. ``transport``: ``tcp``
-    where RTU frames are served (a pty, a serial port, RTU over TCP), ``modbus-tcp`` where only Modbus TCP is:
-    the standard plan keeps what it carries, and a drill it cannot carry is refused."""
+    the master that polls the serve, in the calling (worker) thread; the report as JSON. ``served``: the transport
+    rows serve opened (none: RTU over TCP's): the standard plan keeps what one of them carries, and a drill none
+    can carry is refused."""
+    names = tuple(row.name for row in served) or ("tcp",)
 
     def run(fields: Mapping[str, Any], progress: Callable[[str], None], stop: threading.Event) -> dict[str, Any]:
         seed = int(fields.get("seed") or 1)
         items = fields.get("plan")
         if items is None:
-            plan = standard_plan(seed, transport)
+            plan = _kept(standard_plan(seed), names)
         else:
             drills = [{"incident": item} if isinstance(item, str) else dict(item) for item in items]
             doc: dict[str, object] = {"seed": seed, "drill": drills}
@@ -421,10 +452,10 @@ def serve_runner(
                     doc[key] = fields[key]
             plan = read_plan(doc, "POST /drill")
             for d in plan.drills:
-                if transport not in d.incident.transports:
-                    served = "Modbus TCP" if transport == "modbus-tcp" else "RTU frames"
+                if not any(carries(d.incident, t) for t in names):
                     raise C20SimError(
-                        f"POST /drill: drill {d.index}: {d.name} cannot be played where {served} are served"
+                        f"POST /drill: drill {d.index}: {d.name} cannot be played over {', '.join(names)} "
+                        f"(only {', '.join(d.incident.transports)}): a gateway forwards no broken reply"
                     )
         options = RunOptions(
             plan, profile=sim.profile, wait=float(fields.get("wait") or 60.0), echo=progress, stop=stop
@@ -508,7 +539,7 @@ def plot_timeline(frames: Sequence[tuple[float, str, bytes]], marks: Sequence[Ma
 def load_plan(path: str | None, seed: int | None, transport: str | None) -> Plan:
     """The plan at ``path`` (a TOML file), or the standard plan for ``transport``; one-line errors."""
     if path is None:
-        return standard_plan(seed if seed is not None else 1, transport)
+        return standard_for(seed if seed is not None else 1, transport)
     try:
         if not os.path.isfile(path):
             raise C20SimError(f"--plan {path}: not a regular file")
@@ -525,7 +556,7 @@ def load_plan(path: str | None, seed: int | None, transport: str | None) -> Plan
         plan = Plan(plan.name, seed, plan.warmup, plan.settle, plan.drills, plan.poll_period, plan.timeout)
     if transport is not None:
         for d in plan.drills:
-            if transport not in d.incident.transports:
+            if not carries(d.incident, transport):
                 raise C20SimError(
                     f"{path}: drill {d.index}: {d.name} cannot be played over {transport} "
                     f"(only {', '.join(d.incident.transports)}): a gateway forwards no broken reply"

@@ -239,8 +239,7 @@ class Server:
         from .control import drills
         from .drillrun import serve_runner
 
-        rtu = any(row.model == "rtu" for row in opts.asked())
-        drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), "tcp" if rtu else "modbus-tcp"))
+        drills.attach(sim, serve_runner(sim, asyncio.get_running_loop(), opts.asked()))
         # at close: a running drill stops (its thread calls on this loop no more) and the service goes
         self._unsubscribe.append(lambda: drills.detach(sim))
         if opts.log_frames:

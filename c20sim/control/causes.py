@@ -19,7 +19,7 @@ are latched, and stay until released.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 from ..core.simulator import Simulator
@@ -39,8 +39,10 @@ __all__ = [
     "active",
     "cause_names",
     "clear_all",
+    "every_name",
     "fault",
     "overheat_seconds",
+    "physical",
     "read_fault",
     "release",
     "request",
@@ -90,19 +92,53 @@ def _from_rows() -> dict[str, Cause]:
     return out
 
 
-#: Every physical cause, by the name all front ends use: one per row of the drive's causes with a ``bench``.
-CAUSES: Mapping[str, Cause] = _from_rows()
+class _Live(Mapping[str, Cause]):
+    """The bench's causes as the rows are now: built again when a row was registered or taken away since."""
 
-#: The profile's fault causes that a physical cause above brings about.
-PHYSICAL = frozenset(f for cause in CAUSES.values() for f in cause.faults)
+    def __init__(self) -> None:
+        self._key: tuple[int, ...] = ()
+        self._now: dict[str, Cause] = {}
+
+    def now(self) -> dict[str, Cause]:
+        key = tuple(id(t) for t in TRIPS.values())
+        if key != self._key:
+            self._now, self._key = _from_rows(), key
+        return self._now
+
+    def __getitem__(self, name: str) -> Cause:
+        return self.now()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.now())
+
+    def __len__(self) -> int:
+        return len(self.now())
+
+
+#: Every physical cause, by the name all front ends use: one per row of the drive's causes with a ``bench``,
+#: read from the rows at each use (a row registered after this module was imported is in it).
+CAUSES: Mapping[str, Cause] = _Live()
+
+
+def physical() -> frozenset[FaultCause]:
+    """The profile's fault causes that a physical cause (:data:`CAUSES`) brings about, as the rows are now."""
+    return frozenset(f for cause in CAUSES.values() for f in cause.faults)
+
+
+def every_name() -> tuple[str, ...]:
+    """Every cause any profile's drive may be given: the physical ones, then every cause with no physical one
+    (a profile has those it maps to a code: :func:`cause_names`)."""
+    bodily = physical()
+    return (*CAUSES, *(f.value for f in FaultCause if f not in bodily))
 
 
 def latched(profile: Profile) -> dict[str, int]:
     """The profile's faults with no physical cause: name -> wire code (they are latched, not caused)."""
+    bodily = physical()
     return {
         spec.cause.value: spec.code
         for spec in profile.faults.values()
-        if spec.cause is not None and spec.cause not in PHYSICAL
+        if spec.cause is not None and spec.cause not in bodily
     }
 
 

@@ -9,7 +9,7 @@ from typing import Any
 from ..core.simulator import Simulator
 from . import causes, liveaudit, ops
 from .routing import Field, Route, Schema
-from .schemas import conditions_schema
+from .schemas import Live, cause_schema, conditions_schema
 
 
 def _state(sim: Simulator, address: int) -> dict[str, Any]:
@@ -106,7 +106,7 @@ def _fault_schema() -> Schema:
 
     return {
         "oneOf": [
-            obj({"cause": {"type": "string"}}, ("cause",)),
+            obj({"cause": cause_schema()}, ("cause",)),
             obj(
                 {"code": {"type": "integer", "minimum": 1, "maximum": 255}, "persistent": {"type": "boolean"}},
                 ("code",),
@@ -232,7 +232,7 @@ DRIVES: tuple[Route, ...] = (
         "clear_fault",
         '{"reset": true, "cause": "undervoltage"} (both optional)',
         _clear_fault,
-        (Field("reset", {"type": "boolean"}), Field("cause", {"type": "string"})),
+        (Field("reset", {"type": "boolean"}), Field("cause", Live(cause_schema))),
         changes=True,
         cli="clear",
         help="end a fault's cause (--cause NAME; default: every cause) and press reset",

@@ -1,20 +1,22 @@
 """JSON Schemas of the values the control surface takes, built from the tables the operations check them by.
 
-The conditions (:data:`~c20sim.control.ops.CONDITIONS`, with their generators) and the link faults
-(:data:`~c20sim.core.linkfaults.KNOBS`): a condition or link fault added there is described here too, for
-the OpenAPI document, the route table and the scenario format's schema alike.
+The conditions (:data:`~c20sim.control.ops.CONDITIONS`, with their generators), the fault causes (the rows of
+:data:`c20sim.drive.trips.TRIPS`, through :func:`~c20sim.control.causes.every_name`) and the link faults
+(:data:`~c20sim.core.linkfaults.KNOBS`): a condition, cause or link fault added there is described here too, for
+the OpenAPI document, the route table and the scenario format's schema alike. Each is built when asked, from the
+rows as they are then.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from ..core.generators import MAX_SECONDS, MIN_PERIOD
 from ..core.linkfaults import KNOBS
-from . import ops
+from . import causes, ops
 
-__all__ = ["conditions_schema", "generator_schema", "link_schema"]
+__all__ = ["Live", "cause_schema", "conditions_schema", "generator_schema", "link_schema"]
 
 
 def generator_schema(low: float, high: float) -> dict[str, Any]:
@@ -64,6 +66,32 @@ def conditions_schema() -> dict[str, Any]:
         else:
             props[name] = {"type": "integer", "minimum": c.low, "maximum": c.high, "description": c.help}
     return {"type": "object", "properties": props, "additionalProperties": False, "minProperties": 1}
+
+
+class Live(Mapping[str, Any]):
+    """A schema built when read (``Live(cause_schema)``): for a route field, which is made at import, to describe
+    the rows as they are when the document is asked for."""
+
+    def __init__(self, build: Callable[[], Mapping[str, Any]]) -> None:
+        self._build = build
+
+    def __getitem__(self, key: str) -> Any:
+        return self._build()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._build())
+
+    def __len__(self) -> int:
+        return len(self._build())
+
+
+def cause_schema() -> dict[str, Any]:
+    """A fault's cause by name: every cause of the rows now (the physical ones, then those only latched; a drive
+    takes those its profile has)."""
+    return {
+        "enum": list(causes.every_name()),
+        "description": "a fault's cause: a physical one, or a fault the profile has with no physical cause",
+    }
 
 
 _KIND_SCHEMAS: Mapping[str, Any] = {

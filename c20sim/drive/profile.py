@@ -21,7 +21,7 @@ from .profilecheck import _FAULT_KEYS as _FAULT_KEYS  # the scenario's schema bu
 from .profilecheck import _PARAM_KEYS as _PARAM_KEYS
 from .profilecheck import _SOURCES as _SOURCES
 from .profilecheck import _TOP_KEYS as _TOP_KEYS
-from .profilecheck import _Checker, _did_you_mean, _parse_faults, _parse_parameters
+from .profilecheck import _Checker, _did_you_mean, _parse_faults, _parse_parameters, own_sections, parse_levels
 from .profiletypes import (
     DEFAULT_PROFILE,
     REQUIRED_MIRRORS,
@@ -103,7 +103,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise check.fail("", f"not valid TOML: {exc}") from None
-    check.unknown_keys(data, _TOP_KEYS, "")
+    check.unknown_keys(data, [*_TOP_KEYS, *own_sections()], "")
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise check.fail("name", "missing or empty; the profile's name, such as 'c20-400hr'")
@@ -123,6 +123,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
     thermal = check.section(data, "thermal", ThermalParams)
     control = check.section(data, "control", ControlParams)
     _check_levels(check, motor, supply)
+    levels = parse_levels(check, data)  # the cause rows' own keys
     faults = _parse_faults(check, data.get("fault"))
     parameters, defaults, mirrors = _parse_parameters(check, data.get("parameter"))
     if protocol.password and password_address in {p.address for p in parameters}:
@@ -162,6 +163,7 @@ def parse_profile(text: str, path: str = "<profile>") -> Profile:
         defaults=defaults,
         registers=registers,
         behaviours=tuple(behaviours),
+        levels=levels,
     )
 
 

@@ -1,7 +1,8 @@
 """Checking a profile's TOML: the checker of keys, numbers and curves, the fault table and the function codes.
 
 Every error is a :class:`~c20sim.wire.errors.ProfileError` naming the file, the key and the allowed range, with
-a "did you mean" for a misspelt key. :func:`c20sim.drive.profile.parse_profile` calls these.
+a "did you mean" for a misspelt key. The keys a cause row declares (:class:`~c20sim.drive.trips.Level`) are
+checked from the row: their section's allowed keys, their range and unit in the error, their default. :func:`c20sim.drive.profile.parse_profile` calls these.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 from ..wire.errors import ProfileError
 from ..wire.registers import FIXED_REGISTERS, Access, RegisterSpec, format_fcode, is_fcode, parse_fcode
 from .profiletypes import REQUIRED_MIRRORS, FaultCause, FaultSpec
+from .trips import Level, levels
 
 
 def _did_you_mean(word: str, choices: Any) -> str:
@@ -76,10 +78,22 @@ class _Checker:
             points.append((multiple, seconds))
         return tuple(points)
 
+    def level(self, table: Mapping[str, Any], level: Level) -> bool | int | float:
+        """A cause row's key in ``table`` (its section), checked against the row's range; its default if absent."""
+        if level.name not in table:
+            return level.default
+        value = table[level.name]
+        if level.kind is bool:
+            if not isinstance(value, bool):
+                raise self.fail(level.key, f"must be true or false, not {value!r}")
+            return value
+        number: int | float = self.number(value, level.key, level.kind, level.low, level.high, level.unit)
+        return number
+
     def section(self, data: Mapping[str, Any], name: str, cls: type) -> Any:
         table = self.table(data, name) if name in data or _required(cls) else {}
         fields = {f.name: f for f in dataclasses.fields(cls)}
-        self.unknown_keys(table, fields, f"{name}.")
+        self.unknown_keys(table, [*fields, *(lv.name for lv in section_levels(name))], f"{name}.")
         values: dict[str, Any] = {}
         for fname, f in fields.items():
             key = f"{name}.{fname}"
@@ -113,6 +127,29 @@ class _Checker:
                     raise self.fail(key, f"{value} is not allowed; allowed: {', '.join(map(str, meta['choices']))}")
             values[fname] = value
         return cls(**values)
+
+
+def section_levels(section: str) -> list[Level]:
+    """The cause rows' keys in ``section``, as the rows are now."""
+    return [level for level in levels().values() if level.section == section]
+
+
+def own_sections() -> list[str]:
+    """The tables only cause rows declare (none of the profile's own sections), in the rows' order."""
+    return list(dict.fromkeys(lv.section for lv in levels().values() if lv.section not in _TOP_KEYS))
+
+
+def parse_levels(check: _Checker, data: Mapping[str, Any]) -> dict[str, bool | int | float]:
+    """Every cause row's key: the profile's value, checked against the row's range, or the row's default. A table
+    only rows declare is checked here for unknown keys (the profile's own sections are, by ``section``)."""
+    out: dict[str, bool | int | float] = {}
+    for section in own_sections():
+        table = check.table(data, section) if section in data else {}
+        check.unknown_keys(table, [lv.name for lv in section_levels(section)], f"{section}.")
+    for level in levels().values():
+        table = data.get(level.section, {})
+        out[level.key] = check.level(table if isinstance(table, dict) else {}, level)
+    return out
 
 
 def _required(cls: type) -> bool:

@@ -235,6 +235,14 @@ class Profile:
     registers: RegisterMap = field(repr=False, compare=False)
     #: named behaviours (entry-point group c20sim.behaviours) hooking this model's registers or step
     behaviours: tuple[str, ...] = ()
+    #: the cause rows' own keys (:class:`c20sim.drive.trips.Level`), by ``section.name``: the profile's value or the
+    #: row's default
+    levels: Mapping[str, bool | int | float] = field(default_factory=dict)
+
+    def level(self, key: str) -> bool | int | float:
+        """A cause row's profile key (``"protection.condensation_rh_pct"``): the profile's value or its default;
+        KeyError if no row declares it (or it was declared after this profile was parsed)."""
+        return self.levels[key]
 
     def fault_code(self, cause: FaultCause) -> int:
         """The wire code of a fault cause (raises KeyError if the profile has none)."""

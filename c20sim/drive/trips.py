@@ -13,6 +13,9 @@ A :class:`Trip` row is one cause of device faults: its name (the profile's ``cau
   step of the segment it does (``trips_at``): a row whose ``detect`` reads what moves along a segment (the
   temperature, an I²t budget) needs them, or the segment jumps past its trip; one that reads only conditions
   needs none (a condition set ends the segment);
+- ``levels``: the profile keys it reads (:class:`Level`: ``[section] name``, its type, range, default, unit and
+  source), which the profile's parser checks (``Profile.level("section.name")`` gives the value), the profile's
+  JSON schema describes and docs/profile-format.md must name; a row's levels take no edit elsewhere;
 - ``bench``: how a bench brings it about (:class:`Bench`: the dashboard's key, the conditions it sets and
   ends), from which :data:`c20sim.control.causes.CAUSES`, the API's and the scenarios' causes and the
   dashboard's fault switches are built.
@@ -52,10 +55,12 @@ __all__ = [
     "Bench",
     "Cycle",
     "FaultCause",
+    "Level",
     "Trip",
     "checked",
     "docs_table",
     "foreseen",
+    "levels",
     "overheat_seconds",
     "register",
     "unregister",
@@ -170,6 +175,43 @@ class Bench:
 
 
 @dataclass(frozen=True)
+class Level:
+    """One profile key a cause row reads: ``[section] name = value``, checked against its range by the parser.
+
+    ``section`` is one of the profile's tables (``protection``, ``supply``, ...) or a table of the row's own; the
+    key is optional in a profile (``default`` is taken), so a profile written before the row stays valid.
+    """
+
+    section: str
+    name: str
+    #: its value where the profile does not give it; its type (bool, int or float) is the key's type
+    default: bool | int | float
+    #: its range (None: a bool, which has none)
+    low: float | None = None
+    high: float | None = None
+    unit: str = ""
+    #: what it sets, for the schema and the errors
+    doc: str = ""
+    #: where the default comes from: ``assumed`` or its source (the sheet, the notes, a field measurement)
+    source: str = "assumed"
+
+    @property
+    def key(self) -> str:
+        """``section.name``: its name in errors and in ``Profile.level``."""
+        return f"{self.section}.{self.name}"
+
+    @property
+    def kind(self) -> type:
+        return type(self.default)
+
+    def allowed(self) -> str:
+        """Its allowed values, in words: "allowed 50 to 100 %", or "true or false"."""
+        if self.kind is bool:
+            return "true or false"
+        return f"allowed {self.low:g} to {self.high:g}{' ' + self.unit if self.unit else ''}"
+
+
+@dataclass(frozen=True)
 class Trip:
     """One cause of device faults: a row (see the module's words)."""
 
@@ -192,6 +234,8 @@ class Trip:
     #: (the integrator, the segment, step n of it) -> whether it trips by then (monotone in n)
     trips_at: Callable[[Any, Any, int], bool] | None = None
     bench: Bench | None = None
+    #: the profile keys it reads (see :class:`Level`)
+    levels: tuple[Level, ...] = ()
 
     @functools.cached_property
     def causes(self) -> tuple[str, ...]:
@@ -504,10 +548,29 @@ def _add_causes(trip: Trip) -> None:
         FaultCause._members[value] = FaultCause._make(value, trip, phase)
 
 
+def levels() -> dict[str, Level]:
+    """Every row's profile keys, by ``section.name``, in the rows' order."""
+    return {level.key: level for t in TRIPS.values() for level in t.levels}
+
+
+def _check_levels(trip: Trip) -> None:
+    taken = levels()
+    for level in trip.levels:
+        if level.key in taken:
+            raise ValueError(f"fault cause {trip.name}: profile key {level.key} is another row's")
+        if level.kind not in (bool, int, float):
+            raise ValueError(f"fault cause {trip.name}: profile key {level.key}: a bool, int or float default")
+        if level.kind is not bool and (
+            level.low is None or level.high is None or not level.low <= level.default <= level.high
+        ):
+            raise ValueError(f"fault cause {trip.name}: profile key {level.key}: its default outside its range")
+
+
 def register(trip: Trip) -> Trip:
-    """Add a cause row (before the front ends are imported: they build their tables from this one)."""
+    """Add a cause row (front ends read the rows when asked; a program may register before or after importing)."""
     if trip.name in TRIPS or any(value in FaultCause._members for value in trip.causes):
         raise ValueError(f"fault cause {trip.name}: declared twice")
+    _check_levels(trip)
     TRIPS[trip.name] = trip
     _add_causes(trip)
     checked.cache_clear()

@@ -1,8 +1,9 @@
 """JSON Schemas of the profile and scenario formats, for TOML editors and other tools.
 
 Built from the tables the loaders check against (the profile's dataclass
-fields and their ranges, the fault causes, the conditions, link faults and
-keys of :mod:`c20sim.control.ops`), and shipped in the package as
+fields and their ranges, the fault causes and the profile keys their rows
+declare, the conditions, link faults and keys of :mod:`c20sim.control.ops`),
+each read when a schema is built, and shipped in the package as
 ``c20sim/schemas/profile.schema.json`` and ``scenario.schema.json``; a test
 checks that the shipped files are what this module builds, and that every
 shipped profile and scenario passes them. ``c20sim schema profile|scenario``
@@ -22,7 +23,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..control import causes
 from ..drive.profile import (
     _FAULT_KEYS,
     _PARAM_KEYS,
@@ -37,6 +37,8 @@ from ..drive.profile import (
     SupplyParams,
     ThermalParams,
 )
+from ..drive.profilecheck import own_sections, section_levels
+from ..drive.trips import Level
 from ..wire.errors import C20SimError
 from ..wire.registers import Access
 
@@ -47,7 +49,23 @@ KINDS = ("profile", "scenario")
 SCHEMA_DIR = Path(__file__).resolve().parent.parent / "schemas"
 
 
-def _section(cls: type) -> dict[str, Any]:
+def _level(level: Level) -> dict[str, Any]:
+    """A cause row's profile key (:class:`~c20sim.drive.trips.Level`): its type, range, default and source."""
+    kind = {bool: "boolean", int: "integer", float: "number"}[level.kind]
+    prop: dict[str, Any] = {"type": kind}
+    if level.kind is not bool:
+        prop["minimum"], prop["maximum"] = level.low, level.high
+    text = "; ".join(t for t in (level.unit, level.doc, f"source: {level.source}") if t)
+    return {**prop, "description": text, "default": level.default}
+
+
+def _own_section(name: str) -> dict[str, Any]:
+    """A table only cause rows declare: their keys, each optional."""
+    props = {lv.name: _level(lv) for lv in section_levels(name)}
+    return {"type": "object", "properties": props, "additionalProperties": False}
+
+
+def _section(cls: type, name: str) -> dict[str, Any]:
     props: dict[str, Any] = {}
     required = []
     for f in dataclasses.fields(cls):
@@ -67,6 +85,7 @@ def _section(cls: type) -> dict[str, Any]:
         else:
             required.append(f.name)
         props[f.name] = prop
+    props.update((lv.name, _level(lv)) for lv in section_levels(name))  # the cause rows' keys of this section
     schema: dict[str, Any] = {"type": "object", "properties": props, "additionalProperties": False}
     if cls.__doc__:
         schema["description"] = cls.__doc__.strip().splitlines()[0]
@@ -125,12 +144,12 @@ def profile_schema() -> dict[str, Any]:
         "name": {"type": "string", "minLength": 1, "description": "the profile's name, such as c20-400hr"},
         "description": {"type": "string"},
         "software_version": {"type": "number", "minimum": 1, "maximum": 99, "description": "300AH, such as 1.00"},
-        "protocol": _section(ProtocolParams),
-        "motor": _section(MotorParams),
-        "supply": _section(SupplyParams),
-        "protection": _section(ProtectionParams),
-        "thermal": _section(ThermalParams),
-        "control": _section(ControlParams),
+        "protocol": _section(ProtocolParams, "protocol"),
+        "motor": _section(MotorParams, "motor"),
+        "supply": _section(SupplyParams, "supply"),
+        "protection": _section(ProtectionParams, "protection"),
+        "thermal": _section(ThermalParams, "thermal"),
+        "control": _section(ControlParams, "control"),
         "fault": {"type": "array", "items": fault, "minItems": 1},
         "parameter": {"type": "array", "items": parameter, "minItems": 1},
         "behaviours": {
@@ -141,6 +160,7 @@ def profile_schema() -> dict[str, Any]:
         },
     }
     assert set(props) == set(_TOP_KEYS)
+    props.update((name, _own_section(name)) for name in own_sections())
     return {
         "$schema": DRAFT,
         "title": "c20sim drive profile",
@@ -155,7 +175,7 @@ def profile_schema() -> dict[str, Any]:
 
 def scenario_schema() -> dict[str, Any]:
     """The scenario format: its top-level keys, and a step as the step kinds' rows make it (:mod:`.stepkinds`)."""
-    from .stepkinds import CAUSE_NAMES, table
+    from .stepkinds import table
     from .timeline import TOP_KEYS
 
     step = table().schema()
@@ -171,7 +191,6 @@ def scenario_schema() -> dict[str, Any]:
         "step": {"type": "array", "items": step, "minItems": 1},
     }
     assert set(props) == set(TOP_KEYS)
-    assert set(CAUSE_NAMES) >= set(causes.CAUSES)
     return {
         "$schema": DRAFT,
         "title": "c20sim scenario",

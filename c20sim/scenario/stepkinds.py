@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 from ..control import causes, drills, ops
 from ..control.schemas import conditions_schema, link_schema
 from ..drill import INCIDENTS, read_plan
-from ..drive.profile import FaultCause
 from ..wire.errors import C20SimError
 from .stepchecks import CHECKS
 from .steps import Kinds, Outcome, Reading, Step, StepKind, missing_register
@@ -23,15 +22,15 @@ from .steps import Kinds, Outcome, Reading, Step, StepKind, missing_register
 if TYPE_CHECKING:
     from ..core.simulator import Simulator
 
-__all__ = ["CAUSE_NAMES", "TABLE", "parse_step", "table"]
-
-#: Every cause a scenario may name; whether the profile has a latched one is checked against the simulator.
-CAUSE_NAMES = (*causes.CAUSES, *(f.value for f in FaultCause if f not in causes.PHYSICAL))
+__all__ = ["TABLE", "parse_step", "table"]
 
 
 def _cause(value: object, key: str, reading: Reading) -> str:
-    if not isinstance(value, str) or value not in CAUSE_NAMES:
-        message = str(ops.unknown("cause", value, CAUSE_NAMES)) if isinstance(value, str) else "expected a cause's name"
+    """A cause a scenario may name: every one of the rows as they are now (whether the profile has a latched one
+    is checked against the simulator)."""
+    names = causes.every_name()
+    if not isinstance(value, str) or value not in names:
+        message = str(ops.unknown("cause", value, names)) if isinstance(value, str) else "expected a cause's name"
         raise reading.fail(key, message)
     return value
 
@@ -76,7 +75,7 @@ def _flag(key: str) -> Any:
 
 
 def _fault(value: object, reading: Reading) -> dict[str, object]:
-    read = functools.partial(causes.read_fault, value, causes.TOML, names=list(CAUSE_NAMES))
+    read = functools.partial(causes.read_fault, value, causes.TOML, names=list(causes.every_name()))
     return {"fault": reading.checked("fault", read)}
 
 
@@ -207,7 +206,7 @@ def _cause_here(name: str | None, sim: Simulator) -> str | None:
 
 
 def _fault_schema() -> dict[str, Any]:
-    cause = {"type": "object", "properties": {"cause": {"enum": list(CAUSE_NAMES)}}, "required": ["cause"]}
+    cause = {"type": "object", "properties": {"cause": {"enum": list(causes.every_name())}}, "required": ["cause"]}
     code = {
         "type": "object",
         "properties": {"code": {"type": "integer", "minimum": 1, "maximum": 255}, "persistent": {"type": "boolean"}},
@@ -221,7 +220,7 @@ def _fault_schema() -> dict[str, Any]:
 
 
 def _clear_fault_schema() -> dict[str, Any]:
-    cause = {"type": "object", "properties": {"cause": {"enum": list(CAUSE_NAMES)}}, "required": ["cause"]}
+    cause = {"type": "object", "properties": {"cause": {"enum": list(causes.every_name())}}, "required": ["cause"]}
     return {"oneOf": [{"type": "boolean"}, {**cause, "additionalProperties": False}]}
 
 

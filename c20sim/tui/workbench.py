@@ -19,9 +19,9 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, overload
 
 from ..control import causes, ops, routes
 from ..core.linkfaults import KNOBS
@@ -68,10 +68,36 @@ class Switch:
     how: str
 
 
-#: Device fault switches, one per physical cause (latched faults are added per profile: keys 1-9).
-DEVICE_SWITCHES: tuple[Switch, ...] = tuple(Switch(c.key, c.label, c.how) for c in causes.CAUSES.values())
-#: The cause behind each device switch key.
-CAUSE_OF_KEY: Mapping[str, str] = {c.key: c.name for c in causes.CAUSES.values()}
+class _DeviceSwitches(Sequence[Switch]):
+    """The device fault switches as the cause rows are now (:data:`c20sim.control.causes.CAUSES`, read when asked)."""
+
+    @staticmethod
+    def now() -> tuple[Switch, ...]:
+        return tuple(Switch(c.key, c.label, c.how) for c in causes.CAUSES.values())
+
+    @overload
+    def __getitem__(self, index: int) -> Switch: ...
+    @overload
+    def __getitem__(self, index: slice) -> tuple[Switch, ...]: ...
+    def __getitem__(self, index: int | slice) -> Switch | tuple[Switch, ...]:
+        return self.now()[index]
+
+    def __len__(self) -> int:
+        return len(causes.CAUSES)
+
+    def __repr__(self) -> str:
+        return f"DEVICE_SWITCHES{self.now()!r}"
+
+
+#: Device fault switches, one per physical cause (latched faults are added per profile: keys 1-9), read from the
+#: rows when asked: a cause registered after this module was imported has its switch here.
+DEVICE_SWITCHES: Sequence[Switch] = _DeviceSwitches()
+
+
+def cause_of_key() -> dict[str, str]:
+    """The cause behind each device switch key, as the rows are now."""
+    return {c.key: c.name for c in causes.CAUSES.values()}
+
 
 #: Link fault switches, one per link fault, from the link faults' own knobs.
 LINK_SWITCHES: tuple[Switch, ...] = tuple(Switch(k.key, k.label, k.how) for k in KNOBS.values())
@@ -430,7 +456,7 @@ class Workbench:
 
     def _switch(self, switch: Switch) -> Switch:
         """A device switch as this profile shows it: with its cause's trip time where the cause has one."""
-        cause = causes.CAUSES[CAUSE_OF_KEY[switch.key]]
+        cause = causes.CAUSES[cause_of_key()[switch.key]]
         if cause.eta is None or not cause.dashboard:
             return switch
         seconds = cause.eta(self.profile, None)
@@ -438,8 +464,9 @@ class Workbench:
         return replace(switch, how=cause.dashboard.format(when=when))
 
     def _cause(self, key: str) -> str:
-        if key in CAUSE_OF_KEY:
-            return CAUSE_OF_KEY[key]
+        by_key = cause_of_key()
+        if key in by_key:
+            return by_key[key]
         if key in self._latched_cause:
             return self._latched_cause[key]
         raise KeyError(key)
@@ -451,8 +478,9 @@ class Workbench:
             if active.get(self._latched_cause[key]):
                 return f"{name} (0x{code:02X}) is held on by F4 key {key}; press {key} to release it, then reset"
         for switch in self.device_switches:
-            if active.get(CAUSE_OF_KEY.get(switch.key, "")):
-                return f"its cause, {CAUSE_OF_KEY[switch.key]}, is still present; press {switch.key} (F4) to end it"
+            cause = cause_of_key().get(switch.key, "")
+            if active.get(cause):
+                return f"its cause, {cause}, is still present; press {switch.key} (F4) to end it"
         return "the fault's cause is still present"
 
     def device_fault_active(self, address: int, key: str) -> bool:

@@ -66,7 +66,10 @@ def test_a_plan_with_an_error_is_one_line_and_exit_2(tmp_path: Path, text: str, 
 def test_a_placeholder_for_an_endpoint_not_served_is_one_line(tmp_path: Path) -> None:
     done = _run("--master", "true {pty}", "--plan", str(_plan(tmp_path)))
     assert done.returncode == 2
-    assert _one_line(done) == "c20sim: --master: placeholder {pty} is not served here; use {tcp}, {host}, {port}"
+    assert (
+        _one_line(done)
+        == "c20sim: --master: placeholder {pty} is not served here; use {tcp}, {tcp_port}, {host}, {port}"
+    )
 
 
 def _plan(tmp_path: Path) -> Path:

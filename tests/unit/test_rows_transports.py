@@ -4,7 +4,8 @@ A throwaway transport (RTU frames on a TCP listener of this file's own, with
 no code of c20sim's beyond the line and the endpoint every stream uses) is
 registered by a fixture and removed after: with no other edit it reaches
 serve's options and ``--help``, the ready file, the test handle and the
-pytest plugin, the plant's manifests and the dashboard's session; once
+pytest plugin, the plant's manifests, the dashboard's session and the
+drill's ``--transport`` (tests/drill/test_rows.py plays a drill over it); once
 removed, it is gone from each. The line change is followed through real
 ports by pymodbus, with every read of the bus's baud counted.
 """
@@ -28,6 +29,8 @@ from c20sim.control import liveaudit
 from c20sim.core.bus import Bus, LineSettings
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
+from c20sim.drill import INCIDENTS
+from c20sim.drillrun import carries, drill_transports, standard_for
 from c20sim.drive.profile import load_profile
 from c20sim.serve import ServeOptions, Server
 from c20sim.testing import C20Sim, transports
@@ -245,6 +248,18 @@ def test_the_dashboard_session_passes_the_row_on(loop_row: Transport) -> None:
         session.check_attach_options(attach, attach.serve_defaults)
 
 
+def test_the_row_is_a_drill_transport(loop_row: Transport, capsys: pytest.CaptureFixture[str]) -> None:
+    """``c20sim drill --transport`` takes it (the test handle opens it), and the standard plan over it is what RTU
+    over TCP carries (its line model is RTU); serve's drill runner over it refuses nothing RTU over TCP takes.
+    tests/drill/test_rows.py plays a drill over it against a real master."""
+    assert drill_transports() == ("pty", "tcp", "modbus-tcp", "loop-tcp")
+    assert "--transport {pty,tcp,modbus-tcp,loop-tcp}" in _help(capsys, "drill")
+    over_loop = [d.name for d in standard_for(1, "loop-tcp").drills]
+    assert over_loop == [d.name for d in standard_for(1, "tcp").drills]
+    assert "crc" in over_loop and "crc" not in [d.name for d in standard_for(1, "modbus-tcp").drills]
+    assert carries(INCIDENTS["crc"], "loop-tcp") and not carries(INCIDENTS["crc"], "modbus-tcp")
+
+
 def test_a_removed_row_is_gone_from_every_front_end(capsys: pytest.CaptureFixture[str]) -> None:
     remove = register(LOOP)
     remove()
@@ -252,6 +267,8 @@ def test_a_removed_row_is_gone_from_every_front_end(capsys: pytest.CaptureFixtur
     assert "--loop-tcp" not in _help(capsys, "serve")
     assert "--loop-port-base" not in _help(capsys, "plant")
     assert "loop-tcp" not in transports()
+    assert "loop-tcp" not in drill_transports() and "loop-tcp" not in _help(capsys, "drill")
+    assert not carries(INCIDENTS["crc"], "loop-tcp")
     assert "loop_tcp" not in session.serve_options()
     with pytest.raises(TypeError, match="no transport has the option 'loop_tcp'"):
         ServeOptions(loop_tcp="127.0.0.1:0")
