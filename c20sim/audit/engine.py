@@ -78,6 +78,7 @@ class Auditor(Window):
         self._writers = hooked(rules, "written")
         self._refusers = hooked(rules, "refused")
         self._storers = hooked(rules, "stored")
+        self._readers = hooked(rules, "read")
         self._idlers = hooked(rules, "idle")
         # what the frames seen mean, by their bytes (at most MAX_SUBJECTS each): requests, and replies as
         # (slave, function, exception code or -1)
@@ -217,7 +218,7 @@ class Auditor(Window):
     # -- replies
 
     def reply(self, t: float, data: bytes) -> None:
-        """A frame from a drive to the master (``feed`` with ``tx``): the rules' hooks refused or stored."""
+        """A frame from a drive to the master (``feed`` with ``tx``): the rules' hooks refused, stored or read."""
         self.frames += 1
         pending = self.pending
         if pending is None or self.pending_reply is not None or pending.slave == BROADCAST:
@@ -236,6 +237,11 @@ class Auditor(Window):
             refused(self, pending, code, FrameRef(self.frames, t))
         elif pending.stores:
             self._stored(pending)
+        elif self._readers and function == _READ and len(data) == 5 + 2 * (data[2] // 2) and data[2] % 2 == 0:
+            values = struct.unpack_from(f">{data[2] // 2}H", data, 3)
+            ref = FrameRef(self.frames, t)
+            for rule in self._readers:
+                rule.read(self, slave, pending.register, values, ref)
 
     def _claimant(self, request: _Request, code: int) -> Callable[[Window, _Request, int, FrameRef], None]:
         """The refused hook of the first rule that claims the refusal ``code`` of ``request`` (a fallback rule
