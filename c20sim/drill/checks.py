@@ -445,15 +445,16 @@ class _Drill:
     def resumes(self) -> CheckResult:
         reset_at = self.start + self._interval()
         limit = self.learned.timeout + RECOVER_POLLS * self.learned.period
-        runs = (x for x in self.span if x.t >= reset_at - _EPSILON and x.status == "good")
+        runs = (x for x in self.span if x.t >= self.start - _EPSILON and x.status == "good")
         run = next((x for x in runs if (w := x.written()) is not None and w[0] == Reg.COMMAND and w[1] in _RUN), None)
         if run is None:
-            return _check("resumes", False, "no run command the drive took after its automatic reset", -1)
+            return _check("resumes", False, "no run command the drive took after the trip", -1)
         after = run.t - reset_at
+        when = f"{after:.2f} s after its automatic reset" if after >= 0 else "before its automatic reset was due"
         return _check(
             "resumes",
             after <= limit + _EPSILON,
-            f"a run command the drive took {after:.2f} s after its automatic reset (limit {limit:.2f} s)",
+            f"a run command the drive took {run.t - self.start:.2f} s after the trip, {when} (limit {limit:.2f} s)",
             after,
             [run.ref],
         )
