@@ -140,6 +140,8 @@ class Auditor(Window):
         pending = self.pending
         if pending is not None and self._gap:
             self._too_soon(pending, seq, t, data)
+        self.previous, self.previous_seq, self.previous_t = pending, self.pending_seq, self.pending_t
+        self.previous_reply = self.pending_reply
         self.pending, self.pending_seq, self.pending_t, self.pending_data = meaning, seq, t, data
         self.pending_reply = None
         percent = self._demand(seq, t, meaning.cost)

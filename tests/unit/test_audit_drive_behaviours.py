@@ -193,3 +193,70 @@ def test_a_profile_without_the_record_is_not_judged_on_it(profile: Profile) -> N
     full = Auditor(profile)
     full.feed_all(frames)
     assert [f.rule for f in full.findings()] == ["fault-record-unread"]
+
+
+# -- the answer delay (F08.04): a master that gives up sooner than the delay the drive answers after
+
+F08_04 = fcode_address(8, 4)
+READ_STATUS = encode(ReadRequest(1, Reg.STATUS1, 1))
+STATUS_RUNNING = encode(ReadResponse(1, (1,)))
+
+
+def _set_delay(ms: int) -> list[tuple[float, str, bytes]]:
+    """A master's frames that set F08.04 to ``ms`` (200EH = 1, F08.04, 200EH = 0), each echoed (taken)."""
+    frames: list[tuple[float, str, bytes]] = []
+    for i, (register, value) in enumerate(((Reg.WRITE_ENABLE, 1), (F08_04, ms), (Reg.WRITE_ENABLE, 0))):
+        write = encode(WriteSingleRequest(1, register, value))
+        frames += [(0.1 * i, "rx", write), (0.1 * i + 0.012, "tx", write)]
+    return frames
+
+
+def test_a_timeout_shorter_than_the_answer_delay_it_set(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    frames = _set_delay(100)  # the drive answers 100 ms after a request
+    # a read at 1.0 s; the master gives up after 50 ms and asks again; the drive's reply comes after both
+    frames += [(1.0, "rx", READ_STATUS), (1.05, "rx", READ_STATUS), (1.109, "tx", STATUS_RUNNING)]
+    auditor.feed_all(frames)
+    delayed = [f for f in auditor.findings() if f.rule == "answer-delay-timeout"]
+    assert [(f.severity, f.drive, f.subject, f.figure, f.value, f.count) for f in delayed] == [
+        (
+            Severity.ERROR,
+            1,
+            "F08.04",
+            "a request 50.0 ms after an unanswered one, whose reply could not have finished before 111.5 ms: the "
+            "answer delay F08.04 = 100 ms is longer than the master waits",
+            pytest.approx(0.05),
+            1,
+        )
+    ]
+    assert [(r.seq, r.t) for r in delayed[0].frames] == [(7, 1.0), (8, 1.05)]
+
+
+def test_a_master_that_waits_out_the_answer_delay_gets_none(master: Master) -> None:
+    for register, value in ((Reg.WRITE_ENABLE, 1), (F08_04, 100), (Reg.WRITE_ENABLE, 0)):
+        master.write(register, value, 0.1)
+    assert master.read(Reg.STATUS1, 0.1) is not None
+    assert master.line.replies[-1].delay == pytest.approx(0.1)  # the real drive answers after its delay
+    for _ in range(5):
+        master.read(Reg.STATUS1, 0.2)  # 200 ms apart: each reply in before the next request
+    assert [f.rule for f in master.findings()] == []
+
+
+def test_an_unanswered_request_without_an_answer_delay_is_not_judged_here(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    auditor.feed_all([(1.0, "rx", READ_STATUS), (1.05, "rx", READ_STATUS), (1.06, "tx", STATUS_RUNNING)])
+    assert [f.rule for f in auditor.findings()] == []  # F08.04 = 0: the drive answers after its turnaround
+
+
+def test_the_answer_delay_a_master_read_back_counts(profile: Profile) -> None:
+    auditor = Auditor(profile)
+    read_delay = encode(ReadRequest(1, F08_04, 1))
+    frames = [(0.0, "rx", read_delay), (0.012, "tx", encode(ReadResponse(1, (200,))))]  # set at the keypad
+    frames += [(1.0, "rx", READ_STATUS), (1.15, "rx", READ_STATUS), (1.209, "tx", STATUS_RUNNING)]
+    auditor.feed_all(frames)
+    (finding,) = auditor.findings()
+    assert finding.rule == "answer-delay-timeout"
+    assert finding.figure.startswith(
+        "a request 150.0 ms after an unanswered one, whose reply could not have finished "
+        "before 211.5 ms: the answer delay F08.04 = 200 ms"
+    )

@@ -8,6 +8,7 @@ views, and docs/audit.md's check all read :data:`RULES`. To add a rule: a file h
 from __future__ import annotations
 
 from .absent_register import AbsentRegisterRule
+from .answer_delay_timeout import AnswerDelayTimeoutRule
 from .auto_reset_race import AutoResetRaceRule
 from .base import HOOKS, Rule, hooked
 from .broadcast_turnaround import BroadcastTurnaroundRule
@@ -48,5 +49,6 @@ RULES: dict[str, type[Rule]] = {
         SpeedAboveMaxRule,
         AutoResetRaceRule,
         FaultRecordUnreadRule,
+        AnswerDelayTimeoutRule,
     )
 }
