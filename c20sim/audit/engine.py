@@ -86,6 +86,8 @@ class Auditor(Window):
         self._replies: dict[bytes, tuple[int, int, int]] = {}
         # the rule that takes a refusal, by the request's bytes and the exception code (at most MAX_SUBJECTS)
         self._claimed: dict[tuple[bytes, int], Callable[[Window, _Request, int, FrameRef], None]] = {}
+        # the read hooks of the rules that watch a read request's registers, by its bytes (at most MAX_SUBJECTS)
+        self._watching: dict[bytes, tuple[Callable[[Window, int, int, tuple[int, ...], int, float], None], ...]] = {}
 
     def set_baud(self, baud: int) -> None:
         """The line's baud changed (a 2009H write the line followed): judge the next transactions at it."""
@@ -239,11 +241,14 @@ class Auditor(Window):
             refused(self, pending, code, FrameRef(self.frames, t))
         elif pending.stores:
             self._stored(pending)
-        elif self._readers and function == _READ and len(data) == 5 + 2 * (data[2] // 2) and data[2] % 2 == 0:
-            values = struct.unpack_from(f">{data[2] // 2}H", data, 3)
-            ref = FrameRef(self.frames, t)
-            for rule in self._readers:
-                rule.read(self, slave, pending.register, values, ref)
+        elif self._readers and function == _READ:
+            watching = self._watching.get(self.pending_data)
+            if watching is None:
+                watching = self._watchers(pending)
+            if watching and len(data) == 5 + data[2] and data[2] % 2 == 0:
+                values = struct.unpack_from(f">{data[2] // 2}H", data, 3)
+                for read in watching:
+                    read(self, slave, pending.register, values, self.frames, t)
 
     def _claimant(self, request: _Request, code: int) -> Callable[[Window, _Request, int, FrameRef], None]:
         """The refused hook of the first rule that claims the refusal ``code`` of ``request`` (a fallback rule
@@ -257,6 +262,17 @@ class Auditor(Window):
             self._claimed.clear()
         self._claimed[(self.pending_data, code)] = refused
         return refused
+
+    def _watchers(
+        self, request: _Request
+    ) -> tuple[Callable[[Window, int, int, tuple[int, ...], int, float], None], ...]:
+        """The read hooks of the rules that watch the registers ``request`` reads, remembered by its bytes."""
+        count = struct.unpack_from(">H", self.pending_data, 4)[0]
+        watching = tuple(rule.read for rule in self._readers if rule.watches(request.register, count))
+        if len(self._watching) >= MAX_SUBJECTS:
+            self._watching.clear()
+        self._watching[self.pending_data] = watching
+        return watching
 
     def _reply_meaning(self, data: bytes) -> tuple[int, int, int]:
         """(slave, function, exception code or -1) of the reply ``data``, remembered like a request's meaning."""

@@ -7,6 +7,7 @@ keeps its own :class:`_Seen` per drive (at most 256 addresses: bounded by the ad
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from ...wire.registers import Reg
 from ..findings import FrameRef
@@ -17,6 +18,8 @@ __all__ = ["FaultSeen", "_Seen"]
 
 #: 2100H's value for a drive in fault (the sheet's status word 1).
 STATUS_FAULT = 4
+#: The registers that show a fault: status word 1 and the fault code.
+_STATE = frozenset((Reg.STATUS1, Reg.FAULT_CODE))
 
 
 @dataclass(slots=True)
@@ -25,6 +28,11 @@ class _Seen:
 
     code: int
     ref: FrameRef
+
+
+def _covers(register: int, count: int, cells: tuple[int, ...]) -> bool:
+    """Whether a read of ``count`` registers from ``register`` takes one of ``cells``."""
+    return any(register <= cell < register + count for cell in cells)
 
 
 def _cell(register: int, values: tuple[int, ...], wanted: int) -> int | None:
@@ -37,24 +45,40 @@ class FaultSeen(Rule):
     """A rule that follows, per drive, the fault the master last saw: from the first reply that showed it (2102H
     not 0, or 2100H = 4) until a reply shows the drive out of it (2102H = 0, or 2100H another state)."""
 
+    #: the registers it reads the drive's facts from, beside 2100H and 2102H
+    watched: ClassVar[tuple[int, ...]] = ()
+
     def __init__(self) -> None:
         self.seen: dict[int, _Seen] = {}
 
-    def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], ref: FrameRef) -> None:
-        code = _cell(register, values, Reg.FAULT_CODE)
-        status = _cell(register, values, Reg.STATUS1)
-        faulted = (code is not None and code != 0) or status == STATUS_FAULT
-        cleared = (code == 0) or (status is not None and status != STATUS_FAULT)
+    def watches(self, register: int, count: int) -> bool:
+        return _covers(register, count, (Reg.STATUS1, Reg.FAULT_CODE, *self.watched))
+
+    def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], seq: int, t: float) -> None:
+        if len(values) == 1 and register in _STATE:  # the usual poll of 2100H or 2102H alone
+            value = values[0]
+            code = value if register == Reg.FAULT_CODE else None
+            faulted = value != 0 if code is not None else value == STATUS_FAULT
+            if not faulted and slave not in self.seen:
+                return
+        else:
+            code = _cell(register, values, Reg.FAULT_CODE)
+            status = _cell(register, values, Reg.STATUS1)
+            faulted = bool(code) or status == STATUS_FAULT
+            if code is None and status is None:  # neither: one of the rule's own cells
+                self.looked(audit, slave, register, values, FrameRef(seq, t))
+                return
         before = self.seen.get(slave)
         if faulted:
             if before is None:
-                self.seen[slave] = _Seen(code or 0, ref)
+                self.seen[slave] = _Seen(code or 0, FrameRef(seq, t))
                 self.fault_seen(audit, slave, self.seen[slave])
             elif code and not before.code:
                 before.code = code
-        elif cleared and before is not None:
+        elif before is not None:
             del self.seen[slave]
-        self.looked(audit, slave, register, values, ref)
+        if len(values) > 1:
+            self.looked(audit, slave, register, values, FrameRef(seq, t))
 
     def fault_seen(self, audit: Window, slave: int, seen: _Seen) -> None:
         """The master saw a fault of ``slave`` for the first time since it last saw the drive out of one."""

@@ -70,7 +70,10 @@ class AnswerDelayTimeoutRule(Rule):
         if register == F_ANSWER_DELAY and len(self.delay) < 256:
             self.delay[slave] = value
 
-    def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], ref: FrameRef) -> None:
+    def watches(self, register: int, count: int) -> bool:
+        return register <= F_ANSWER_DELAY < register + count
+
+    def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], seq: int, t: float) -> None:
         value = _cell(register, values, F_ANSWER_DELAY)
         if value is not None and len(self.delay) < 256:
             self.delay[slave] = value

@@ -26,6 +26,8 @@ class AutoResetRaceRule(FaultSeen):
         "sheet 2000H, 2102H; docs/faults.md"
     )
 
+    watched = (F_AUTO_RESET_TRIALS, F_AUTO_RESET_INTERVAL)
+
     def __init__(self) -> None:
         super().__init__()
         #: what the master told or was told of each drive: F08.28 (trials), F08.29 (seconds)

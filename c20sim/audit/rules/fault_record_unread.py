@@ -27,6 +27,8 @@ class FaultRecordUnreadRule(FaultSeen):
         "sheet 2000H, 2102H; docs/faults.md"
     )
 
+    watched = RECORD_CURRENT
+
     def __init__(self) -> None:
         super().__init__()
         self.record_read: set[int] = set()  #: the drives whose record the master read since it saw the fault
