@@ -1,7 +1,8 @@
 """The drill's drive-behaviour incidents through the real command and the reference masters over a real port:
 ``auto-reset`` (F08.28/F08.29: the drive resets itself) and ``fault-record`` (F07.27-F07.40 read before a reset).
 The careful masters pass both; the hasty one (reset at once, no record) fails exactly waits-auto-reset and
-reads-record; the naive one fails exactly what it never looks at. The audit of the same frame log agrees."""
+reads-record, and the audit of its frame log finds auto-reset-race and fault-record-unread; the naive one fails
+exactly what it never looks at."""
 
 from __future__ import annotations
 
@@ -74,11 +75,18 @@ def test_the_hasty_master_races_the_drive_and_skips_the_record(tmp_path: Path) -
         r"reset the fault 0\.\d\d s after the trip without reading the fault record \(F07\.27-F07\.40\)",
         drilled.figure("2 fault-record", "reads-record"),
     )
-    # the audit of the same frames: every reset came without a read of the record (one in auto-reset; two in
-    # fault-record, the first refused while the cause held, the next 3 s later); the automatic reset was set at
-    # the panel and never read over the wire, so the audit cannot tell that the first one raced it
-    (finding,) = _audit(drilled.log)
-    assert (finding["rule"], finding["severity"], finding["drive"], finding["count"]) == (
+    # the audit of the same frames: the hasty master read F08.28 = 1 and F08.29 = 1 s and reset at once anyway (its
+    # first reset, in auto-reset: refused while the cause held, a race all the same); every reset came without a
+    # read of the record (one in auto-reset; two in fault-record, the first refused while the cause held, the next
+    # 3 s later, where F08.28 read back 0: no race)
+    race, unread = _audit(drilled.log)
+    assert (race["rule"], race["severity"], race["drive"], race["count"]) == ("auto-reset-race", "warning", 1, 1)
+    assert re.fullmatch(
+        r"fault reset 2000H = 7 sent 0\.\d\d s after the master saw fault 0x\w\w, within the automatic reset interval "
+        r"F08\.29 = 1 s \(F08\.28 = 1\)",
+        str(race["figure"]),
+    )
+    assert (unread["rule"], unread["severity"], unread["drive"], unread["count"]) == (
         "fault-record-unread",
         "warning",
         1,
@@ -87,7 +95,7 @@ def test_the_hasty_master_races_the_drive_and_skips_the_record(tmp_path: Path) -
     assert re.fullmatch(
         r"fault 0x\w\w seen, reset 2000H = 7 sent 0\.\d\d s later without a read of the fault record "
         r"\(F07\.27-F07\.40, 071BH-0728H\)",
-        str(finding["figure"]),
+        str(unread["figure"]),
     )
 
 

@@ -12,8 +12,8 @@ Every style polls drive 1 every 100 ms with a 250 ms timeout and, at start, writ
   first sight of a fault it reads the fault record (F07.27, and the frequency, current and bus voltage at the
   trip: F07.33, F07.36, F07.37) and the drive's automatic reset (F08.28, F08.29): while the drive will reset
   itself, its own reset waits for F08.29 and 0.5 s more.
-- hasty: as careful, but on a fault it reads 2102H only and resets at once (the careful master of before the fault
-  record and the automatic reset).
+- hasty: as careful, but on a fault it reads 2102H and the drive's F08.28/F08.29, not the record, and resets at
+  once whatever the drive's automatic reset (the careful master of before the fault record and the automatic reset).
 - naive: polls 3006H and writes 2000H = 1 every cycle (a run command kept asserted), takes whatever bytes come
   as the reply (no check at all, over Modbus TCP any transaction id), never retries, never reads the status or fault code, never writes 2001H again.
 - stormy: polls like careful and checks replies, but retries a failed request at once (on a broken reply
@@ -215,15 +215,13 @@ def main() -> None:
                 silent = 0
             if status == 4:  # fault
                 master.transact(read_request(0x2102))
-                if (
-                    not fault_seen and args.style != "hasty"
-                ):  # the record for the alarm screen; wait for the drive's own reset if it has one
+                if not fault_seen:  # the record for the alarm screen; wait for the drive's own reset if it has one
                     fault_seen = True
-                    for register in RECORD:
+                    for register in RECORD if args.style != "hasty" else ():
                         master.transact(read_request(register))
                     trials = value(master.transact(read_request(AUTO_TRIALS)))
                     interval = value(master.transact(read_request(AUTO_INTERVAL)))
-                    if trials and interval is not None:
+                    if trials and interval is not None and args.style != "hasty":
                         next_reset = max(next_reset, time.monotonic() + interval / 10 + 0.5)
                 if time.monotonic() >= next_reset:
                     master.transact(write_request(0x2000, 7))
