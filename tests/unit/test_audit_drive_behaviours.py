@@ -260,3 +260,35 @@ def test_the_answer_delay_a_master_read_back_counts(profile: Profile) -> None:
         "a request 150.0 ms after an unanswered one, whose reply could not have finished "
         "before 211.5 ms: the answer delay F08.04 = 200 ms"
     )
+
+
+def test_a_throwaway_rule_hears_the_reads_of_the_registers_it_watches_only(
+    profile: Profile, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c20sim.audit import rules
+    from c20sim.audit.window import Window
+
+    heard: list[tuple[int, int, tuple[int, ...], int, float]] = []
+
+    class Throwaway(rules.Rule):
+        id = "throwaway-read"
+
+        def watches(self, register: int, count: int) -> bool:
+            return register <= Reg.FAULT_CODE < register + count
+
+        def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], seq: int, t: float) -> None:
+            heard.append((slave, register, values, seq, t))
+
+    monkeypatch.setitem(rules.RULES, Throwaway.id, Throwaway)
+    auditor = Auditor(profile)
+    auditor.feed_all(
+        [
+            (0.0, "rx", encode(ReadRequest(1, Reg.STATUS1, 1))),
+            (0.01, "tx", encode(ReadResponse(1, (4,)))),
+            (0.1, "rx", encode(ReadRequest(1, Reg.FAULT_CODE, 1))),
+            (0.11, "tx", encode(ReadResponse(1, (FAULT,)))),
+            (0.2, "rx", encode(ReadRequest(1, Reg.FAULT_CODE, 1))),
+            (0.21, "tx", bytes.fromhex("01 83 02 C0 F1")),  # an exception: no values, not heard
+        ]
+    )
+    assert heard == [(1, Reg.FAULT_CODE, (FAULT,), 4, 0.11)]
