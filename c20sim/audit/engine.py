@@ -78,6 +78,7 @@ class Auditor(Window):
         self._writers = hooked(rules, "written")
         self._refusers = hooked(rules, "refused")
         self._storers = hooked(rules, "stored")
+        self._readers = hooked(rules, "read")
         self._idlers = hooked(rules, "idle")
         # what the frames seen mean, by their bytes (at most MAX_SUBJECTS each): requests, and replies as
         # (slave, function, exception code or -1)
@@ -85,6 +86,8 @@ class Auditor(Window):
         self._replies: dict[bytes, tuple[int, int, int]] = {}
         # the rule that takes a refusal, by the request's bytes and the exception code (at most MAX_SUBJECTS)
         self._claimed: dict[tuple[bytes, int], Callable[[Window, _Request, int, FrameRef], None]] = {}
+        # the read hooks of the rules that watch a read request's registers, by its bytes (at most MAX_SUBJECTS)
+        self._watching: dict[bytes, tuple[Callable[[Window, int, int, tuple[int, ...], int, float], None], ...]] = {}
 
     def set_baud(self, baud: int) -> None:
         """The line's baud changed (a 2009H write the line followed): judge the next transactions at it."""
@@ -139,6 +142,8 @@ class Auditor(Window):
         pending = self.pending
         if pending is not None and self._gap:
             self._too_soon(pending, seq, t, data)
+        self.previous, self.previous_seq, self.previous_t = pending, self.pending_seq, self.pending_t
+        self.previous_reply = self.pending_reply
         self.pending, self.pending_seq, self.pending_t, self.pending_data = meaning, seq, t, data
         self.pending_reply = None
         percent = self._demand(seq, t, meaning.cost)
@@ -217,7 +222,7 @@ class Auditor(Window):
     # -- replies
 
     def reply(self, t: float, data: bytes) -> None:
-        """A frame from a drive to the master (``feed`` with ``tx``): the rules' hooks refused or stored."""
+        """A frame from a drive to the master (``feed`` with ``tx``): the rules' hooks refused, stored or read."""
         self.frames += 1
         pending = self.pending
         if pending is None or self.pending_reply is not None or pending.slave == BROADCAST:
@@ -236,6 +241,14 @@ class Auditor(Window):
             refused(self, pending, code, FrameRef(self.frames, t))
         elif pending.stores:
             self._stored(pending)
+        elif self._readers and function == _READ:
+            watching = self._watching.get(self.pending_data)
+            if watching is None:
+                watching = self._watchers(pending)
+            if watching and len(data) == 5 + data[2] and data[2] % 2 == 0:
+                values = struct.unpack_from(f">{data[2] // 2}H", data, 3)
+                for read in watching:
+                    read(self, slave, pending.register, values, self.frames, t)
 
     def _claimant(self, request: _Request, code: int) -> Callable[[Window, _Request, int, FrameRef], None]:
         """The refused hook of the first rule that claims the refusal ``code`` of ``request`` (a fallback rule
@@ -249,6 +262,17 @@ class Auditor(Window):
             self._claimed.clear()
         self._claimed[(self.pending_data, code)] = refused
         return refused
+
+    def _watchers(
+        self, request: _Request
+    ) -> tuple[Callable[[Window, int, int, tuple[int, ...], int, float], None], ...]:
+        """The read hooks of the rules that watch the registers ``request`` reads, remembered by its bytes."""
+        count = struct.unpack_from(">H", self.pending_data, 4)[0]
+        watching = tuple(rule.read for rule in self._readers if rule.watches(request.register, count))
+        if len(self._watching) >= MAX_SUBJECTS:
+            self._watching.clear()
+        self._watching[self.pending_data] = watching
+        return watching
 
     def _reply_meaning(self, data: bytes) -> tuple[int, int, int]:
         """(slave, function, exception code or -1) of the reply ``data``, remembered like a request's meaning."""

@@ -76,6 +76,12 @@ class Window:
         self.pending_t = 0.0
         self.pending_data = b""
         self.pending_reply: float | None = None
+        #: the request before the pending one (CRC good), its place and time, and its reply's time (None: none came
+        #: before the pending one was sent)
+        self.previous: _Request | None = None
+        self.previous_seq = 0
+        self.previous_t = 0.0
+        self.previous_reply: float | None = None
         #: a request sent too soon (the gap hooks): the seconds the last transaction needed before it
         self.need = 0.0
         self.drives: dict[int, _Drive] = {}

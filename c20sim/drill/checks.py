@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from ..audit.findings import FrameRef
+from ..drive.faultrecord import CURRENT_CONTEXT, FAULT_TYPES
 from ..wire.protocol import crc_ok, transaction_time
 from ..wire.registers import Command, Reg
 from .incidents import SOURCES, Learned
@@ -31,6 +32,9 @@ NOTICE_POLLS = 3
 RESET_WATCH = 3.0
 #: Times closer than this are one (a frame log rounds them to the microsecond).
 _EPSILON = 2e-6
+
+#: The fault record's current fault (F07.27) and the state at it (F07.33-F07.40): a read of any is a read of it.
+_RECORD = (FAULT_TYPES[0], *CURRENT_CONTEXT)
 
 _RUN = frozenset((Command.FORWARD, Command.REVERSE, Command.JOG_FORWARD, Command.JOG_REVERSE))
 
@@ -411,6 +415,84 @@ class _Drill:
             [setpoint.ref, run.ref],
         )
 
+    def _resets(self, since: float, until: float) -> list[_Txn]:
+        return [
+            x
+            for x in self.span
+            if since - _EPSILON <= x.t <= until + _EPSILON
+            and (w := x.written()) is not None
+            and w == (Reg.COMMAND, Command.RESET)
+        ]
+
+    def _interval(self) -> float:
+        interval = self.drill.values.get("interval", 0.0)
+        return float(interval) if isinstance(interval, (int, float)) else 0.0
+
+    def waits_auto_reset(self) -> CheckResult:
+        interval = self._interval()
+        resets = self._resets(self.start, self.start + interval)
+        if resets:
+            return _check(
+                "waits-auto-reset",
+                False,
+                f"{len(resets)} fault resets of its own while the drive's automatic reset counted down, the first "
+                f"{resets[0].t - self.start:.2f} s after the trip (F08.29 = {interval:g} s)",
+                len(resets),
+                [x.ref for x in resets],
+            )
+        return _check("waits-auto-reset", True, f"no reset of its own within F08.29 = {interval:g} s", 0)
+
+    def resumes(self) -> CheckResult:
+        reset_at = self.start + self._interval()
+        limit = self.learned.timeout + RECOVER_POLLS * self.learned.period
+        runs = (x for x in self.span if x.t >= self.start - _EPSILON and x.status == "good")
+        run = next((x for x in runs if (w := x.written()) is not None and w[0] == Reg.COMMAND and w[1] in _RUN), None)
+        if run is None:
+            return _check("resumes", False, "no run command the drive took after the trip", -1)
+        after = run.t - reset_at
+        when = f"{after:.2f} s after its automatic reset" if after >= 0 else "before its automatic reset was due"
+        return _check(
+            "resumes",
+            after <= limit + _EPSILON,
+            f"a run command the drive took {run.t - self.start:.2f} s after the trip, {when} (limit {limit:.2f} s)",
+            after,
+            [run.ref],
+        )
+
+    def reads_record(self) -> CheckResult:
+        read = next((x for x in self.span if x.status == "good" and any(x.reads(r) for r in _RECORD)), None)
+        reset = next(iter(self._resets(self.start, self.watched)), None)
+        if read is None:
+            what = (
+                f"reset the fault {reset.t - self.start:.2f} s after the trip without reading"
+                if reset
+                else "never read"
+            )
+            return _check(
+                "reads-record",
+                False,
+                f"{what} the fault record (F07.27-F07.40)",
+                -1,
+                [reset.ref] if reset else [],
+            )
+        if reset is not None and reset.t < read.t:
+            return _check(
+                "reads-record",
+                False,
+                f"reset the fault {reset.t - self.start:.2f} s after the trip, before it read the fault record "
+                f"({read.t - self.start:.2f} s)",
+                read.t - self.start,
+                [reset.ref, read.ref],
+            )
+        return _check(
+            "reads-record",
+            True,
+            f"read the fault record {read.reply_t - self.start:.2f} s after the trip"
+            + (", before its reset" if reset else ""),
+            read.reply_t - self.start,
+            [read.ref],
+        )
+
 
 @dataclass(frozen=True, slots=True)
 class Check:
@@ -485,6 +567,24 @@ CHECKS: dict[str, Check] = {
             "writes 2001H (RAM, lost at power-off) before the first run command after power-up",
             "sheet",
             _Drill.restores_ram,
+        ),
+        Check(
+            "waits-auto-reset",
+            "no fault reset (2000H = 7) of its own while the drive's automatic reset counts down (F08.29)",
+            "invt-auto",
+            _Drill.waits_auto_reset,
+        ),
+        Check(
+            "resumes",
+            "a run command the drive takes within its timeout plus 5 poll periods after the drive's automatic reset",
+            "assumed",
+            _Drill.resumes,
+        ),
+        Check(
+            "reads-record",
+            "reads the fault record (F07.27 or F07.33-F07.40) after the trip, before its reset",
+            "invt-record",
+            _Drill.reads_record,
         ),
     )
 }

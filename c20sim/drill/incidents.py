@@ -27,6 +27,8 @@ SOURCES: Mapping[str, str] = {
     "tcp": "Modbus Messaging on TCP/IP Implementation Guide V1.0b (4.4.1 transaction identifier)",
     "sheet": "the C20 protocol sheet (2000H commands, 2100H/2102H status and fault, 0x06 frame error)",
     "invt": "INVT Goodrive/GD20 manuals (P14.04/P14.05 comm timeout and action; fault reset)",
+    "invt-auto": "INVT GD20 P08.28/P08.29 (automatic fault reset; the family's, assumed for the C20's F08.28/F08.29)",
+    "invt-record": "INVT GD20 P07.27-P07.40 (the fault record; the family's, its C20 addresses F07.27-F07.40 assumed)",
     "assumed": "assumed",
 }
 
@@ -154,13 +156,30 @@ def _for(seconds: str, **faults: object) -> Plan:
 
 def _trip(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
     hold = _f(values, "hold")
-    cause = values["cause"]
+    cause = values.get("cause", "external")
     return (Step(0.0, "trip", {"cause": cause}), Step(hold, "release", {"cause": cause})), hold
 
 
 def _dip(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
     length = _f(values, "seconds")
     return (Step(0.0, "trip", {"cause": "undervoltage"}), Step(length, "release", {"cause": "undervoltage"})), length
+
+
+#: F08.29 as the shipped profiles have it (1.0 s), put back after the auto-reset incident.
+AUTO_RESET_INTERVAL_DEFAULT = 10
+
+
+def _auto_reset(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
+    interval, hold = _f(values, "interval"), _f(values, "hold")
+    length = round(interval + _f(values, "after"), 4)
+    return (
+        Step(0.0, "fcode", {"code": "F08.28", "value": 1}),
+        Step(0.0, "fcode", {"code": "F08.29", "value": round(interval * 10)}),
+        Step(0.0, "trip", {"cause": "external"}),
+        Step(min(hold, interval), "release", {"cause": "external"}),
+        Step(length, "fcode", {"code": "F08.28", "value": 0}),
+        Step(length, "fcode", {"code": "F08.29", "value": AUTO_RESET_INTERVAL_DEFAULT}),
+    ), length
 
 
 def _watchdog(values: Mapping[str, object], learned: Learned) -> tuple[tuple[Step, ...], float | None]:
@@ -410,6 +429,39 @@ INCIDENTS: dict[str, Incident] = {
             "invt",
             _dip,
             {"seconds": Param(0.3, 0.05, 10.0, "seconds of the dip")},
+            trips=True,
+        ),
+        Incident(
+            "auto-reset",
+            "drive",
+            "sets one automatic fault reset (F08.28 = 1) after the interval (F08.29), trips the running drive on an "
+            "external cause gone after the hold: the drive resets itself once the interval is up; F08.28 and F08.29 "
+            "back to 0 and 1.0 s after",
+            "the interval and 1 s more, then its timeout plus 5 poll periods, and 3 s to run again",
+            "notices the trip, keeps polling, sends no reset of its own (and no run command) while the drive's "
+            "counts down, and runs the drive again once it has reset itself",
+            ("notices", "keeps-polling", "waits-auto-reset", "no-run-into-fault", "resumes"),
+            "invt-auto",
+            _auto_reset,
+            {
+                "interval": Param(1.0, 0.2, 30.0, "F08.29 in seconds"),
+                "hold": Param(0.3, 0.05, 30.0, "seconds the cause stays (at most the interval)"),
+                "after": Param(1.0, 0.5, 30.0, "seconds watched past the interval before F08.28 goes back to 0"),
+            },
+            trips=True,
+        ),
+        Incident(
+            "fault-record",
+            "drive",
+            "trips the running drive on an external cause held for a moment: the fault record (F07.27-F07.48) "
+            "takes the state at the trip",
+            "the hold, then its timeout plus 5 poll periods, and 3 s for a reset",
+            "notices the trip and reads the fault record (F07.27, or the state at it F07.33-F07.40) before it "
+            "resets the fault, once",
+            ("notices", "reads-record", "resets-once", "recovers"),
+            "invt-record",
+            _trip,
+            {"hold": Param(0.5, 0.1, 60.0, "seconds the cause stays")},
             trips=True,
         ),
     )

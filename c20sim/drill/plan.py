@@ -153,7 +153,7 @@ def read_plan(doc: Mapping[str, object], name: str) -> Plan:
 
 
 #: The built-in standard plan but its drills: every incident of :data:`INCIDENTS` once, with its defaults, as the
-#: table holds them when the plan is made (about a minute and a half against a master polling every 100 ms with a
+#: table holds them when the plan is made (about 100 s against a master polling every 100 ms with a
 #: 250 ms timeout).
 STANDARD: Mapping[str, object] = {
     "seed": 1,

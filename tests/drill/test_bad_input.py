@@ -43,7 +43,8 @@ def test_an_unknown_incident_is_one_line_and_exit_2(tmp_path: Path) -> None:
     assert _one_line(done) == (
         f"c20sim: {plan}: drill 2: incident 'powercycle' is unknown; did you mean 'power-cycle'? the incidents are "
         "crc, no-reply, truncated, extra-bytes, wrong-address, wrong-function, split, wrong-transaction, "
-        "exception-06, late, echo, bursts, slow, noise, offline, trip, comm-watchdog, power-cycle, undervoltage-dip"
+        "exception-06, late, echo, bursts, slow, noise, offline, trip, comm-watchdog, power-cycle, undervoltage-dip, "
+        "auto-reset, fault-record"
     )
 
 

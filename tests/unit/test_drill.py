@@ -11,6 +11,7 @@ from c20sim.core.bus import Bus
 from c20sim.drill import INCIDENTS, Mark, judge, learn, read_plan, standard_plan
 from c20sim.drill.checks import CHECKS
 from c20sim.drill.checks import CHECKS as _CHECKERS  # one table now: a check is one row
+from c20sim.drill.incidents import Learned
 from c20sim.drive.profile import Profile
 from c20sim.wire.errors import C20SimError
 from c20sim.wire.protocol import ExceptionCode, ReadRequest, ReadResponse, crc16, encode
@@ -396,3 +397,149 @@ def test_takes_replies_says_when_it_cannot_tell() -> None:
     (verdict,) = judge(s.frames, plan, s.marks).verdicts
     takes = verdict.checks[0]
     assert takes.passed and takes.figure == "cannot tell: the master asks the same request in a row when all is well"
+
+
+# -- the drive's own behaviours: the automatic reset (F08.28/F08.29) and the fault record (F07.27-F07.48)
+
+FAULTED = _with_crc(b"\x01\x03\x02\x00\x04")  # 2100H = 4
+RECORD = _with_crc(b"\x01\x03\x07\x1b\x00\x01")  # F07.27 (071BH)
+RECORD_AT = _with_crc(b"\x01\x03\x07\x24\x00\x01")  # F07.36 (0724H): the current at the fault
+RECORD_OK = _with_crc(b"\x01\x03\x02\x00\x02")
+
+
+def _played(incident: str, s: Stream, **values: object) -> dict[str, tuple[bool, str]]:
+    plan = read_plan({"drill": [{"incident": incident, **values}]}, "p.toml")
+    (verdict,) = judge(s.frames, plan, s.marks).verdicts
+    return {c.check: (c.passed, c.figure) for c in verdict.checks}
+
+
+def _faulted_for(s: Stream, seconds: float) -> None:
+    """The master polls 2100H (4: fault) and 3006H every 100 ms for ``seconds``."""
+    until = s.t + seconds
+    while s.t < until - 1e-9:
+        start = s.t
+        s.ask(STATUS, FAULTED)
+        s.ask(SPEED, SPEED_OK)
+        s.t = start + 0.1
+
+
+def test_a_master_that_waits_for_the_drives_own_reset_and_runs_again_passes_auto_reset() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "auto-reset")
+    _faulted_for(s, 1.0)  # the drive resets itself 1.0 s after the trip (F08.29 = 1 s)
+    s.ask(STATUS, _with_crc(b"\x01\x03\x02\x00\x03"))  # stopped
+    s.ask(RUN, RUN)
+    s.t += 0.068
+    s.cycle(9)
+    s.mark("end", 1, "auto-reset")
+    s.cycle(40)
+    checks = _played("auto-reset", s)
+    assert checks["waits-auto-reset"] == (True, "no reset of its own within F08.29 = 1 s")
+    assert checks["resumes"] == (
+        True,
+        "a run command the drive took 1.02 s after the trip, 0.02 s after its automatic reset (limit 0.75 s)",
+    )
+    assert all(passed for passed, _ in checks.values()), checks
+
+
+def test_a_reset_of_its_own_during_the_countdown_fails_waits_auto_reset() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "auto-reset")
+    s.ask(STATUS, FAULTED)
+    s.ask(RESET, RESET)  # at once: races the drive's own reset
+    _faulted_for(s, 0.5)
+    s.ask(RESET, RESET)
+    s.t += 2.0
+    s.mark("end", 1, "auto-reset")
+    s.cycle(40)
+    checks = _played("auto-reset", s, interval=2.0)
+    assert checks["waits-auto-reset"] == (
+        False,
+        "2 fault resets of its own while the drive's automatic reset counted down, the first 0.02 s after the trip "
+        "(F08.29 = 2 s)",
+    )
+    assert checks["resumes"] == (False, "no run command the drive took after the trip")
+
+
+def test_a_run_command_long_after_the_drives_reset_fails_resumes() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "auto-reset")
+    _faulted_for(s, 1.0)
+    s.cycle(10)  # a second of polling a stopped drive (2100H reads 1 here: the master does not look)
+    s.ask(RUN, RUN)
+    s.mark("end", 1, "auto-reset")
+    s.cycle(40)
+    assert _played("auto-reset", s)["resumes"] == (
+        False,
+        "a run command the drive took 2.00 s after the trip, 1.00 s after its automatic reset (limit 0.75 s)",
+    )
+
+
+def test_a_record_read_before_the_reset_passes_reads_record() -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "fault-record")
+    s.ask(STATUS, FAULTED)
+    s.ask(RECORD_AT, RECORD_OK)
+    s.ask(RESET, RESET)
+    s.t += 0.5
+    s.mark("end", 1, "fault-record")
+    s.cycle(40)
+    checks = _played("fault-record", s)
+    assert checks["reads-record"] == (True, "read the fault record 0.03 s after the trip, before its reset")
+    assert all(passed for passed, _ in checks.values()), checks
+
+
+@pytest.mark.parametrize(
+    ("steps", "figure"),
+    [
+        ([(RESET, RESET), (RECORD, RECORD_OK)], "reset the fault 0.02 s after the trip, before it read the fault "
+         "record (0.03 s)"),
+        ([(RESET, RESET)], "reset the fault 0.02 s after the trip without reading the fault record (F07.27-F07.40)"),
+        ([], "never read the fault record (F07.27-F07.40)"),
+    ],
+)  # fmt: skip
+def test_a_reset_before_the_record_or_none_fails_reads_record(steps: list[tuple[bytes, bytes]], figure: str) -> None:
+    s = Stream()
+    s.warm()
+    s.mark("start", 1, "fault-record")
+    s.ask(STATUS, FAULTED)
+    for request, reply in steps:
+        s.ask(request, reply)
+    s.t += 0.5
+    s.mark("end", 1, "fault-record")
+    s.cycle(40)
+    assert _played("fault-record", s)["reads-record"] == (False, figure)
+
+
+def test_a_record_read_before_the_trip_is_not_a_read_after_it() -> None:
+    s = Stream()
+    s.warm()
+    s.ask(RECORD, RECORD_OK)  # the old record, in the warm-up's tail
+    s.t += 0.1
+    s.mark("start", 1, "fault-record")
+    s.ask(STATUS, FAULTED)
+    s.t += 0.5
+    s.mark("end", 1, "fault-record")
+    s.cycle(40)
+    assert _played("fault-record", s)["reads-record"] == (False, "never read the fault record (F07.27-F07.40)")
+
+
+def test_the_auto_reset_incident_sets_and_puts_back_f08_28_and_f08_29() -> None:
+    plan = read_plan({"drill": [{"incident": "auto-reset", "interval": 2.5, "hold": 0.4}]}, "p.toml")
+    (drill,) = plan.drills
+    steps, length = drill.incident.steps(drill.values, Learned(0.1, 0.25))
+    assert length == 3.5
+    assert [(s.at, s.op, dict(s.args)) for s in steps] == [
+        (0.0, "fcode", {"code": "F08.28", "value": 1}),
+        (0.0, "fcode", {"code": "F08.29", "value": 25}),
+        (0.0, "trip", {"cause": "external"}),
+        (0.4, "release", {"cause": "external"}),
+        (3.5, "fcode", {"code": "F08.28", "value": 0}),
+        (3.5, "fcode", {"code": "F08.29", "value": 10}),
+    ]
+    with pytest.raises(C20SimError, match=r"p.toml: drill 1: interval: 0.1 is outside 0.2-30"):
+        read_plan({"drill": [{"incident": "auto-reset", "interval": 0.1}]}, "p.toml")

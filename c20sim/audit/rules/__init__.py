@@ -8,12 +8,15 @@ views, and docs/audit.md's check all read :data:`RULES`. To add a rule: a file h
 from __future__ import annotations
 
 from .absent_register import AbsentRegisterRule
+from .answer_delay_timeout import AnswerDelayTimeoutRule
+from .auto_reset_race import AutoResetRaceRule
 from .base import HOOKS, Rule, hooked
 from .broadcast_turnaround import BroadcastTurnaroundRule
 from .collision import CollisionRule
 from .comm_watchdog import CommWatchdogRule
 from .early_retry import EarlyRetryRule
 from .eeprom_wear import EepromWearRule
+from .fault_record_unread import FaultRecordUnreadRule
 from .fcode_locked import FcodeLockedRule
 from .line_demand import LineDemandRule
 from .refused_repeat import RefusedRepeatRule
@@ -44,5 +47,8 @@ RULES: dict[str, type[Rule]] = {
         RefusedRepeatRule,
         ResetLoopRule,
         SpeedAboveMaxRule,
+        AutoResetRaceRule,
+        FaultRecordUnreadRule,
+        AnswerDelayTimeoutRule,
     )
 }

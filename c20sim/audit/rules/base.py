@@ -13,6 +13,8 @@ never called), in this order:
 - ``refused``: a drive answered the pending request with an exception code the rule :meth:`Rule.claims`
   (the first claiming rule takes it; a ``fallback`` rule only what no other rule claims).
 - ``stored``: the drive took a write of a function code (EEPROM) or a register mirroring one.
+- ``read``: a drive answered the pending read (0x03) of registers the rule :meth:`Rule.watches` with values (not
+  an exception): what the master saw.
 - ``idle``: now and then: on each request while a drive has 200EH = 1, and at the stream's end.
 
 A rule keeps its own memory on itself (it is made per stream) or in the window's counters
@@ -31,7 +33,7 @@ from ..window import Window
 __all__ = ["HOOKS", "Rule", "hooked"]
 
 #: The hooks, in the order the auditor calls them within a frame.
-HOOKS = ("gap", "demand", "request", "written", "refused", "stored", "idle")
+HOOKS = ("gap", "demand", "request", "written", "refused", "stored", "read", "idle")
 
 
 class Rule:
@@ -95,6 +97,15 @@ class Rule:
 
     def stored(self, audit: Window, slave: int, register: int, value: int) -> None:
         """The drive took a write of a function code (EEPROM), or a register mirroring one."""
+
+    def watches(self, register: int, count: int) -> bool:
+        """Whether :meth:`read` is called for a read of ``count`` registers from ``register`` (asked once per
+        distinct request frame)."""
+        return False
+
+    def read(self, audit: Window, slave: int, register: int, values: tuple[int, ...], seq: int, t: float) -> None:
+        """A drive answered a read of ``values`` from ``register`` on (the reply at ``seq``, ``t``): what the master
+        saw."""
 
     def idle(self, audit: Window, t: float) -> None:
         """Time has passed to ``t``."""

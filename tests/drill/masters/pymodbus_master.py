@@ -7,7 +7,9 @@ As the raw master (raw_master.py), every 100 ms, drive 1:
 - careful: pymodbus's own 3 retries, a 250 ms timeout (2 s over Modbus TCP, beyond the gateway's 1 s), and 3
   more on a gateway's 0x0B or a 0x06; polls 2100H and 3006H, backs off while the drive is
   silent; on a fault reads 2102H, sends no run command, resets once (not again for 3 s); a drive found stopped
-  gets 2001H again, then the run command.
+  gets 2001H again, then the run command. On the first sight of a fault it reads the fault record (F07.27,
+  F07.33, F07.36, F07.37) and the automatic reset (F08.28, F08.29): while the drive will reset itself, its own
+  reset waits for F08.29 and 0.5 s more.
 - naive: no retries (retries=0), a 250 ms timeout; polls 3006H and writes 2000H = 1 every cycle, an error is
   ignored; never reads the status or fault code, never writes 2001H again.
 - stormy: no pause and no bound: a request that fails is sent again at once, with a 30 ms timeout.
@@ -24,6 +26,9 @@ from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
 PERIOD = 0.1
+#: read on the first sight of a fault (as raw_master.py): the record, then F08.28 and F08.29
+RECORD = (0x071B, 0x0721, 0x0724, 0x0725)
+AUTO_TRIALS, AUTO_INTERVAL = 0x081C, 0x081D
 
 
 def client(args: argparse.Namespace, timeout: float, retries: int) -> ModbusTcpClient | ModbusSerialClient:
@@ -78,6 +83,7 @@ def main() -> None:
     write(0x2001, 1500)
     write(0x2000, 1)
     next_reset = 0.0
+    fault_seen = False
     silent = 0
     cycle = time.monotonic()
     while True:
@@ -94,10 +100,19 @@ def main() -> None:
                 silent = 0
             if status == 4:
                 read(0x2102)
+                if not fault_seen:
+                    fault_seen = True
+                    for register in RECORD:
+                        read(register)
+                    trials, interval = read(AUTO_TRIALS), read(AUTO_INTERVAL)
+                    if trials and interval is not None:
+                        next_reset = max(next_reset, time.monotonic() + interval / 10 + 0.5)
                 if time.monotonic() >= next_reset:
                     write(0x2000, 7)
                     next_reset = time.monotonic() + 3.0
-            elif status == 3:
+            elif status is not None:
+                fault_seen = False
+            if status == 3:
                 write(0x2001, 1500)
                 write(0x2000, 1)
         cycle += PERIOD

@@ -1,6 +1,6 @@
 """A reference master for the drill's tests, on raw sockets (or a pty), in three styles.
 
-    python raw_master.py careful|naive|stormy --tcp HOST:PORT | --modbus-tcp HOST:PORT | --pty PATH
+    python raw_master.py careful|hasty|naive|stormy --tcp HOST:PORT | --modbus-tcp HOST:PORT | --pty PATH
 
 Every style polls drive 1 every 100 ms with a 250 ms timeout and, at start, writes the speed reference
 (2001H = 1500) and runs the drive (2000H = 1).
@@ -8,7 +8,12 @@ Every style polls drive 1 every 100 ms with a 250 ms timeout and, at start, writ
 - careful: polls 2100H (status) and 3006H (speed); takes only a reply that checks (CRC, its address, its
   function, its own echo skipped, its own transaction id), retries a failed request after its timeout at most
   3 times, backs off (200 ms, 400 ms) while the drive is silent; on a fault reads 2102H, sends no run command,
-  resets once (then not again for 3 s); a drive found stopped gets 2001H again, then the run command.
+  resets once (then not again for 3 s); a drive found stopped gets 2001H again, then the run command. On the
+  first sight of a fault it reads the fault record (F07.27, and the frequency, current and bus voltage at the
+  trip: F07.33, F07.36, F07.37) and the drive's automatic reset (F08.28, F08.29): while the drive will reset
+  itself, its own reset waits for F08.29 and 0.5 s more.
+- hasty: as careful, but on a fault it reads 2102H and the drive's F08.28/F08.29, not the record, and resets at
+  once whatever the drive's automatic reset (the careful master of before the fault record and the automatic reset).
 - naive: polls 3006H and writes 2000H = 1 every cycle (a run command kept asserted), takes whatever bytes come
   as the reply (no check at all, over Modbus TCP any transaction id), never retries, never reads the status or fault code, never writes 2001H again.
 - stormy: polls like careful and checks replies, but retries a failed request at once (on a broken reply
@@ -31,6 +36,10 @@ import tty
 PERIOD = 0.1
 TIMEOUT = 0.25
 SLAVE = 1
+#: What a careful master reads on the first sight of a fault: the record (F07.27 the fault; F07.33, F07.36, F07.37
+#: the running frequency, current and bus voltage at it), then F08.28 (automatic resets) and F08.29 (their interval).
+RECORD = (0x071B, 0x0721, 0x0724, 0x0725)
+AUTO_TRIALS, AUTO_INTERVAL = 0x081C, 0x081D
 
 
 def crc16(data: bytes) -> int:
@@ -179,15 +188,16 @@ def value(reply: bytes | None) -> int | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("style", choices=("careful", "naive", "stormy"))
+    parser.add_argument("style", choices=("careful", "hasty", "naive", "stormy"))
     parser.add_argument("--tcp")
     parser.add_argument("--modbus-tcp")
     parser.add_argument("--pty")
     args = parser.parse_args()
-    master = Master(Link(args), args.style)
+    master = Master(Link(args), "careful" if args.style == "hasty" else args.style)
     master.transact(write_request(0x2001, 1500))
     master.transact(write_request(0x2000, 1))
     next_reset = 0.0
+    fault_seen = False
     silent = 0
     cycle = time.monotonic()
     while True:
@@ -205,10 +215,20 @@ def main() -> None:
                 silent = 0
             if status == 4:  # fault
                 master.transact(read_request(0x2102))
+                if not fault_seen:  # the record for the alarm screen; wait for the drive's own reset if it has one
+                    fault_seen = True
+                    for register in RECORD if args.style != "hasty" else ():
+                        master.transact(read_request(register))
+                    trials = value(master.transact(read_request(AUTO_TRIALS)))
+                    interval = value(master.transact(read_request(AUTO_INTERVAL)))
+                    if trials and interval is not None and args.style != "hasty":
+                        next_reset = max(next_reset, time.monotonic() + interval / 10 + 0.5)
                 if time.monotonic() >= next_reset:
                     master.transact(write_request(0x2000, 7))
                     next_reset = time.monotonic() + 3.0
-            elif status == 3:  # stopped (a reset, a power cycle): the speed reference again, then run
+            elif status is not None:
+                fault_seen = False
+            if status == 3:  # stopped (a reset, a power cycle): the speed reference again, then run
                 master.transact(write_request(0x2001, 1500))
                 master.transact(write_request(0x2000, 1))
         cycle += PERIOD
