@@ -9,7 +9,10 @@ Modbus TCP frame is turned into the RTU frame the gateway hands the drives
 (unit, PDU, CRC), so the audit judges both alike.
 
 The master is the side that opened the connection (its SYN); a capture that
-begins after the connection was opened needs ``server_port``. The capture is
+begins after the connection was opened needs ``server_port``. A connection is
+followed until both sides have sent their FIN or one has reset it, so a reply
+the drive sends after the master's FIN (a master stopped with a request in
+flight) is still read as the drive's. The capture is
 read a packet at a time and every buffer is bounded, so memory stays bounded
 whatever the capture's length.
 """
@@ -46,6 +49,7 @@ class _Half:
 
     next_seq: int | None = None
     pending: bytearray = field(default_factory=bytearray)
+    finished: bool = False  #: this side sent its FIN: it sends no more, though the other side may
 
 
 @dataclass
@@ -102,10 +106,10 @@ def _segment(
     key = tuple(sorted(ends))
     flags = segment.flags
     syn, ack = bool(flags & dpkt.tcp.TH_SYN), bool(flags & dpkt.tcp.TH_ACK)
-    closing = bool(flags & (dpkt.tcp.TH_FIN | dpkt.tcp.TH_RST))
+    fin, rst = bool(flags & dpkt.tcp.TH_FIN), bool(flags & dpkt.tcp.TH_RST)
     flow = flows.get(key)
     if flow is None or (syn and not ack):
-        if closing or len(flows) >= MAX_FLOWS:
+        if fin or rst or len(flows) >= MAX_FLOWS:
             return
         if syn:
             master_end = ends[0] if not ack else ends[1]  # the SYN's sender opened the connection: the master
@@ -142,7 +146,11 @@ def _segment(
                 yield t, direction, frame
             if len(half.pending) > MAX_PENDING:
                 half.pending.clear()  # not Modbus: drop it rather than hold it
-    if closing:
+    # a connection lives until both sides are done (a FIN each way) or it is reset: after the master's FIN
+    # (a master stopped mid-poll) the drive's reply still in flight is the drive's, on this connection
+    if fin:
+        half.finished = True
+    if rst or (flow.halves[True].finished and flow.halves[False].finished):
         flows.pop(key, None)
 
 
