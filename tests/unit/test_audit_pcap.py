@@ -166,15 +166,35 @@ def test_a_master_stopped_with_a_reply_in_flight(tmp_path: Path, capsys: pytest.
     assert (report["frames"], report["findings"]) == (46, [])
 
 
-def test_a_connection_reset_ends_it(tmp_path: Path) -> None:
-    """After an RST the connection is gone: bytes on it later, with no SYN, are a capture begun mid-connection."""
+def test_bytes_after_a_reset_are_the_ended_connections_not_a_capture_begun_mid_connection(tmp_path: Path) -> None:
+    """A master that resets its connection with a reply in flight: the reply after the RST is not read (the master
+    never took it), and the capture is read on, not refused as begun after the connection was opened."""
     packets = [
         *handshake(),
         (1.0, segment(MASTER, DRIVE, 100, REQUEST)),
-        (1.001, segment(DRIVE, MASTER, 500, flags=dpkt.tcp.TH_RST)),
-        (1.5, segment(DRIVE, MASTER, 500, REPLY)),
+        (1.001, segment(MASTER, DRIVE, 108, flags=dpkt.tcp.TH_RST)),
+        (1.003, segment(DRIVE, MASTER, 500, REPLY)),
+        *connection(40002, 99, 2.0),
+        (2.001, segment((MASTER[0], 40002), DRIVE, 100, REQUEST)),
+        (2.003, segment(DRIVE, (MASTER[0], 40002), 500, REPLY)),
     ]
     path = tmp_path / "reset.pcap"
+    path.write_bytes(capture(packets))
+    with path.open("rb") as f:
+        read = list(read_capture(f, str(path)))
+    assert [(d, b) for _, d, b in read] == [("rx", REQUEST), ("rx", REQUEST), ("tx", REPLY)]
+    assert [t for t, _, _ in read] == pytest.approx([1.0, 2.001, 2.003], abs=1e-6)
+
+
+def test_a_connection_not_seen_to_open_is_still_refused_without_the_server_port(tmp_path: Path) -> None:
+    """Only a connection seen to end is known: bytes of another, never opened in the capture, still need it."""
+    packets = [
+        *handshake(),
+        (1.0, segment(MASTER, DRIVE, 100, REQUEST)),
+        (1.001, segment(MASTER, DRIVE, 108, flags=dpkt.tcp.TH_RST)),
+        (1.5, segment(DRIVE, (MASTER[0], 40004), 500, REPLY)),
+    ]
+    path = tmp_path / "other.pcap"
     path.write_bytes(capture(packets))
     with path.open("rb") as f, pytest.raises(C20SimError, match="the capture starts after the connection"):
         list(read_capture(f, str(path)))
