@@ -170,9 +170,8 @@ class Window:
         for. Until then this returns 0.0."""
         if self._awaited is not None:
             self._judge_awaited()  # the last request got no reply: judged as charged
-        first = self._first_t
-        if first is None:
-            first = self._first_t = t
+        if self._first_t is None:
+            self._first_t = t
         self._last_t = t
         self._last_cost = cost
         self._transactions += 1
