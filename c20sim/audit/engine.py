@@ -234,6 +234,7 @@ class Auditor(Window):
         if slave != pending.slave or function != pending.function:
             return  # a dropped reply (no bytes), noise, or not the answer to the last request
         self.pending_reply = t
+        self.settle(len(data))  # the line held the reply it got, not the one asked for: judge its demand
         if code >= 0:
             refused = self._claimed.get((self.pending_data, code))
             if refused is None:

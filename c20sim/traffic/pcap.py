@@ -9,7 +9,12 @@ Modbus TCP frame is turned into the RTU frame the gateway hands the drives
 (unit, PDU, CRC), so the audit judges both alike.
 
 The master is the side that opened the connection (its SYN); a capture that
-begins after the connection was opened needs ``server_port``. The capture is
+begins after the connection was opened needs ``server_port``. A connection is
+followed until both sides have sent their FIN or one has reset it, so a reply
+the drive sends after the master's FIN (a master stopped with a request in
+flight) is still read as the drive's; bytes on a connection after it ended
+(a reply to a master that reset it first) are not read, and the capture is
+read on. The capture is
 read a packet at a time and every buffer is bounded, so memory stays bounded
 whatever the capture's length.
 """
@@ -46,6 +51,7 @@ class _Half:
 
     next_seq: int | None = None
     pending: bytearray = field(default_factory=bytearray)
+    finished: bool = False  #: this side sent its FIN: it sends no more, though the other side may
 
 
 @dataclass
@@ -77,6 +83,7 @@ def read_capture(stream: IO[bytes], where: str, server_port: int | None = None) 
         )
     decode = decoders.get(link)
     flows: dict[tuple[Any, ...], _Flow] = {}
+    ended: dict[tuple[Any, ...], None] = {}  # the connections that ended, newest last (at most MAX_FLOWS)
     try:
         for ts, buf in reader:
             try:
@@ -86,13 +93,19 @@ def read_capture(stream: IO[bytes], where: str, server_port: int | None = None) 
             segment = getattr(packet, "data", None)
             if not isinstance(segment, dpkt.tcp.TCP):
                 continue
-            yield from _segment(flows, float(ts), packet, segment, server_port, where)
+            yield from _segment(flows, ended, float(ts), packet, segment, server_port, where)
     except (dpkt.dpkt.NeedData, dpkt.dpkt.UnpackError, ValueError) as exc:
         raise C20SimError(f"{where}: the capture is cut short or damaged ({exc})") from None
 
 
 def _segment(
-    flows: dict[tuple[Any, ...], _Flow], t: float, packet: Any, segment: Any, server_port: int | None, where: str
+    flows: dict[tuple[Any, ...], _Flow],
+    ended: dict[tuple[Any, ...], None],
+    t: float,
+    packet: Any,
+    segment: Any,
+    server_port: int | None,
+    where: str,
 ) -> Iterator[tuple[float, str, bytes]]:
     import dpkt
 
@@ -102,11 +115,11 @@ def _segment(
     key = tuple(sorted(ends))
     flags = segment.flags
     syn, ack = bool(flags & dpkt.tcp.TH_SYN), bool(flags & dpkt.tcp.TH_ACK)
-    closing = bool(flags & (dpkt.tcp.TH_FIN | dpkt.tcp.TH_RST))
+    fin, rst = bool(flags & dpkt.tcp.TH_FIN), bool(flags & dpkt.tcp.TH_RST)
     flow = flows.get(key)
     if flow is None or (syn and not ack):
-        if closing or len(flows) >= MAX_FLOWS:
-            return
+        if fin or rst or len(flows) >= MAX_FLOWS or (key in ended and not syn):
+            return  # a connection's end, or bytes after it (a reply to a master that reset it): nothing to read
         if syn:
             master_end = ends[0] if not ack else ends[1]  # the SYN's sender opened the connection: the master
         elif server_port is not None:
@@ -118,6 +131,7 @@ def _segment(
                 f"{where}: the capture starts after the connection {_end(ends[0])} - {_end(ends[1])} was opened, so "
                 "which side is the master is unknown; give --server-port (the drive's or the gateway's port)"
             )
+        ended.pop(key, None)  # a new connection on the same ports
         flow = flows[key] = _Flow(master_end)
     master = ends[0] == flow.master_end
     half = flow.halves[master]
@@ -142,8 +156,15 @@ def _segment(
                 yield t, direction, frame
             if len(half.pending) > MAX_PENDING:
                 half.pending.clear()  # not Modbus: drop it rather than hold it
-    if closing:
-        flows.pop(key, None)
+    # a connection lives until both sides are done (a FIN each way) or it is reset: after the master's FIN
+    # (a master stopped mid-poll) the drive's reply still in flight is the drive's, on this connection
+    if fin:
+        half.finished = True
+    if rst or (flow.halves[True].finished and flow.halves[False].finished):
+        del flows[key]
+        ended[key] = None
+        if len(ended) > MAX_FLOWS:
+            del ended[next(iter(ended))]
 
 
 def _end(end: tuple[bytes, int]) -> str:

@@ -12,6 +12,7 @@ import pytest
 
 from c20sim.cli import main
 from c20sim.traffic.pcap import read_capture
+from c20sim.wire.errors import C20SimError
 from c20sim.wire.protocol import ReadRequest, ReadResponse, encode, with_crc
 from c20sim.wire.registers import Reg
 
@@ -109,3 +110,91 @@ def test_a_damaged_capture_is_one_line(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["audit", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"c20sim: {path}: ")
+
+
+def connection(port: int, seq: int, t: float) -> list[tuple[float, bytes]]:
+    """The SYN and SYN-ACK of a master's connection from ``port``: its first byte is ``seq`` + 1."""
+    master = (MASTER[0], port)
+    return [
+        (t, segment(master, DRIVE, seq, flags=dpkt.tcp.TH_SYN)),
+        (t + 0.0001, segment(DRIVE, master, 499, flags=dpkt.tcp.TH_SYN | dpkt.tcp.TH_ACK)),
+    ]
+
+
+def test_a_master_stopped_with_a_reply_in_flight(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The capture of issue 45's user: an ``mbpoll -l 100`` loop stopped with ``kill`` (its FIN, the drive's reply
+    of 11 bytes to its last request, then its RST as the socket is gone), then three one-shot mbpolls, each on its
+    own connection closed by a FIN each way. Every reply is the drive's, the one after the master's FIN too."""
+    loop = (MASTER[0], 40586)
+    packets = connection(40586, 99, 0.0)
+    frames: list[tuple[float, str, bytes]] = []
+    reply = with_crc(REPLY[:-2])
+    for k in range(20):
+        t, answer = 1.0 + k / 10, 1.002 + k / 10
+        packets += [(t, segment(loop, DRIVE, 100 + 12 * k, mbap(k, REQUEST)))]
+        frames.append((t, "rx", REQUEST))
+        if k < 19:
+            packets += [(answer, segment(DRIVE, loop, 500 + 11 * k, mbap(k, REPLY)))]
+            frames.append((answer, "tx", reply))
+    assert len(mbap(19, REPLY)) == 11
+    packets += [
+        (2.9005, segment(loop, DRIVE, 100 + 12 * 20, flags=dpkt.tcp.TH_FIN | dpkt.tcp.TH_ACK)),
+        (2.902, segment(DRIVE, loop, 500 + 11 * 19, mbap(19, REPLY))),
+        (2.9021, segment(loop, DRIVE, 100 + 12 * 20 + 1, flags=dpkt.tcp.TH_RST)),
+    ]
+    frames.append((2.902, "tx", reply))
+    for n, port in enumerate((40590, 40592, 40594)):
+        start = 5.0 + n
+        one = (MASTER[0], port)
+        packets += connection(port, 999, start)
+        packets += [
+            (start + 0.001, segment(one, DRIVE, 1000, mbap(1, REQUEST))),
+            (start + 0.003, segment(DRIVE, one, 500, mbap(1, REPLY))),
+            (start + 0.004, segment(one, DRIVE, 1012, flags=dpkt.tcp.TH_FIN | dpkt.tcp.TH_ACK)),
+            (start + 0.0041, segment(DRIVE, one, 511, flags=dpkt.tcp.TH_FIN | dpkt.tcp.TH_ACK)),
+            (start + 0.0042, segment(one, DRIVE, 1013, flags=dpkt.tcp.TH_ACK)),
+        ]
+        frames += [(start + 0.001, "rx", REQUEST), (start + 0.003, "tx", reply)]
+    path = tmp_path / "cap.pcap"
+    path.write_bytes(capture(packets))
+    with path.open("rb") as f:
+        read = list(read_capture(f, str(path)))
+    assert [(d, b) for _, d, b in read] == [(d, b) for _, d, b in frames]
+    assert [t for t, _, _ in read] == pytest.approx([t for t, _, _ in frames], abs=1e-6)  # microseconds
+    assert main(["audit", str(path), "--format", "json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["frames"], report["findings"]) == (46, [])
+
+
+def test_bytes_after_a_reset_are_the_ended_connections_not_a_capture_begun_mid_connection(tmp_path: Path) -> None:
+    """A master that resets its connection with a reply in flight: the reply after the RST is not read (the master
+    never took it), and the capture is read on, not refused as begun after the connection was opened."""
+    packets = [
+        *handshake(),
+        (1.0, segment(MASTER, DRIVE, 100, REQUEST)),
+        (1.001, segment(MASTER, DRIVE, 108, flags=dpkt.tcp.TH_RST)),
+        (1.003, segment(DRIVE, MASTER, 500, REPLY)),
+        *connection(40002, 99, 2.0),
+        (2.001, segment((MASTER[0], 40002), DRIVE, 100, REQUEST)),
+        (2.003, segment(DRIVE, (MASTER[0], 40002), 500, REPLY)),
+    ]
+    path = tmp_path / "reset.pcap"
+    path.write_bytes(capture(packets))
+    with path.open("rb") as f:
+        read = list(read_capture(f, str(path)))
+    assert [(d, b) for _, d, b in read] == [("rx", REQUEST), ("rx", REQUEST), ("tx", REPLY)]
+    assert [t for t, _, _ in read] == pytest.approx([1.0, 2.001, 2.003], abs=1e-6)
+
+
+def test_a_connection_not_seen_to_open_is_still_refused_without_the_server_port(tmp_path: Path) -> None:
+    """Only a connection seen to end is known: bytes of another, never opened in the capture, still need it."""
+    packets = [
+        *handshake(),
+        (1.0, segment(MASTER, DRIVE, 100, REQUEST)),
+        (1.001, segment(MASTER, DRIVE, 108, flags=dpkt.tcp.TH_RST)),
+        (1.5, segment(DRIVE, (MASTER[0], 40004), 500, REPLY)),
+    ]
+    path = tmp_path / "other.pcap"
+    path.write_bytes(capture(packets))
+    with path.open("rb") as f, pytest.raises(C20SimError, match="the capture starts after the connection"):
+        list(read_capture(f, str(path)))
