@@ -254,6 +254,8 @@ def _actions() -> dict[str, list[routes.Route]]:
 
 
 def _kind(schema: Mapping[str, Any]) -> str:
+    if "oneOf" in schema and any(s.get("type") == "number" for s in schema["oneOf"]):
+        return "text"  # an amount in its units or a value's name: sent as typed, read by the server (parse_value)
     if schema.get("type") == "integer":
         return "integer"
     if schema.get("type") == "number":
@@ -316,6 +318,8 @@ def _add_derived(parser: argparse.ArgumentParser, rows: list[routes.Route]) -> N
             seen.add(f.name)
             if f.required:
                 parser.add_argument(f.name, type=_typed(f.schema), help=f.doc or None)
+            elif f.positional:
+                parser.add_argument(f.name, nargs="?", type=_typed(f.schema), help=f.doc or None)
             elif _kind(f.schema) == "boolean":
                 parser.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, action="store_true")
             else:
@@ -449,13 +453,16 @@ def summary(action: str, result: Any, key: object = None) -> str:
 def _asked(action: str, args: argparse.Namespace) -> str:
     """The action as the user asked for it, in the words they typed: ``set supply_v=30``, ``key reset``."""
     names: list[str] = []
+    flagged: set[str] = set()  # an option beside a positional word, said as typed: write accel --raw 5
     for row in _actions().get(action, []):
         names += [n for n in row.parameters if n != "address"] + [f.name for f in row.fields]
+        if any(f.positional for f in row.fields):
+            flagged |= {f.name for f in row.fields if not f.positional and not f.required}
     words = [action]
     for name in dict.fromkeys([*names, "code", "cause", "setup"]):
         value = getattr(args, name, None)
         if value is not None and value is not False and value != "defaults":
-            words.append(str(value))
+            words += [f"--{name}", str(value)] if name in flagged else [str(value)]
     words += list(getattr(args, "values", None) or [])
     if getattr(args, "persistent", False):
         words.append("persistent")

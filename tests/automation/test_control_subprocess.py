@@ -204,7 +204,7 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         "silences": 1,
         "injected": 1,
     }
-    result = ctl(ready, "write", "F00.10", "2500")
+    result = ctl(ready, "write", "F00.10", "--raw", "2500")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
         "c20sim: PUT /drives/1/registers/F00.10: 409: F00.10 = 2500 refused: exception 0x04 (operation failed), "

@@ -161,7 +161,13 @@ def test_the_new_users_first_refusals_say_why(served: tuple[dict[str, str], Path
         "c20sim: key forward: refused by the drive (stopped, run channel 2 = communication); "
         "the panel's run keys need the keypad channel: ctl run-channel keypad\n",
     )
-    result = ctl(ready, "write", "2001H", "5000")
+    result = ctl(ready, "write", "2001H", "5000")  # in the register's units, read as exercise reads it
+    assert (result.returncode, result.stderr) == (
+        2,
+        "c20sim: PUT /drives/1/registers/2001H: 400: 2001H communication speed setting: 5000 is outside 0 rpm "
+        "to 3000 rpm\n",
+    )
+    result = ctl(ready, "write", "2001H", "--raw", "5000")  # the raw word goes to the drive, which refuses it
     assert result.stderr.endswith(
         "2001H = 5000 refused: exception 0x03 (illegal data value), as a master would get it: 2001H takes 0-3000\n"
     )

@@ -1,0 +1,136 @@
+"""ctl and the API's answers as a new user found them: a written value means what a read's ``value`` means (in the
+register's units or by name, as exercise takes it; the raw word by ``raw``), checked over the wire by pymodbus."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.automation.test_control_subprocess import master, read
+from tests.conftest import wait_for_ready_file
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[tuple[dict[str, str], Path]]:
+    ready = tmp_path / "ready.json"
+    options = ["--clock", "virtual", "--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--ready-file", str(ready)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", "serve", *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        yield wait_for_ready_file(ready, proc), ready
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+
+
+def ctl(ready: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    command = [sys.executable, "-m", "c20sim", "ctl", "--ready-file", str(ready), *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=20, check=False)
+
+
+def put(info: dict[str, str], path: str, body: str) -> tuple[int, Any]:
+    """One PUT with urllib (not c20sim's client), its status and JSON answer."""
+    request = urllib.request.Request(
+        info["control"] + path, data=body.encode(), method="PUT", headers={"Content-Type": "application/json"}
+    )
+    try:
+        with urllib.request.urlopen(request, timeout=10) as answer:
+            return answer.status, json.loads(answer.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+def test_ctl_write_takes_what_exercise_takes(served: tuple[dict[str, str], Path]) -> None:
+    info, ready = served
+    with master(info) as client:
+        result = ctl(ready, "write", "accel", "2.5")
+        assert (result.returncode, result.stdout, result.stderr) == (0, "write accel 2.5: 2003H = 2.5 s\n", "")
+        assert read(client, 0x2003) == 25  # 0.1 s a count, read over the wire
+        result = ctl(ready, "write", "accel", "--raw", "7")
+        assert (result.returncode, result.stdout, result.stderr) == (0, "write accel --raw 7: 2003H = 0.7 s\n", "")
+        assert read(client, 0x2003) == 7
+        result = ctl(ready, "write", "accel", "0x10", "--format", "json")  # not a hex register: 0x10 is no amount
+        assert (result.returncode, result.stdout) == (2, "")
+        assert (
+            result.stderr
+            == "c20sim: PUT /drives/1/registers/accel: 400: 2003H acceleration time: '0x10' is not a number\n"
+        )
+        result = ctl(ready, "write", "command", "forward")
+        assert (result.returncode, result.stdout, result.stderr) == (
+            0,
+            "write command forward: 2000H = forward run\n",
+            "",
+        )
+        assert read(client, 0x2000) == 1
+        refused = {
+            "2.55": "2.55 is not a whole number of its steps of 0.1 s; the nearest is 2.5 s",
+            "nan": "nan is not a finite number; give one from 0.1 s to 600.0 s",
+            "inf": "inf is not a finite number; give one from 0.1 s to 600.0 s",
+            "6553.6": "6553.6 is outside 0.1 s to 600.0 s",  # raw 65536: never wrapped to 0
+            "-1": "-1 is outside 0.1 s to 600.0 s",
+        }
+        for typed, said in refused.items():
+            result = (
+                ctl(ready, "write", "accel", "--", typed)
+                if typed.startswith("-")
+                else ctl(ready, "write", "accel", typed)
+            )
+            assert (typed, result.returncode, result.stdout, result.stderr) == (
+                typed,
+                2,
+                "",
+                f"c20sim: PUT /drives/1/registers/accel: 400: 2003H acceleration time: {said}\n",
+            )
+        assert read(client, 0x2003) == 7  # none of them reached the drive
+        result = ctl(ready, "write", "accel")
+        assert (result.returncode, result.stderr) == (
+            2,
+            "c20sim: PUT /drives/1/registers/accel: 400: give the value in the register's units or by name, such as "
+            '{"value": 2.5} or {"value": "forward"}, or the raw word, such as {"raw": 1500}; not both\n',
+        )
+        result = ctl(ready, "panel", "decel", "1.5")
+        assert (result.returncode, result.stdout, result.stderr) == (0, "panel decel 1.5: 2004H = 1.5 s\n", "")
+        assert read(client, 0x2004) == 15
+
+
+def test_the_api_takes_a_value_as_a_read_gives_it_and_the_raw_word_as_raw(
+    served: tuple[dict[str, str], Path],
+) -> None:
+    info, _ = served
+    path = "/drives/1/registers/accel"
+    shown = {"register": "2003H", "address": 0x2003, "name": "acceleration time", "unit": "s"}
+    with master(info) as client:
+        assert put(info, path, '{"value": 0.5}') == (200, {**shown, "raw": 5, "value": 0.5, "text": "0.5 s"})
+        assert read(client, 0x2003) == 5
+        assert put(info, path, '{"value": "2.5"}') == (200, {**shown, "raw": 25, "value": 2.5, "text": "2.5 s"})
+        assert put(info, path, '{"raw": 15}') == (200, {**shown, "raw": 15, "value": 1.5, "text": "1.5 s"})
+        assert read(client, 0x2003) == 15
+        status, was = put(info, path, '{"raw": 7}')
+        assert (status, was["value"]) == (200, 0.7000000000000001)  # 7 x 0.1 s, as a float carries it
+        assert put(info, path, json.dumps({"value": was["value"]}))[1]["raw"] == 7  # what a read gives, written back
+        # the old form, kept: a JSON integer value is the raw word (the dashboard and the browser page send it)
+        assert put(info, path, '{"value": 30}') == (200, {**shown, "raw": 30, "value": 3.0, "text": "3.0 s"})
+        status, said = put(info, "/drives/1/registers/command", '{"value": "forward"}')
+        assert (status, said["raw"], said["text"]) == (200, 1, "forward run")
+        assert read(client, 0x2000) == 1
+        assert put(info, path, '{"value": 0.5, "raw": 5}')[0] == 400
+        assert put(info, path, '{"value": 1e400}') == (
+            400,
+            {"error": "2003H acceleration time: inf is not a finite number; give one from 0.1 s to 600.0 s"},
+        )
+        assert put(info, path, '{"value": true}') == (
+            400,
+            {"error": "value: expected a number or a value's name, got true"},
+        )
+        assert put(info, path, '{"raw": 65536}') == (400, {"error": "raw: 65536 is outside 0-65535"})
+        assert read(client, 0x2003) == 30
