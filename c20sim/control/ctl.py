@@ -222,6 +222,8 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
     if action == "key" and result.get("accepted") is False:
         if _is_reset(args.key) and no_fault:
             return None  # nothing to reset: the panel's reset does nothing then, and that is no refusal
+        if result.get("refused"):
+            return f"key {args.key}: refused by the drive: {result['refused']}"
         channel = result.get("run_channel")
         said = f"key {args.key}: refused by the drive ({result.get('state')}, run channel {channel}"
         if channel != RunChannel.KEYPAD and not _is_reset(args.key):
@@ -229,11 +231,8 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
             return said + "); the panel's run keys need the keypad channel: ctl run-channel keypad"
         return said + ")"
     if action == "clear" and not args.no_reset and result.get("reset") is False and not no_fault:
-        return (
-            f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}; "
-            "the cause is ended, but the drive may need time to recover (the bus to charge, the module to cool): "
-            "let time pass (ctl advance 1 on a virtual clock) and press reset (ctl key reset)"
-        )
+        why = result.get("refused") or f"{result.get('state')}, fault code {result.get('fault_code')}"
+        return f"reset refused by the drive: {why}"
     return None
 
 

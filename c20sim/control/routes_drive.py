@@ -9,6 +9,7 @@ from typing import Any
 from ..core.simulator import Simulator
 from ..wire.amounts import parse_value
 from ..wire.errors import C20SimError
+from ..wire.registers import Command
 from . import causes, liveaudit, ops
 from .routing import Field, Route, Schema
 from .schemas import conditions_schema
@@ -92,12 +93,11 @@ def _clear_fault(sim: Simulator, address: int, reset: object = True, cause: obje
     notes = [causes.release(sim, address, name) for name in ending]
     press = ops.flag("reset", reset)
     cleared = ops.clear_fault(sim, address, reset) if press else False
+    refused = causes.reset_refusal(sim, address) if press and not cleared else None
+    if refused:
+        notes.append(f"drive {address} kept its fault: {refused}")
     state = ops.drive_state(sim, address)
-    if press and not cleared and state["fault_code"]:
-        notes.append(
-            f"drive {address} kept its fault: reset again once the cause has gone (the bus recovers as time runs)"
-        )
-    return {"reset": cleared, "note": "; ".join(notes), **state}
+    return {"reset": cleared, "note": "; ".join(notes), **state} | ({"refused": refused} if refused else {})
 
 
 def _causes(sim: Simulator, address: int) -> dict[str, Any]:
@@ -111,7 +111,9 @@ def _clear_causes(sim: Simulator, address: int) -> dict[str, Any]:
 
 def _keypad(sim: Simulator, address: int, key: object) -> dict[str, Any]:
     accepted = ops.press_key(sim, address, key)
-    return {"accepted": accepted, **ops.drive_state(sim, address)}
+    resets = ops.key_command(key) is Command.RESET
+    refused = causes.reset_refusal(sim, address) if resets and not accepted else None
+    return {"accepted": accepted, **ops.drive_state(sim, address)} | ({"refused": refused} if refused else {})
 
 
 def _power_cycle(sim: Simulator, address: int) -> dict[str, Any]:

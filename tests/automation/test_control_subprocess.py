@@ -249,7 +249,10 @@ def test_ctl_clear_ends_every_cause_then_resets(served: tuple[dict[str, str], Pa
         assert read(client, 0x2102) == 0x10
         result = ctl(ready, "clear")  # the ambient back, but the module is still hot: refused, and it says why
         assert result.returncode == 1
-        assert "the cause is ended, but the drive may need time to recover" in result.stderr
+        assert result.stderr == (
+            "c20sim: reset refused by the drive: its cause, overheat, has ended, but the drive has not recovered from "
+            "it yet; let time pass (ctl advance 1 on a virtual clock) and reset again (ctl key reset)\n"
+        )
         assert json.loads(ctl(ready, "causes").stdout)["causes"]["overheat"] is False
         ctl(ready, "advance", "600")
         assert ctl(ready, "clear").returncode == 0

@@ -134,3 +134,56 @@ def test_the_api_takes_a_value_as_a_read_gives_it_and_the_raw_word_as_raw(
         )
         assert put(info, path, '{"raw": 65536}') == (400, {"error": "raw: 65536 is outside 0-65535"})
         assert read(client, 0x2003) == 30
+
+
+def test_a_refused_reset_says_why_as_the_drive_decides(served: tuple[dict[str, str], Path]) -> None:
+    """The cause still there, the cause ended but the bus not yet recovered, a fault latched to hold: three reasons,
+    each from the drive's own reset guard, in ctl's line and in the API's answer (``refused``)."""
+    _, ready = served
+    for args in (("run-channel", "keypad"), ("write", "setpoint", "1000"), ("key", "forward"), ("advance", "2")):
+        assert ctl(ready, *args).returncode == 0, args  # running: a stopped drive loses its power, it does not trip
+    assert ctl(ready, "fault", "--cause", "undervoltage").returncode == 0
+    assert ctl(ready, "advance", "1").returncode == 0  # the bus falls below the trip level: UV
+    result = ctl(ready, "key", "reset")
+    assert (result.returncode, result.stderr) == (
+        1,
+        "c20sim: key reset: refused by the drive: its cause, undervoltage, is still present; end it "
+        "(ctl clear --cause undervoltage)\n",
+    )
+    result = ctl(ready, "clear", "--no-reset")
+    assert (result.returncode, result.stderr) == (0, "")
+    result = ctl(ready, "key", "reset", "--format", "json")
+    answer = json.loads(result.stdout)
+    assert (result.returncode, answer["accepted"], answer["fault_code"], answer["refused"]) == (
+        1,
+        False,
+        10,
+        "its cause, undervoltage, has ended, but the drive has not recovered from it yet; let time pass "
+        "(ctl advance 1 on a virtual clock) and reset again (ctl key reset)",
+    )
+    result = ctl(ready, "clear")  # the bus is still low: the same reason
+    assert (result.returncode, result.stderr) == (
+        1,
+        "c20sim: reset refused by the drive: its cause, undervoltage, has ended, but the drive has not recovered "
+        "from it yet; let time pass (ctl advance 1 on a virtual clock) and reset again (ctl key reset)\n",
+    )
+    assert ctl(ready, "advance", "1").returncode == 0  # the bus charges back above its recover level
+    result = ctl(ready, "key", "reset")
+    assert (result.returncode, result.stdout, result.stderr) == (
+        0,
+        "key reset: accepted; drive 1: coasting, 0 rpm, bus 48.0 V, no fault\n",
+        "",
+    )
+    assert ctl(ready, "fault", "16", "--persistent").returncode == 0
+    result = ctl(ready, "key", "reset")
+    assert (result.returncode, result.stderr) == (
+        1,
+        "c20sim: key reset: refused by the drive: fault 16 was latched to hold until released; release it "
+        "(ctl clear) and reset\n",
+    )
+    result = ctl(ready, "clear")
+    assert (result.returncode, result.stdout, result.stderr) == (
+        0,
+        "clear: reset done; drive 1: coasting, 0 rpm, bus 48.0 V, no fault\n",
+        "",
+    )

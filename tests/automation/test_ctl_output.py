@@ -83,7 +83,10 @@ def test_a_refused_reset_exits_1(served: tuple[dict[str, str], Path]) -> None:
     assert ctl(ready, "fault", "16", "--persistent").returncode == 0
     result = ctl(ready, "key", "reset")
     assert result.returncode == 1
-    assert result.stderr == "c20sim: key reset: refused by the drive (fault, run channel 2)\n"
+    assert result.stderr == (
+        "c20sim: key reset: refused by the drive: fault 16 was latched to hold until released; release it (ctl clear) "
+        "and reset\n"
+    )
     result = ctl(ready, "clear", "--no-reset")  # the persistent fault's cause ends; no reset asked
     assert (result.returncode, result.stderr) == (0, "")
     assert ctl(ready, "fault", "16", "--persistent").returncode == 0

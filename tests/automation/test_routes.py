@@ -203,8 +203,9 @@ def test_clear_fault_without_a_cause_ends_every_cause_present_and_no_other_condi
     answer = call("clear_fault", {})
     assert (answer["reset"], answer["note"]) == (
         False,
-        "drive 1: undervoltage gone: supply_v 48 (reset to clear the fault); drive 1 kept its fault: reset again "
-        "once the cause has gone (the bus recovers as time runs)",
+        "drive 1: undervoltage gone: supply_v 48 (reset to clear the fault); drive 1 kept its fault: its cause, "
+        "undervoltage, has ended, but the drive has not recovered from it yet; let time pass (ctl advance 1 on a "
+        "virtual clock) and reset again (ctl key reset)",
     )
     assert ops.conditions(sim, 1)["supply_v"] == 48.0
     assert ops.conditions(sim, 1)["load_torque_nm"] == 0.2  # not a cause that is present: left as set
