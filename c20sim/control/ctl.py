@@ -438,8 +438,9 @@ def summary(action: str, result: Any, key: object = None) -> str:
         said.append(
             f"{result['clock']} clock at t = {result['t']:.6g} s, {'paused' if result['paused'] else 'running'}{speed}"
         )
-    elif "generators" in result:
-        said.append("generators: " + (", ".join(result["generators"]) or "none running"))
+    elif "generators" in result:  # the action is named generators: its words need no second name
+        running = ", ".join(result["generators"]) or "none running"
+        said.append(running if action == "generators" else f"generators: {running}")
     elif "causes" in result:
         said.append("causes now: " + (", ".join(k for k, v in result["causes"].items() if v) or "none"))
     elif "frames" in result:
@@ -463,6 +464,9 @@ def _asked(action: str, args: argparse.Namespace) -> str:
         if value is not None and value is not False and value != "defaults":
             words += [f"--{name}", str(value)] if name in flagged else [str(value)]
     words += list(getattr(args, "values", None) or [])
+    cleared = getattr(args, "clear", None)
+    if cleared not in (None, False):
+        words += ["--clear", cleared] if isinstance(cleared, str) and cleared else ["--clear"]
     if getattr(args, "persistent", False):
         words.append("persistent")
     return " ".join(words)

@@ -134,7 +134,7 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "set", "hall_fault=stuck9", "--drive", "1")
     assert result.returncode == 2
     assert result.stderr == (
-        "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null, 'stuck0', 'stuck7' or 'sequence', "
+        "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null or false (none), 'stuck0', 'stuck7' or 'sequence', "
         'got "stuck9"\n'
     )
     result = ctl(ready, "frames", "--last", "0")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import sys
 import urllib.error
@@ -186,4 +187,45 @@ def test_a_refused_reset_says_why_as_the_drive_decides(served: tuple[dict[str, s
         0,
         "clear: reset done; drive 1: coasting, 0 rpm, bus 48.0 V, no fault\n",
         "",
+    )
+
+
+def test_the_nits_a_new_user_met(served: tuple[dict[str, str], Path]) -> None:
+    _, ready = served
+    result = ctl(ready, "generators")
+    assert (result.returncode, result.stdout) == (0, "generators: none running\n")
+    assert ctl(ready, "set", 'supply_v={"ramp": 30, "over": 5}').returncode == 0
+    assert ctl(ready, "generators").stdout == "generators: supply_v\n"
+    assert ctl(ready, "generators", "--clear", "supply_v").stdout == "generators --clear supply_v: none running\n"
+    assert ctl(ready, "set", "hall_fault=stuck0").returncode == 0
+    assert (
+        json.loads(ctl(ready, "state", "--drive", "1", "--format", "json").stdout)["conditions"]["hall_fault"]
+        == "stuck0"
+    )
+    result = ctl(ready, "set", "hall_fault=false")  # false is "no fault", as null is
+    assert (result.returncode, result.stderr) == (0, "")
+    assert (
+        json.loads(ctl(ready, "state", "--drive", "1", "--format", "json").stdout)["conditions"]["hall_fault"] is None
+    )
+    result = ctl(ready, "set", "hall_fault=none")
+    assert (result.returncode, result.stderr) == (
+        2,
+        "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null or false (none), 'stuck0', 'stuck7' or "
+        "'sequence', got \"none\"\n",
+    )
+
+
+def test_a_busy_control_port_is_worded_as_the_other_busy_ports() -> None:
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        options = ["--clock", "virtual", "--tcp", "127.0.0.1:0", "--control", f"127.0.0.1:{port}"]
+        result = subprocess.run(
+            [sys.executable, "-m", "c20sim", "serve", *options], capture_output=True, text=True, timeout=30, check=False
+        )
+    assert (result.returncode, result.stderr) == (
+        2,
+        f"c20sim: --control 127.0.0.1:{port}: the port is in use; stop the program holding it or choose another "
+        "port (0 picks a free one)\n",
     )
