@@ -22,11 +22,13 @@ import functools
 import json
 import os
 import sys
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from ..drive.files import FileReadError, read_bytes
+from ..drive.physics import STEP
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS, Command, RunChannel
 from . import routes
@@ -398,6 +400,38 @@ def _shaped_call(api: Callable[..., Any], action: str, args: argparse.Namespace)
     return api(method, path + (f"?{query}" if query else ""))
 
 
+#: How long ctl waits, on a running realtime clock, for a fault's cause to trip the drive before it describes it
+#: (assumed: a supply sag or a jammed rotor trips within a fraction of a second; a hot cabinet takes minutes, and
+#: is described as not tripped yet).
+TRIP_WAIT_S = 2.0
+#: How often ctl reads the drive again while it waits (a bounded poll of the API: no event to wait on over HTTP).
+POLL_S = 0.02
+
+
+def _acted(api: Callable[..., Any], action: str, result: Any) -> Any:
+    """The answer of a change, its drive described after the change has acted: on a running realtime clock, read
+    again once the model has stepped past the change (a fault's cause: once the drive has tripped, or
+    :data:`TRIP_WAIT_S`); on a virtual or paused clock the answer is the drive at the model's time, which has not
+    moved (``ctl advance`` moves it)."""
+    if not (isinstance(result, dict) and "address" in result and "state" in result and "t" in result):
+        return result
+    table = routes.table()
+    clock = table.named("clock")
+    now = api(clock.method, clock.path)
+    if now.get("clock") != "realtime" or now.get("paused"):
+        return result
+    drive = table.named("drive")
+    path = drive.url(address=result["address"])
+    tripping = action == "fault" and result.get("state") != "fault"
+    deadline = time.monotonic() + TRIP_WAIT_S
+    while True:
+        state = api(drive.method, path)
+        stepped = float(state["t"]) >= float(result["t"]) + STEP
+        if (stepped and (not tripping or state["state"] == "fault")) or time.monotonic() >= deadline:
+            return {**result, **state}
+        time.sleep(POLL_S)
+
+
 def _drive_words(state: Mapping[str, Any]) -> str:
     fault = "no fault" if not state.get("fault_code") else f"fault {state['fault_code']} {state.get('fault_name', '')}"
     return (
@@ -427,6 +461,8 @@ def summary(action: str, result: Any, key: object = None) -> str:
         said.append("reset done" if result["reset"] else ("no fault to reset" if no_fault else "no reset"))
     if "state" in result and "address" in result:
         said.append(_drive_words(result))
+        if action == "fault" and result["state"] != "fault":
+            said.append("not tripped yet: the drive trips when its physics says (ctl advance 1 moves a virtual clock)")
     elif "register" in result and "text" in result:
         said.append(f"{result['register']} = {result['text']}")
     elif "active" in result:
@@ -487,6 +523,8 @@ def cmd_ctl(args: argparse.Namespace) -> int:
             result = _shaped_call(api, action, args)
         else:
             result = _derived_call(api, _choose(_actions()[action], args), args)
+        if _changes(action):
+            result = _acted(api, action, result)
     finally:
         client.close()
     if action == "frames" and args.format != "json" and not args.json:

@@ -4,10 +4,12 @@ register's units or by name, as exercise takes it; the raw word by ``raw``), che
 from __future__ import annotations
 
 import json
+import re
 import signal
 import socket
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -229,3 +231,57 @@ def test_a_busy_control_port_is_worded_as_the_other_busy_ports() -> None:
         f"c20sim: --control 127.0.0.1:{port}: the port is in use; stop the program holding it or choose another "
         "port (0 picks a free one)\n",
     )
+
+
+@pytest.fixture
+def realtime(tmp_path: Path) -> Iterator[Path]:
+    ready = tmp_path / "ready.json"
+    options = ["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0", "--ready-file", str(ready)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c20sim", "serve", *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        wait_for_ready_file(ready, proc)
+        yield ready
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+
+
+def test_a_change_on_a_realtime_clock_is_described_after_it_has_acted(realtime: Path) -> None:
+    """What the one-line answer says is the drive once the change has acted: a step past a new supply (the bus
+    already falling), the trip a fault's cause brings about; not the drive as it was a microsecond after."""
+    ready = realtime
+    for args in (("run-channel", "keypad"), ("write", "setpoint", "1000"), ("key", "forward")):
+        assert ctl(ready, *args).returncode == 0, args
+    deadline = time.monotonic() + 20
+    while json.loads(ctl(ready, "state", "--drive", "1", "--format", "json").stdout)["speed_rpm"] < 990:
+        assert time.monotonic() < deadline, "the drive never reached 1000 rpm"
+    result = ctl(ready, "set", "supply_v=30")
+    line = re.fullmatch(r"set supply_v=30: drive 1: forward, (\d+) rpm, bus (\d+\.\d) V, no fault\n", result.stdout)
+    assert line is not None, result.stdout
+    assert 30.0 <= float(line.group(2)) < 48.0  # the bus has begun to fall to the new supply
+    assert ctl(ready, "set", "supply_v=48").returncode == 0
+    result = ctl(ready, "fault", "--cause", "undervoltage")
+    assert (result.returncode, result.stderr) == (0, "")
+    assert re.fullmatch(
+        r"fault undervoltage: drive 1: undervoltage: supply_v 10; drive 1: fault, \d+ rpm, bus \d+\.\d V, "
+        r"fault 10 UV: bus undervoltage\n",
+        result.stdout,
+    ), result.stdout
+    assert ctl(ready, "read", "fault").stdout == "2102H fault code: UV: bus undervoltage\n"
+
+
+def test_a_fault_cause_on_a_virtual_clock_says_it_has_not_tripped_yet(served: tuple[dict[str, str], Path]) -> None:
+    _, ready = served
+    for args in (("run-channel", "keypad"), ("write", "setpoint", "1000"), ("key", "forward"), ("advance", "2")):
+        assert ctl(ready, *args).returncode == 0, args
+    result = ctl(ready, "fault", "--cause", "undervoltage")
+    assert (result.returncode, result.stdout, result.stderr) == (
+        0,
+        "fault undervoltage: drive 1: undervoltage: supply_v 10; drive 1: forward, 1000 rpm, bus 48.0 V, no fault; "
+        "not tripped yet: the drive trips when its physics says (ctl advance 1 moves a virtual clock)\n",
+        "",
+    )
+    assert ctl(ready, "advance", "1").returncode == 0
+    assert ctl(ready, "read", "fault").stdout == "2102H fault code: UV: bus undervoltage\n"

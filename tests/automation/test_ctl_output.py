@@ -139,7 +139,7 @@ def test_an_action_prints_one_line_of_what_it_did_and_json_when_asked(served: tu
     assert result.stdout.endswith(" V, no fault\n") and result.stdout.count("\n") == 1
     result = ctl(ready, "link", "offline=true")
     assert result.stdout == "link offline=true: link faults: offline\n"
-    assert ctl(ready, "link", "--clear").stdout == "link: link faults: none\n"
+    assert ctl(ready, "link", "--clear").stdout == "link --clear: link faults: none\n"
     result = ctl(ready, "fault", "16", "--persistent")
     assert result.stdout.startswith("fault 16 persistent: drive 1: fault, 0 rpm, bus ")
     assert result.stdout.endswith(" V, fault 16 OH2: power module overheat\n")
