@@ -11,6 +11,7 @@ from ..wire.amounts import parse_value
 from ..wire.errors import C20SimError
 from ..wire.registers import Command
 from . import causes, liveaudit, ops
+from .opscore import _shown
 from .routing import Field, Route, Schema
 from .schemas import conditions_schema
 
@@ -43,6 +44,11 @@ _GIVE = (
 )
 
 
+#: The longest text a written value may be (assumed: four times the stock profile's longest value name, the
+#: 65 characters of "HALL: Hall sensor fault (...)"); a longer text is said by its length, never echoed back.
+_LONGEST = 256
+
+
 def written(sim: Simulator, register: str | int, value: object = None, raw: object = None) -> int:
     """The raw word a write asks for: ``raw`` as it is, or ``value`` as exercise reads it (:func:`parse_value`):
     a string or a fraction in the register's units or by a value's name (``"2.5"``, ``0.5``, ``"forward"``); a
@@ -54,17 +60,14 @@ def written(sim: Simulator, register: str | int, value: object = None, raw: obje
     if isinstance(value, int) and not isinstance(value, bool):
         return ops.integer("value", value, 0, 0xFFFF)
     if isinstance(value, bool) or not isinstance(value, float | str):
-        raise ops.ControlError(f"value: expected a number or a value's name, got {json_shown(value)}")
+        raise ops.ControlError(f"value: expected a number or a value's name, got {_shown(value)}")
+    if isinstance(value, str) and len(value) > _LONGEST:
+        raise ops.ControlError(f"value: a text of {len(value)} characters; an amount or a name is {_LONGEST} at most")
     spec = sim.profile.registers[ops.parse_register(sim, register)]
     try:
         return parse_value(spec, repr(value) if isinstance(value, float) else value)
     except C20SimError as exc:
         raise ops.ControlError(str(exc)) from None
-
-
-def json_shown(value: object) -> str:
-    text = repr(value) if not isinstance(value, bool) else str(value).lower()
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _write(sim: Simulator, address: int, register: str, value: object = None, raw: object = None) -> dict[str, Any]:

@@ -136,6 +136,10 @@ def test_the_api_takes_a_value_as_a_read_gives_it_and_the_raw_word_as_raw(
             {"error": "value: expected a number or a value's name, got true"},
         )
         assert put(info, path, '{"raw": 65536}') == (400, {"error": "raw: 65536 is outside 0-65535"})
+        assert put(info, path, json.dumps({"value": "9" * 5000})) == (
+            400,
+            {"error": "value: a text of 5000 characters; an amount or a name is 256 at most"},
+        )
         assert read(client, 0x2003) == 30
 
 
