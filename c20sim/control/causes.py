@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from ..core.simulator import Simulator
 from ..drive.model import Drive
 from ..drive.profile import FaultCause, Profile
+from ..drive.statemachine import State
 from ..drive.trips import HOT_AMBIENT, TRIPS, Cycle, overheat_seconds
 from . import ops
 
@@ -46,6 +47,7 @@ __all__ = [
     "read_fault",
     "release",
     "request",
+    "reset_refusal",
     "trip",
 ]
 
@@ -261,6 +263,32 @@ def active(sim: Simulator, address: int) -> dict[str, bool]:
     out = {name: cause.present(found) for name, cause in CAUSES.items()}
     out.update({name: held == code for name, code in latched(sim.profile).items()})
     return out
+
+
+def reset_refusal(sim: Simulator, address: int) -> str | None:
+    """Why the drive refuses a fault reset now, in words; None when it has no fault or would take a reset.
+
+    The drive's own reset guard decides: a cause still present, a fault latched as persistent, or a cause that
+    has ended but that the fault outlasts (the bus not yet back above its recover level, the module still
+    hot). The API's answer to a refused reset carries it (``refused``); ctl prints it.
+    """
+    found = ops.drive(sim, address)
+    sim.sync()
+    machine = found.machine
+    if found.state is not State.FAULT or not machine.cause_persists():
+        return None
+    cause = machine.cause
+    if cause is None:
+        name = next((n for n, code in latched(sim.profile).items() if code == machine.fault), None)
+        what = f"its cause, {name}," if name else f"fault {machine.fault}"
+        return f"{what} was latched to hold until released; release it (ctl clear) and reset"
+    name = next((c.name for c in CAUSES.values() if cause in c.faults), cause.value)
+    if found.cause_present(cause):
+        return f"its cause, {name}, is still present; end it (ctl clear --cause {name})"
+    return (
+        f"its cause, {name}, has ended, but the drive has not recovered from it yet; let time pass "
+        "(ctl advance 1 on a virtual clock) and reset again (ctl key reset)"
+    )
 
 
 def clear_all(sim: Simulator, address: int) -> None:

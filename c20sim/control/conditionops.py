@@ -37,10 +37,12 @@ class Condition:
 
 def _choice(choices: tuple[str, ...]) -> Callable[[str, object], object]:
     def check(key: str, value: object) -> str | None:
-        if value is not None and value not in choices:
+        if value is None or value is False:  # false is what a user means by none: set=hall_fault=false
+            return None
+        if value not in choices:
             names = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-            raise ControlError(f"{key}: expected null, {names}, got {_shown(value)}")
-        return None if value is None else str(value)
+            raise ControlError(f"{key}: expected null or false (none), {names}, got {_shown(value)}")
+        return str(value)
 
     return check
 

@@ -22,11 +22,13 @@ import functools
 import json
 import os
 import sys
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from ..drive.files import FileReadError, read_bytes
+from ..drive.physics import STEP
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS, Command, RunChannel
 from . import routes
@@ -222,6 +224,8 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
     if action == "key" and result.get("accepted") is False:
         if _is_reset(args.key) and no_fault:
             return None  # nothing to reset: the panel's reset does nothing then, and that is no refusal
+        if result.get("refused"):
+            return f"key {args.key}: refused by the drive: {result['refused']}"
         channel = result.get("run_channel")
         said = f"key {args.key}: refused by the drive ({result.get('state')}, run channel {channel}"
         if channel != RunChannel.KEYPAD and not _is_reset(args.key):
@@ -229,11 +233,8 @@ def _refused(action: str, args: argparse.Namespace, result: Any) -> str | None:
             return said + "); the panel's run keys need the keypad channel: ctl run-channel keypad"
         return said + ")"
     if action == "clear" and not args.no_reset and result.get("reset") is False and not no_fault:
-        return (
-            f"reset refused by the drive: {result.get('state')}, fault code {result.get('fault_code')}; "
-            "the cause is ended, but the drive may need time to recover (the bus to charge, the module to cool): "
-            "let time pass (ctl advance 1 on a virtual clock) and press reset (ctl key reset)"
-        )
+        why = result.get("refused") or f"{result.get('state')}, fault code {result.get('fault_code')}"
+        return f"reset refused by the drive: {why}"
     return None
 
 
@@ -254,6 +255,8 @@ def _actions() -> dict[str, list[routes.Route]]:
 
 
 def _kind(schema: Mapping[str, Any]) -> str:
+    if "oneOf" in schema and any(s.get("type") == "number" for s in schema["oneOf"]):
+        return "text"  # an amount in its units or a value's name: sent as typed, read by the server (parse_value)
     if schema.get("type") == "integer":
         return "integer"
     if schema.get("type") == "number":
@@ -316,6 +319,8 @@ def _add_derived(parser: argparse.ArgumentParser, rows: list[routes.Route]) -> N
             seen.add(f.name)
             if f.required:
                 parser.add_argument(f.name, type=_typed(f.schema), help=f.doc or None)
+            elif f.positional:
+                parser.add_argument(f.name, nargs="?", type=_typed(f.schema), help=f.doc or None)
             elif _kind(f.schema) == "boolean":
                 parser.add_argument(f"--{f.name.replace('_', '-')}", dest=f.name, action="store_true")
             else:
@@ -395,6 +400,38 @@ def _shaped_call(api: Callable[..., Any], action: str, args: argparse.Namespace)
     return api(method, path + (f"?{query}" if query else ""))
 
 
+#: How long ctl waits, on a running realtime clock, for a fault's cause to trip the drive before it describes it
+#: (assumed: a supply sag or a jammed rotor trips within a fraction of a second; a hot cabinet takes minutes, and
+#: is described as not tripped yet).
+TRIP_WAIT_S = 2.0
+#: How often ctl reads the drive again while it waits (a bounded poll of the API: no event to wait on over HTTP).
+POLL_S = 0.02
+
+
+def _acted(api: Callable[..., Any], action: str, result: Any) -> Any:
+    """The answer of a change, its drive described after the change has acted: on a running realtime clock, read
+    again once the model has stepped past the change (a fault's cause: once the drive has tripped, or
+    :data:`TRIP_WAIT_S`); on a virtual or paused clock the answer is the drive at the model's time, which has not
+    moved (``ctl advance`` moves it)."""
+    if not (isinstance(result, dict) and "address" in result and "state" in result and "t" in result):
+        return result
+    table = routes.table()
+    clock = table.named("clock")
+    now = api(clock.method, clock.path)
+    if now.get("clock") != "realtime" or now.get("paused"):
+        return result
+    drive = table.named("drive")
+    path = drive.url(address=result["address"])
+    tripping = action == "fault" and result.get("state") != "fault"
+    deadline = time.monotonic() + TRIP_WAIT_S
+    while True:
+        state = api(drive.method, path)
+        stepped = float(state["t"]) >= float(result["t"]) + STEP
+        if (stepped and (not tripping or state["state"] == "fault")) or time.monotonic() >= deadline:
+            return {**result, **state}
+        time.sleep(POLL_S)
+
+
 def _drive_words(state: Mapping[str, Any]) -> str:
     fault = "no fault" if not state.get("fault_code") else f"fault {state['fault_code']} {state.get('fault_name', '')}"
     return (
@@ -424,6 +461,8 @@ def summary(action: str, result: Any, key: object = None) -> str:
         said.append("reset done" if result["reset"] else ("no fault to reset" if no_fault else "no reset"))
     if "state" in result and "address" in result:
         said.append(_drive_words(result))
+        if action == "fault" and result["state"] != "fault":
+            said.append("not tripped yet: the drive trips when its physics says (ctl advance 1 moves a virtual clock)")
     elif "register" in result and "text" in result:
         said.append(f"{result['register']} = {result['text']}")
     elif "active" in result:
@@ -435,8 +474,9 @@ def summary(action: str, result: Any, key: object = None) -> str:
         said.append(
             f"{result['clock']} clock at t = {result['t']:.6g} s, {'paused' if result['paused'] else 'running'}{speed}"
         )
-    elif "generators" in result:
-        said.append("generators: " + (", ".join(result["generators"]) or "none running"))
+    elif "generators" in result:  # the action is named generators: its words need no second name
+        running = ", ".join(result["generators"]) or "none running"
+        said.append(running if action == "generators" else f"generators: {running}")
     elif "causes" in result:
         said.append("causes now: " + (", ".join(k for k, v in result["causes"].items() if v) or "none"))
     elif "frames" in result:
@@ -449,14 +489,20 @@ def summary(action: str, result: Any, key: object = None) -> str:
 def _asked(action: str, args: argparse.Namespace) -> str:
     """The action as the user asked for it, in the words they typed: ``set supply_v=30``, ``key reset``."""
     names: list[str] = []
+    flagged: set[str] = set()  # an option beside a positional word, said as typed: write accel --raw 5
     for row in _actions().get(action, []):
         names += [n for n in row.parameters if n != "address"] + [f.name for f in row.fields]
+        if any(f.positional for f in row.fields):
+            flagged |= {f.name for f in row.fields if not f.positional and not f.required}
     words = [action]
     for name in dict.fromkeys([*names, "code", "cause", "setup"]):
         value = getattr(args, name, None)
         if value is not None and value is not False and value != "defaults":
-            words.append(str(value))
+            words += [f"--{name}", str(value)] if name in flagged else [str(value)]
     words += list(getattr(args, "values", None) or [])
+    cleared = getattr(args, "clear", None)
+    if cleared not in (None, False):
+        words += ["--clear", cleared] if isinstance(cleared, str) and cleared else ["--clear"]
     if getattr(args, "persistent", False):
         words.append("persistent")
     return " ".join(words)
@@ -477,6 +523,8 @@ def cmd_ctl(args: argparse.Namespace) -> int:
             result = _shaped_call(api, action, args)
         else:
             result = _derived_call(api, _choose(_actions()[action], args), args)
+        if _changes(action):
+            result = _acted(api, action, result)
     finally:
         client.close()
     if action == "frames" and args.format != "json" and not args.json:

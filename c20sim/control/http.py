@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import hmac
 import ipaddress
 import logging
@@ -238,8 +239,13 @@ class ControlApi:
             await site.start()
         except OSError as exc:
             await runner.cleanup()
+            where = f"{option} {f'[{host}]' if ':' in host else host}:{port}"
+            if exc.errno == errno.EADDRINUSE:  # worded as serve words it for --tcp and the other ports
+                raise C20SimError(
+                    f"{where}: the port is in use; stop the program holding it or choose another port (0 picks a free one)"
+                ) from None
             raise C20SimError(
-                f"{option} {f'[{host}]' if ':' in host else host}:{port}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
+                f"{where}: cannot listen: {exc.strerror or exc}; choose another port (0 picks a free one)"
             ) from None
         self._runner = runner
         bound_port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), port)

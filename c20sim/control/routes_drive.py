@@ -7,7 +7,11 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..core.simulator import Simulator
+from ..wire.amounts import parse_value
+from ..wire.errors import C20SimError
+from ..wire.registers import Command
 from . import causes, liveaudit, ops
+from .opscore import _shown
 from .routing import Field, Route, Schema
 from .schemas import Live, cause_schema, conditions_schema
 
@@ -33,6 +37,49 @@ def _registers(sim: Simulator, address: int) -> dict[str, Any]:
     return {"registers": ops.registers(sim, address)}
 
 
+#: What to give when a write names no value (or both forms).
+_GIVE = (
+    'give the value in the register\'s units or by name, such as {"value": 2.5} or {"value": "forward"}, '
+    'or the raw word, such as {"raw": 1500}; not both'
+)
+
+
+#: The longest text a written value may be (assumed: four times the stock profile's longest value name, the
+#: 65 characters of "HALL: Hall sensor fault (...)"); a longer text is said by its length, never echoed back.
+_LONGEST = 256
+
+
+def written(sim: Simulator, register: str | int, value: object = None, raw: object = None) -> int:
+    """The raw word a write asks for: ``raw`` as it is, or ``value`` as exercise reads it (:func:`parse_value`):
+    a string or a fraction in the register's units or by a value's name (``"2.5"``, ``0.5``, ``"forward"``); a
+    JSON integer ``value`` is the raw word, as it always was (the dashboard and the browser page send it)."""
+    if (value is None) == (raw is None):
+        raise ops.ControlError(_GIVE)
+    if raw is not None:
+        return ops.integer("raw", raw, 0, 0xFFFF)
+    if isinstance(value, int) and not isinstance(value, bool):
+        return ops.integer("value", value, 0, 0xFFFF)
+    if isinstance(value, bool) or not isinstance(value, float | str):
+        raise ops.ControlError(f"value: expected a number or a value's name, got {_shown(value)}")
+    if isinstance(value, str) and len(value) > _LONGEST:
+        raise ops.ControlError(f"value: a text of {len(value)} characters; an amount or a name is {_LONGEST} at most")
+    spec = sim.profile.registers[ops.parse_register(sim, register)]
+    try:
+        return parse_value(spec, repr(value) if isinstance(value, float) else value)
+    except C20SimError as exc:
+        raise ops.ControlError(str(exc)) from None
+
+
+def _write(sim: Simulator, address: int, register: str, value: object = None, raw: object = None) -> dict[str, Any]:
+    ops.drive(sim, address)
+    return ops.write_register(sim, address, register, written(sim, register, value, raw))
+
+
+def _panel(sim: Simulator, address: int, register: str, value: object = None, raw: object = None) -> dict[str, Any]:
+    ops.drive(sim, address)
+    return ops.keypad_edit(sim, address, register, written(sim, register, value, raw))
+
+
 def _conditions(sim: Simulator, address: int, values: Mapping[str, object]) -> dict[str, Any]:
     ops.set_conditions(sim, address, values)
     return ops.drive_state(sim, address)
@@ -49,12 +96,11 @@ def _clear_fault(sim: Simulator, address: int, reset: object = True, cause: obje
     notes = [causes.release(sim, address, name) for name in ending]
     press = ops.flag("reset", reset)
     cleared = ops.clear_fault(sim, address, reset) if press else False
+    refused = causes.reset_refusal(sim, address) if press and not cleared else None
+    if refused:
+        notes.append(f"drive {address} kept its fault: {refused}")
     state = ops.drive_state(sim, address)
-    if press and not cleared and state["fault_code"]:
-        notes.append(
-            f"drive {address} kept its fault: reset again once the cause has gone (the bus recovers as time runs)"
-        )
-    return {"reset": cleared, "note": "; ".join(notes), **state}
+    return {"reset": cleared, "note": "; ".join(notes), **state} | ({"refused": refused} if refused else {})
 
 
 def _causes(sim: Simulator, address: int) -> dict[str, Any]:
@@ -68,7 +114,9 @@ def _clear_causes(sim: Simulator, address: int) -> dict[str, Any]:
 
 def _keypad(sim: Simulator, address: int, key: object) -> dict[str, Any]:
     accepted = ops.press_key(sim, address, key)
-    return {"accepted": accepted, **ops.drive_state(sim, address)}
+    resets = ops.key_command(key) is Command.RESET
+    refused = causes.reset_refusal(sim, address) if resets and not accepted else None
+    return {"accepted": accepted, **ops.drive_state(sim, address)} | ({"refused": refused} if refused else {})
 
 
 def _power_cycle(sim: Simulator, address: int) -> dict[str, Any]:
@@ -96,7 +144,13 @@ def _clear_generators(sim: Simulator, address: int, condition: object = None) ->
 
 # --- Field schemas.
 
-_VALUE = Field("value", {"type": "integer", "minimum": 0, "maximum": 0xFFFF}, True, "the raw value: 1500, 0x5DC")
+_VALUE = Field(
+    "value",
+    {"oneOf": [{"type": "integer", "minimum": 0, "maximum": 0xFFFF}, {"type": "number"}, {"type": "string"}]},
+    doc='in the register\'s units or by a value\'s name: 2.5, "2.5", "forward" (a JSON integer: the raw word)',
+    positional=True,
+)
+_RAW = Field("raw", {"type": "integer", "minimum": 0, "maximum": 0xFFFF}, doc="the raw word: 1500, 0x5DC")
 _KEY = {"oneOf": [{"enum": list(ops.KEYS)}, {"type": "integer", "minimum": 1, "maximum": 8}]}
 
 
@@ -162,10 +216,10 @@ DRIVES: tuple[Route, ...] = (
         "PUT",
         f"{_D}/registers/{{register}}",
         "write_register",
-        '{"value": 1500} (a master\'s rules; a refusal is 409 with its exception)',
-        ops.write_register,
-        (_VALUE,),
-        missing='give the raw value, such as {"value": 1500}',
+        '{"value": 2.5} or {"value": "forward"} in its units or names, or {"raw": 1500} (a master\'s rules; a '
+        "refusal is 409 with its exception)",
+        _write,
+        (_VALUE, _RAW),
         changes=True,
         cli="write",
         help="write a register by a master's rules (a refusal names its exception code)",
@@ -182,10 +236,9 @@ DRIVES: tuple[Route, ...] = (
         "PUT",
         f"{_D}/panel/{{register}}",
         "keypad_edit",
-        "{\"value\": 3} (the drive's own panel: a master's rules but 200EH and the password)",
-        ops.keypad_edit,
-        (_VALUE,),
-        missing='give the raw value, such as {"value": 1500}',
+        '{"value": 3} or {"raw": 3}, as a write (the drive\'s own panel: a master\'s rules but 200EH and the password)',
+        _panel,
+        (_VALUE, _RAW),
         changes=True,
         cli="panel",
         help="edit a register from the drive's own panel (200EH allowed, no password)",

@@ -29,6 +29,8 @@ class Field:
     schema: Schema
     required: bool = False
     doc: str = ""
+    #: ctl takes it as an optional word after the path's (``ctl write accel 2.5``), not as ``--name``
+    positional: bool = False
 
 
 @dataclass(frozen=True)

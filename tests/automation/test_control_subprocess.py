@@ -134,7 +134,7 @@ def test_ctl_from_a_shell(served: tuple[dict[str, str], Path]) -> None:
     result = ctl(ready, "set", "hall_fault=stuck9", "--drive", "1")
     assert result.returncode == 2
     assert result.stderr == (
-        "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null, 'stuck0', 'stuck7' or 'sequence', "
+        "c20sim: PUT /drives/1/conditions: 400: hall_fault: expected null or false (none), 'stuck0', 'stuck7' or 'sequence', "
         'got "stuck9"\n'
     )
     result = ctl(ready, "frames", "--last", "0")
@@ -204,7 +204,7 @@ def test_counters_count_what_a_master_saw(served: tuple[dict[str, str], Path]) -
         "silences": 1,
         "injected": 1,
     }
-    result = ctl(ready, "write", "F00.10", "2500")
+    result = ctl(ready, "write", "F00.10", "--raw", "2500")
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (
         "c20sim: PUT /drives/1/registers/F00.10: 409: F00.10 = 2500 refused: exception 0x04 (operation failed), "
@@ -249,7 +249,10 @@ def test_ctl_clear_ends_every_cause_then_resets(served: tuple[dict[str, str], Pa
         assert read(client, 0x2102) == 0x10
         result = ctl(ready, "clear")  # the ambient back, but the module is still hot: refused, and it says why
         assert result.returncode == 1
-        assert "the cause is ended, but the drive may need time to recover" in result.stderr
+        assert result.stderr == (
+            "c20sim: reset refused by the drive: its cause, overheat, has ended, but the drive has not recovered from "
+            "it yet; let time pass (ctl advance 1 on a virtual clock) and reset again (ctl key reset)\n"
+        )
         assert json.loads(ctl(ready, "causes").stdout)["causes"]["overheat"] is False
         ctl(ready, "advance", "600")
         assert ctl(ready, "clear").returncode == 0

@@ -83,7 +83,10 @@ def test_a_refused_reset_exits_1(served: tuple[dict[str, str], Path]) -> None:
     assert ctl(ready, "fault", "16", "--persistent").returncode == 0
     result = ctl(ready, "key", "reset")
     assert result.returncode == 1
-    assert result.stderr == "c20sim: key reset: refused by the drive (fault, run channel 2)\n"
+    assert result.stderr == (
+        "c20sim: key reset: refused by the drive: fault 16 was latched to hold until released; release it (ctl clear) "
+        "and reset\n"
+    )
     result = ctl(ready, "clear", "--no-reset")  # the persistent fault's cause ends; no reset asked
     assert (result.returncode, result.stderr) == (0, "")
     assert ctl(ready, "fault", "16", "--persistent").returncode == 0
@@ -136,7 +139,7 @@ def test_an_action_prints_one_line_of_what_it_did_and_json_when_asked(served: tu
     assert result.stdout.endswith(" V, no fault\n") and result.stdout.count("\n") == 1
     result = ctl(ready, "link", "offline=true")
     assert result.stdout == "link offline=true: link faults: offline\n"
-    assert ctl(ready, "link", "--clear").stdout == "link: link faults: none\n"
+    assert ctl(ready, "link", "--clear").stdout == "link --clear: link faults: none\n"
     result = ctl(ready, "fault", "16", "--persistent")
     assert result.stdout.startswith("fault 16 persistent: drive 1: fault, 0 rpm, bus ")
     assert result.stdout.endswith(" V, fault 16 OH2: power module overheat\n")
@@ -161,7 +164,13 @@ def test_the_new_users_first_refusals_say_why(served: tuple[dict[str, str], Path
         "c20sim: key forward: refused by the drive (stopped, run channel 2 = communication); "
         "the panel's run keys need the keypad channel: ctl run-channel keypad\n",
     )
-    result = ctl(ready, "write", "2001H", "5000")
+    result = ctl(ready, "write", "2001H", "5000")  # in the register's units, read as exercise reads it
+    assert (result.returncode, result.stderr) == (
+        2,
+        "c20sim: PUT /drives/1/registers/2001H: 400: 2001H communication speed setting: 5000 is outside 0 rpm "
+        "to 3000 rpm\n",
+    )
+    result = ctl(ready, "write", "2001H", "--raw", "5000")  # the raw word goes to the drive, which refuses it
     assert result.stderr.endswith(
         "2001H = 5000 refused: exception 0x03 (illegal data value), as a master would get it: 2001H takes 0-3000\n"
     )

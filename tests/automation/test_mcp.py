@@ -164,10 +164,17 @@ async def test_the_tools_are_the_route_table_and_the_run_key_runs_the_drive(tmp_
             "properties": {
                 "address": ADDRESS,
                 "register": {"type": "string", "description": "2100H, 0x2100, F00.10 or a name such as status1"},
-                "value": {"type": "integer", "minimum": 0, "maximum": 0xFFFF},
+                "value": {
+                    "oneOf": [
+                        {"type": "integer", "minimum": 0, "maximum": 0xFFFF},
+                        {"type": "number"},
+                        {"type": "string"},
+                    ]
+                },
+                "raw": {"type": "integer", "minimum": 0, "maximum": 0xFFFF},
             },
             "additionalProperties": False,
-            "required": ["register", "value"],
+            "required": ["register"],
         }
         key = routes.table().named("press_key")
         assert tools["press_key"].description == f"{key.help}\n\nPOST /drives/{{address}}/keypad: {key.doc}"

@@ -203,11 +203,44 @@ def test_clear_fault_without_a_cause_ends_every_cause_present_and_no_other_condi
     answer = call("clear_fault", {})
     assert (answer["reset"], answer["note"]) == (
         False,
-        "drive 1: undervoltage gone: supply_v 48 (reset to clear the fault); drive 1 kept its fault: reset again "
-        "once the cause has gone (the bus recovers as time runs)",
+        "drive 1: undervoltage gone: supply_v 48 (reset to clear the fault); drive 1 kept its fault: its cause, "
+        "undervoltage, has ended, but the drive has not recovered from it yet; let time pass (ctl advance 1 on a "
+        "virtual clock) and reset again (ctl key reset)",
     )
     assert ops.conditions(sim, 1)["supply_v"] == 48.0
     assert ops.conditions(sim, 1)["load_torque_nm"] == 0.2  # not a cause that is present: left as set
     sim.advance(1.0)
     answer = call("clear_fault", {})
     assert (answer["reset"], answer["note"], answer["fault_code"]) == (True, "", 0)
+
+
+def twirl(sim: Simulator, address: int, way: object = None, turns: object = None) -> dict[str, Any]:
+    """A throwaway operation with an optional word and an option, answering with what it was given."""
+    return {"address": address, "way": way, "turns": turns}
+
+
+def test_an_optional_positional_field_is_a_word_for_ctl(capsys: pytest.CaptureFixture[str]) -> None:
+    """A field marked ``positional`` (as write's value) is an optional word after the action, its siblings options,
+    said as typed in the one-line answer; no other edit."""
+    row = routes.Route(
+        "POST",
+        "/drives/{address}/twirl",
+        "twirl",
+        '{"way": "left", "turns": 2} (a test\'s throwaway operation)',
+        twirl,
+        (
+            routes.Field("way", {"type": "string"}, doc="which way", positional=True),
+            routes.Field("turns", {"type": "integer", "minimum": 1, "maximum": 10}),
+        ),
+        changes=True,
+    )
+    table = routes.table()
+    table.add(row)
+    try:
+        with serving() as served:
+            assert cli.main(["ctl", "--url", served.url, "twirl", "left", "--turns", "2"]) == 0
+            assert capsys.readouterr().out == 'twirl left --turns 2: {"address": 1, "way": "left", "turns": 2}\n'
+            assert cli.main(["ctl", "--url", served.url, "twirl"]) == 0  # the word left out: not sent
+            assert capsys.readouterr().out == 'twirl: {"address": 1, "way": null, "turns": null}\n'
+    finally:
+        table.remove("twirl")
