@@ -130,7 +130,27 @@ def test_a_fault_by_cause_or_code_is_one_object_saying_both() -> None:
         "type": "object",
         "properties": {
             "address": ADDRESS,
-            "cause": {"type": "string"},
+            "cause": {
+                "enum": [
+                    "undervoltage",
+                    "overvoltage",
+                    "overcurrent",
+                    "overload",
+                    "stall",
+                    "overheat",
+                    "hall",
+                    "external",
+                    "power_stage_u",
+                    "power_stage_v",
+                    "power_stage_w",
+                    "drive_overload",
+                    "output_phase_loss",
+                    "communication",
+                    "current_detection",
+                    "eeprom",
+                ],
+                "description": "a fault's cause: a physical one, or a fault the profile has with no physical cause",
+            },  # fmt: skip (the causes' rows, drive/trips.py, and the faults the profile has without a cause)
             "code": {"type": "integer", "minimum": 1, "maximum": 255},
             "persistent": {"type": "boolean"},
         },
