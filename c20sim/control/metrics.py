@@ -65,7 +65,7 @@ class Snapshot:
     line: tuple[tuple[int, ...], int, float, float, int] | None
 
 
-#: Drives read per turn of the serving loop by :func:`snapshot_in_turns` (about 30 us each: a millisecond a turn).
+#: Drives read per turn of the serving loop by :func:`snapshot_in_turns` (about 10 us each: a third of a ms a turn).
 DRIVES_PER_TURN = 32
 
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib
 import logging
+import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -14,11 +17,29 @@ from ..transport.line import Line
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METRICS_CACHE", "Scrapes"]
+__all__ = ["METRICS_CACHE", "METRICS_RATE", "Scrapes"]
+
+_METRICS = "c20sim.control.metrics"
 
 #: GET /metrics answers made within this many seconds of each other are one (a scrape every second or slower
 #: is always fresh; four scrapers at once cost one).
 METRICS_CACHE = 0.5
+
+#: Answers a listener gives a second at most, all its scrapers together (assumed: a hundred times four
+#: Prometheus servers' ``scrape_interval: 15s`` default and ten times four at 1 s, the shortest in common use).
+#: A scrape over the rate waits for its turn, which costs nothing (how many wait is bounded by the listener's
+#: connection cap); answered at once, four scrapers back to back took 3,000 answers a second, a third of a
+#: core beside the wire (bench/RESULTS.md).
+METRICS_RATE = 50.0
+
+#: Seconds a closing listener waits for its killed metrics process to be reaped (a kill ends it at once).
+RENDERER_JOIN = 5.0
+
+#: Seconds the metrics process may take to start and import what it renders with (a loaded machine: seconds).
+RENDERER_START = 60.0
+
+#: How much lower the metrics process's priority is than the server's (``nice``; Unix).
+RENDERER_NICE = 10
 
 
 class Scrapes:
@@ -31,19 +52,25 @@ class Scrapes:
         self._scraping: dict[str, asyncio.Future[tuple[bytes, str]]] = {}
         self._renderer: Any = None  #: the metrics process (a ProcessPoolExecutor of one), made at the first scrape
         self._renderer_failed = False
+        self.closed = False
+        #: the loop time from which the next answer may go (:data:`METRICS_RATE`)
+        self._next_answer = 0.0
 
     async def scrape(self, accept: str, line: Line | None = None) -> tuple[bytes, str]:
-        """GET /metrics' body and Content-Type. The figures are read on the loop, 32 drives a turn (about 30 us
+        """GET /metrics' body and Content-Type. The figures are read on the loop, 32 drives a turn (about 10 us
         a drive); the families are built and written in a process of their own (tens of milliseconds of Python
         at 247 drives: on the loop they held the wire as long, and in a thread they would hold the interpreter's
         lock as long, in slices); scrapers within :data:`METRICS_CACHE` of each other, or asking while one is
-        made, share one answer."""
+        made, share one answer; and all scrapers together get :data:`METRICS_RATE` answers a second at most."""
+        if _METRICS not in sys.modules:  # prometheus_client's import (tens of ms) in a worker thread, off the loop
+            await asyncio.to_thread(importlib.import_module, _METRICS)
         from prometheus_client.exposition import choose_encoder
 
         from .metrics import render, snapshot_in_turns  # imports prometheus_client: only when scraped
 
         kind = choose_encoder(accept)[1]
         loop = asyncio.get_running_loop()
+        await self._turn(loop)
         cached = self._scraped.get(kind)
         if cached is not None and loop.time() - cached[0] < METRICS_CACHE:
             return cached[1], cached[2]
@@ -65,21 +92,23 @@ class Scrapes:
         future.set_result((body, content_type))
         return body, content_type
 
+    async def _turn(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Wait for this scrape's turn: answers go :data:`METRICS_RATE` a second at most, in arrival order."""
+        now = loop.time()
+        at = max(now, self._next_answer)
+        self._next_answer = at + 1.0 / METRICS_RATE
+        if at > now:
+            await asyncio.sleep(at - now)
+
     async def _render(self, render: Callable[..., tuple[bytes, str]], *args: object) -> tuple[bytes, str]:
-        """``render(*args)`` in the metrics process (started at the first scrape, "spawn": nothing of this
-        process's threads is copied); in a worker thread where a process cannot be started."""
+        """``render(*args)`` in the metrics process; in a worker thread where a process cannot be started."""
         loop = asyncio.get_running_loop()
         if self._renderer is None and not self._renderer_failed:
-            import concurrent.futures
-            import multiprocessing
-
-            try:
-                self._renderer = concurrent.futures.ProcessPoolExecutor(
-                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
-                )
-            except (OSError, ValueError, NotImplementedError) as exc:
-                log.info("GET /metrics: no process for the rendering (%s); a worker thread does it", exc)
-                self._renderer_failed = True
+            started = await asyncio.to_thread(_start_renderer)
+            if self.closed and started is not None:  # closed while it started: it goes at once
+                _stop_renderer(started)
+                started = None
+            self._renderer, self._renderer_failed = started, started is None
         if self._renderer is not None:
             try:
                 return await loop.run_in_executor(self._renderer, render, *args)
@@ -91,18 +120,56 @@ class Scrapes:
         return await asyncio.to_thread(render, *args)
 
     def close(self) -> None:
+        """Stop the metrics process (killed, reaped, its queues closed); a scrape after this renders in a thread."""
+        self.closed = True
         if self._renderer is not None:
             _stop_renderer(self._renderer)
             self._renderer = None
 
 
+def _start_renderer() -> Any:
+    """The metrics process (a ProcessPoolExecutor of one, "spawn": nothing of this process's threads is
+    copied), started and warmed (c20sim and prometheus_client imported) in the calling worker thread: the fork,
+    the exec and the first hand-off stay off the serving loop. The process runs at a lower priority
+    (:data:`RENDERER_NICE`): on a machine with few cores its tens of milliseconds of rendering give way to the
+    server and its masters. None where no process can be started."""
+    import concurrent.futures
+    import multiprocessing
+
+    try:
+        pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=_lower_priority
+        )
+        pool.submit(_warm).result(RENDERER_START)
+    except (OSError, ValueError, NotImplementedError, RuntimeError, TimeoutError) as exc:
+        log.info("GET /metrics: no process for the rendering (%s); a worker thread does it", exc)
+        return None
+    return pool
+
+
+def _lower_priority() -> None:
+    """The metrics process's initializer: :data:`RENDERER_NICE` (where the system has priorities)."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.nice(RENDERER_NICE)
+
+
+def _warm() -> None:
+    """Import what rendering needs, in the metrics process, before the first snapshot is handed to it."""
+    from . import metrics  # noqa: F401
+
+
 def _stop_renderer(pool: Any) -> None:
-    """End the metrics process now: a serve stopping waits for no scrape. ``shutdown(wait=False)`` alone leaves
-    the interpreter's exit joining the process, which may still be starting (a new interpreter importing c20sim:
-    seconds on a loaded machine), so the process is killed too (the pool keeps its processes in ``_processes``
-    on every Python from 3.8 to 3.13)."""
+    """End the metrics process now: a serve stopping waits for no scrape. The process is killed first (it may
+    still be starting: a new interpreter importing c20sim, seconds on a loaded machine; the pool keeps its
+    processes in ``_processes`` on every Python from 3.8 to 3.13); then the pool is shut down waiting for its
+    manager thread, which sees the process gone, reaps it (no zombie) and closes the pool's queues, so their
+    semaphores are released here rather than reported leaked by the resource tracker at exit (``shutdown(wait=False)``
+    left both to the interpreter's exit)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            process.join(RENDERER_JOIN)
