@@ -272,6 +272,13 @@ class Bus:
         self.last_request_time = 0.0
         #: seconds every event so far held the line
         self.line_busy_s = 0.0
+        #: how the reply being made is stamped, set by the line before each request it serves: None (the reply is
+        #: handed over whole, the turnaround after its request: its last byte leaves then), or, on a line that
+        #: keeps each transaction's RS485 time (bus timing), when the transaction starts on the line and whether
+        #: the request was on the wire already as its bytes came (a line-timed port): the reply's last byte
+        #: leaves at the end of the transaction's time on the wire
+        self.timed_from: tuple[float, bool] | None = None
+        self._request_len = 0
 
     # -- the line's settings, told to whoever listens
 
@@ -389,6 +396,7 @@ class Bus:
         Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
         line and to the addressed drive."""
         baud = self._line_baud  # the request and its reply go at the baud before a 2009H write takes effect
+        self._request_len = len(event.data)
         try:
             reply = self._handle(event, now)
         finally:
@@ -564,8 +572,31 @@ class Bus:
             counters.exceptions[int(response.code)] = counters.exceptions.get(int(response.code), 0) + 1
         else:
             counters.replies += 1
-        self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
+        self._tx(
+            self._reply_end(t, len(data), delay, baud, split),
+            data,
+            kind,
+            slave,
+            response,
+            notes,
+            model_t,
+            request,
+            mbap,
+        )
         return Reply(data, delay, response.slave, baud, split, wrong_transaction)
+
+    def _reply_end(self, t: float, size: int, delay: float, baud: int, split: float) -> float:
+        """When a reply of ``size`` bytes to the request stamped ``t`` has its last byte out (a frame's time in the
+        log): the turnaround after the request where the reply is handed over whole; with :attr:`timed_from`, the
+        end of the transaction on the line (:func:`transaction_time` from its start, less the request's own time
+        where it was on the wire as it came), a split reply's gap included."""
+        timed = self.timed_from
+        if timed is None:
+            return t + delay
+        start, on_wire = timed
+        bits = self._char_bits
+        spent = transaction_time(self._request_len, size, baud, bits, delay) + split
+        return start + spent - (frame_time(self._request_len, baud, bits) if on_wire else 0.0)
 
     def _tx(
         self,
