@@ -9,9 +9,11 @@ requests from every stream one at a time. The reply comes back through
 
 Backpressure: an endpoint has at most ``limit`` requests on the line (one,
 as an RTU master waits for each answer) and no reply it could not hand to
-its stream; while either holds, it asks its transport to stop reading, so
-the kernel's buffer and TCP flow control hold the rest, as libmodbus's
-server loop does. Frames already read wait in the framer, bounded by one
+its stream; at its limit it reads on until its next request is framed and
+held (stamped with its arrival: a master that retries before its reply is
+seen doing so, at the time it did), then, as while a reply cannot be handed
+over, it asks its transport to stop reading, so the kernel's buffer and TCP
+flow control hold the rest, as libmodbus's server loop does. Frames already read wait in the framer, bounded by one
 read, and framed a slice at a time as room comes (framing a 64 KiB burst
 at once would hold the loop for tens of milliseconds). When the endpoint
 closes, its requests still waiting on the line are dropped, with the bytes
@@ -224,7 +226,10 @@ class RtuEndpoint:
 
     def _flow(self) -> None:
         """Ask the transport to stop reading while the line or the stream has no room, and to read again."""
-        hold = self._held is not None or bool(self._unfed) or self._outstanding >= self.limit or self._write_blocked
+        # At its limit of requests on the line the stream is still read until its next request is framed (held):
+        # that request's arrival is stamped as it came, so a master that sends again before its reply (an early
+        # retry) is seen doing so, as a capture of the stream sees it; then nothing more is read.
+        hold = self._held is not None or bool(self._unfed) or self._write_blocked
         if hold and not self._paused and self._pause is not None:
             self._paused = True
             self._pause()
