@@ -31,7 +31,11 @@ from tests.integration.conftest import ServeFactory, need
 pytestmark = pytest.mark.serial  # a master's real rhythm, against a capture's: .ci/run runs it alone
 
 RETRIES = 10
-RETRY_AFTER = 0.005  # the master's timeout: 5 ms, where the reply needs 13.5 ms on the line
+#: the master's timeout: 2 ms, where the reply needs 13.5 ms on the line. The port stamps a request when the loop
+#: reads it, the kernel (and so the capture) when it came: a retry the loop reads more than the margin left
+#: (13.5 - 2 - the audit's 1 ms of timer slack) late is judged after the reply live and before it in the
+#: capture. Seen once in about twenty runs at load 3 on 2 cores with a 5 ms timeout, hence the short one.
+RETRY_AFTER = 0.002
 
 
 def audit(path: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
@@ -113,11 +117,11 @@ async def test_the_live_audit_finds_early_retries_over_rtu_over_tcp_as_the_captu
     need_ms = transaction_time(8, 7, 19200, 10, served.sim.profile.protocol.turnaround_ms / 1000) * 1000
     # each reply's record is stamped at the end of its transaction's time on the line: the first's from its
     # request, the retry's (which waited for the line) from the end of the first's
-    # (never sooner; later by the time the loop took to get to it)
+    # (never sooner; later by the time the loop took to get to it, on a loaded machine milliseconds)
     on_line = need_ms / 1000
     for first, reply, retry, again in zip(*(records[k::4] for k in range(4)), strict=True):
-        assert on_line - 1e-9 <= reply.t - first.t < on_line + 0.005
-        assert on_line - 1e-9 <= again.t - max(retry.t, reply.t) < on_line + 0.005
+        assert on_line - 1e-9 <= reply.t - first.t < on_line + 0.05
+        assert on_line - 1e-9 <= again.t - max(retry.t, reply.t) < on_line + 0.05
     assert early >= 1, "the master's 5 ms timer ran late every time: the machine is too loaded to judge"
 
     audit_now = liveaudit.of(served.sim)
@@ -139,7 +143,9 @@ async def test_the_live_audit_finds_early_retries_over_rtu_over_tcp_as_the_captu
     assert counts == [(1, early)] * 3, (counts, log, capture)
     assert found.figure.endswith(f"before its reply could have finished ({need_ms:.1f} ms on 19200 8N1)")
     assert captured_finding["figure"].endswith(f"({need_ms:.1f} ms on 19200 8N1)")
-    # the worst gap: about the master's 5 ms, live as in the capture (the kernel's stamps against the port's)
-    assert RETRY_AFTER <= found.value < need_ms / 1000
-    assert captured_finding["value"] == pytest.approx(found.value, abs=0.001)
+    # the first retry's gap: the master's 2 ms or more (its timer runs late under load), under the line's time,
+    # in the capture as live (not equal: the port stamps a request when the loop reads it, the kernel when it
+    # came, and a loaded machine may leave the loop a few milliseconds behind); the frame log's is the live one
+    assert RETRY_AFTER <= found.value < on_line
+    assert RETRY_AFTER - 0.001 <= captured_finding["value"] < on_line
     assert offline["value"] == pytest.approx(found.value, abs=1e-6)
