@@ -9,6 +9,7 @@ import importlib
 import logging
 import os
 import sys
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -53,6 +54,9 @@ class Scrapes:
         self._renderer: Any = None  #: the metrics process (a ProcessPoolExecutor of one), made at the first scrape
         self._renderer_failed = False
         self.closed = False
+        #: guards the hand-over of a process started in a worker thread: a close meanwhile (even one that cancelled
+        #: the scrape waiting for it) stops it, and none is left running
+        self._lock = threading.Lock()
         #: the loop time from which the next answer may go (:data:`METRICS_RATE`)
         self._next_answer = 0.0
 
@@ -104,11 +108,8 @@ class Scrapes:
         """``render(*args)`` in the metrics process; in a worker thread where a process cannot be started."""
         loop = asyncio.get_running_loop()
         if self._renderer is None and not self._renderer_failed:
-            started = await asyncio.to_thread(_start_renderer)
-            if self.closed and started is not None:  # closed while it started: it goes at once
-                _stop_renderer(started)
-                started = None
-            self._renderer, self._renderer_failed = started, started is None
+            started = await asyncio.to_thread(self._start)
+            self._renderer_failed = started is None
         if self._renderer is not None:
             try:
                 return await loop.run_in_executor(self._renderer, render, *args)
@@ -119,12 +120,26 @@ class Scrapes:
                 self._renderer_failed = True
         return await asyncio.to_thread(render, *args)
 
+    def _start(self) -> Any:
+        """In a worker thread: start the metrics process and hand it over, unless the listener closed meanwhile;
+        the process in use (None: none)."""
+        pool = _start_renderer()
+        with self._lock:
+            keep = pool is not None and not self.closed and self._renderer is None
+            if keep:
+                self._renderer = pool
+            current = self._renderer
+        if pool is not None and not keep:
+            _stop_renderer(pool)  # closed while it started, or another scrape's came first: it goes at once
+        return current
+
     def close(self) -> None:
         """Stop the metrics process (killed, reaped, its queues closed); a scrape after this renders in a thread."""
-        self.closed = True
-        if self._renderer is not None:
-            _stop_renderer(self._renderer)
-            self._renderer = None
+        with self._lock:
+            self.closed = True
+            pool, self._renderer = self._renderer, None
+        if pool is not None:
+            _stop_renderer(pool)
 
 
 def _start_renderer() -> Any:

@@ -4,10 +4,12 @@ listener closes (reaped, no warning), runs at a lower priority, and scrapers tog
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -56,6 +58,38 @@ def test_close_kills_and_reaps_the_rendering_process() -> None:
     # reaped by close itself: no zombie left to this process (waitpid knows no such child), and gone
     with pytest.raises(ChildProcessError):
         os.waitpid(pid, os.WNOHANG)
+    assert not Path(f"/proc/{pid}").exists()
+
+
+def test_a_close_while_the_process_starts_leaves_none(monkeypatch: pytest.MonkeyPatch) -> None:
+    started, closed = threading.Event(), threading.Event()
+    real = scrapes._start_renderer
+    pids: list[int] = []
+
+    def slow_start() -> object:
+        pool = real()  # started and warmed; then held until the listener has closed
+        pids.extend(process.pid for process in pool._processes.values())
+        started.set()
+        closed.wait(30)
+        return pool
+
+    monkeypatch.setattr(scrapes, "_start_renderer", slow_start)
+
+    async def close_while_starting() -> None:
+        taken = Scrapes(_sim())
+        scrape = asyncio.create_task(taken.scrape(""))
+        assert await asyncio.to_thread(started.wait, 30)
+        taken.close()  # as serve's close: the scrape waiting for the process is cancelled with the loop's tasks
+        scrape.cancel()
+        closed.set()
+        with contextlib.suppress(asyncio.CancelledError):
+            await scrape
+        assert taken._renderer is None
+
+    asyncio.run(close_while_starting())  # asyncio.run waits for the worker thread that started the process
+    (pid,) = pids
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # stopped and reaped by the thread that started it: none left running
     assert not Path(f"/proc/{pid}").exists()
 
 
