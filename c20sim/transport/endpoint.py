@@ -99,6 +99,7 @@ class RtuEndpoint:
         self._unfed = bytearray()  #: bytes read but not yet framed (all of one read, back to back)
         self._unfed_t = 0.0
         self._resumed_at = 0.0
+        self._at_limit = False  #: the stream had its limit of requests on the line when last collected
         self._just_resumed = False
         self._generation = 0  #: bumped when the stream's master goes: older requests are not answered
         self._respond_now = functools.partial(self._respond, 0)  #: the respond of this generation's requests
@@ -131,8 +132,10 @@ class RtuEndpoint:
         if self._closed:
             return
         now = time.perf_counter()
-        if self._just_resumed and self.framer.pending and not self._unfed:
-            # The first bytes read after a pause were held by us, not silent: they follow the buffered ones.
+        if (self._just_resumed or self._at_limit) and self.framer.pending and not self._unfed:
+            # The first bytes read after a pause were held by us, not silent, and so is the rest of a frame read
+            # while the stream is at its limit on the line (it would wait for the line): they follow the buffered
+            # ones.
             deadline = self.framer.deadline()
             assert deadline is not None
             now = min(now, deadline - self.framer.t35 + len(data) * char_time(self.framer.baud))
@@ -193,8 +196,15 @@ class RtuEndpoint:
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
-        # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once.
-        deadline = self._deadline() if self.framer.pending and not (self._unfed or self._paused) else None
+        # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once;
+        # nor while the stream is at its limit on the line: the rest of a frame read meanwhile would wait for the
+        # line there anyway, and its silence counts from when the stream may send again.
+        at_limit = self._outstanding >= self.limit
+        if self._at_limit and not at_limit:
+            self._resumed_at = time.perf_counter()
+        self._at_limit = at_limit
+        waits = self._unfed or self._paused or at_limit
+        deadline = self._deadline() if self.framer.pending and not waits else None
         if deadline is not None:
             self._tick = self._loop.call_later(max(0.0, deadline - time.perf_counter()), self._on_silence)
 
@@ -255,7 +265,7 @@ class RtuEndpoint:
         self._outstanding -= 1
         if self._closed:
             return
-        if self._held is not None or self._unfed or self._paused:
+        if self._held is not None or self._unfed or self._paused or self.framer.pending:
             self._schedule_collect()  # else nothing waits: the next read frames and submits by itself
         if reply is None:
             return
