@@ -476,6 +476,8 @@ class Line:
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 self._announce_baud()
                 continue
+            finally:
+                self.sim.bus.timed_from = None  # a request served without the line (a scenario's) stamps as untimed
             hold = reply.delay if reply is not None else 0.0
             if self.bus_timing:
                 bus = self.sim.bus
