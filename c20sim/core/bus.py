@@ -38,14 +38,12 @@ and the line scheduler holds the line for it under bus timing.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import functools
 import logging
 import random
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from ..wire.decode import describe
 from ..wire.protocol import (
     BROADCAST,
     SHEET_CHAR_BITS,
@@ -67,6 +65,7 @@ from ..wire.registers import RegisterMap
 from ..wire.values import quick_init
 from .framering import FrameRing
 from .linkfaults import LinkFaults
+from .records import Direction, FrameRecord, RecordKind
 from .slave import Slave
 
 __all__ = ["Bus", "Counters", "Direction", "FrameRecord", "LineListener", "LineSettings", "RecordKind", "Reply"]
@@ -75,108 +74,6 @@ log = logging.getLogger(__name__)
 
 #: Addresses the sheet reserves (1.a): no drive answers them.
 RESERVED = range(0xF8, 0x100)
-
-
-class Direction(enum.StrEnum):
-    """Which way a frame went on the line (equal to its JSON string)."""
-
-    RX = "rx"  #: master to drive
-    TX = "tx"  #: drive to master
-
-
-class RecordKind(enum.StrEnum):
-    """What a frame-log record is (equal to its JSON string)."""
-
-    REQUEST = "request"  #: a good frame from the master
-    REPLY = "reply"  #: the drive's normal answer
-    EXCEPTION = "exception"  #: the drive's exception answer
-    DROPPED = "dropped"  #: a reply a link fault kept off the wire
-    CRC_ERROR = FrameKind.CRC_ERROR.value  #: a frame of the right length with a bad CRC
-    LENGTH_ERROR = FrameKind.LENGTH_ERROR.value  #: a known function with the wrong number of bytes
-    NOISE = FrameKind.NOISE.value  #: bytes that are no frame
-
-    @property
-    def error(self) -> bool:
-        """A framing error, a drop or an exception: what an "errors only" view shows."""
-        return self not in (RecordKind.REQUEST, RecordKind.REPLY)
-
-
-@quick_init
-@dataclass(frozen=True, slots=True)
-class FrameRecord:
-    """One frame on the line, for the frame log.
-
-    ``words`` is the frame in words, or the decoded message to put in words
-    when someone reads :attr:`text`: the log costs next to nothing until it is
-    read, which keeps a request cheap.
-    """
-
-    t: float  #: the line's time: arrival of the frame's last byte (or when the line took a request that waited), or when the reply is due
-    direction: Direction
-    data: bytes
-    kind: RecordKind
-    slave: int | None
-    words: str | Request | Response
-    note: str = ""  #: framing error detail, or an injected link fault
-    model_t: float | None = None  #: the drives' time when the frame was served
-    registers: RegisterMap | None = field(default=None, compare=False, repr=False)
-    request: Request | None = field(default=None, compare=False, repr=False)
-    #: the wall-clock time (Unix seconds) of ``t``, where an I/O layer knows it (a record read back from JSON)
-    wall: float | None = field(default=None, compare=False)
-    #: a Modbus TCP exchange: the request's MBAP header; ``data`` is then the RTU frame on the line behind the
-    #: gateway, and :attr:`wire` the Modbus TCP frame on the TCP connection
-    mbap: MbapHeader | None = field(default=None, compare=False)
-    #: the gateway's own answer (exception 0x0B after silence on the line): on the TCP connection, not on the line
-    from_gateway: bool = field(default=False, compare=False)
-
-    @property
-    def text(self) -> str:
-        """The frame in words."""
-        if isinstance(self.words, str):
-            return self.words
-        return describe(self.words, self.registers, self.request)
-
-    @property
-    def wire(self) -> bytes:
-        """The bytes the master's connection carried: ``data`` on an RTU line; for Modbus TCP the MBAP frame (empty
-        where the gateway forwarded nothing: a broken or dropped reply on the line)."""
-        if self.mbap is None:
-            return self.data
-        forwarded = (
-            self.direction is Direction.RX
-            or self.from_gateway
-            or (
-                self.kind in (RecordKind.REPLY, RecordKind.EXCEPTION)
-                and len(self.data) >= 4
-                and crc_ok(self.data)
-                and self.data[0] == self.mbap.unit
-            )
-        )
-        return self.mbap.adu(self.data[1:-2]) if forwarded and len(self.data) >= 3 else b""
-
-    def as_dict(self, wall_offset: float | None = None) -> dict[str, object]:
-        """JSON-ready; ``wall_offset`` (Unix time minus the line's clock, from the I/O layer that stamped ``t``)
-        adds ``wall``: when the frame was on the line, by the wall clock."""
-        wall = self.wall if self.wall is not None else None if wall_offset is None else self.t + wall_offset
-        return {
-            "t": round(self.t, 6),
-            **({} if wall is None else {"wall": round(wall, 3)}),
-            "model_t": None if self.model_t is None else round(self.model_t, 6),
-            "dir": str(self.direction),
-            "hex": self.wire.hex(" ").upper(),
-            **(
-                {}
-                if self.mbap is None
-                else {
-                    "modbus_tcp": {"transaction": self.mbap.transaction, "unit": self.mbap.unit},
-                    "rtu": None if self.from_gateway else self.data.hex(" ").upper(),
-                }
-            ),
-            "kind": str(self.kind),
-            "slave": self.slave,
-            "text": self.text,
-            "note": self.note,
-        }
 
 
 @dataclass
@@ -272,6 +169,13 @@ class Bus:
         self.last_request_time = 0.0
         #: seconds every event so far held the line
         self.line_busy_s = 0.0
+        #: how the reply being made is stamped, set by the line before each request it serves: None (the reply is
+        #: handed over whole, the turnaround after its request: its last byte leaves then), or, on a line that
+        #: keeps each transaction's RS485 time (bus timing), when the transaction starts on the line and whether
+        #: the request was on the wire already as its bytes came (a line-timed port): the reply's last byte
+        #: leaves at the end of the transaction's time on the wire
+        self.timed_from: tuple[float, bool] | None = None
+        self._request_len = 0
 
     # -- the line's settings, told to whoever listens
 
@@ -389,6 +293,7 @@ class Bus:
         Sets :attr:`last_line_time`: the event's time on a real line at the line's settings, counted to the
         line and to the addressed drive."""
         baud = self._line_baud  # the request and its reply go at the baud before a 2009H write takes effect
+        self._request_len = len(event.data)
         try:
             reply = self._handle(event, now)
         finally:
@@ -564,8 +469,31 @@ class Bus:
             counters.exceptions[int(response.code)] = counters.exceptions.get(int(response.code), 0) + 1
         else:
             counters.replies += 1
-        self._tx(t + delay, data, kind, slave, response, notes, model_t, request, mbap)
+        self._tx(
+            self._reply_end(t, len(data), delay, baud, split),
+            data,
+            kind,
+            slave,
+            response,
+            notes,
+            model_t,
+            request,
+            mbap,
+        )
         return Reply(data, delay, response.slave, baud, split, wrong_transaction)
+
+    def _reply_end(self, t: float, size: int, delay: float, baud: int, split: float) -> float:
+        """When a reply of ``size`` bytes to the request stamped ``t`` has its last byte out (a frame's time in the
+        log): the turnaround after the request where the reply is handed over whole; with :attr:`timed_from`, the
+        end of the transaction on the line (:func:`transaction_time` from its start, less the request's own time
+        where it was on the wire as it came), a split reply's gap included."""
+        timed = self.timed_from
+        if timed is None:
+            return t + delay
+        start, on_wire = timed
+        bits = self._char_bits
+        spent = transaction_time(self._request_len, size, baud, bits, delay) + split
+        return start + spent - (frame_time(self._request_len, baud, bits) if on_wire else 0.0)
 
     def _tx(
         self,

@@ -9,9 +9,11 @@ requests from every stream one at a time. The reply comes back through
 
 Backpressure: an endpoint has at most ``limit`` requests on the line (one,
 as an RTU master waits for each answer) and no reply it could not hand to
-its stream; while either holds, it asks its transport to stop reading, so
-the kernel's buffer and TCP flow control hold the rest, as libmodbus's
-server loop does. Frames already read wait in the framer, bounded by one
+its stream; at its limit it reads on until its next request is framed and
+held (stamped with its arrival: a master that retries before its reply is
+seen doing so, at the time it did), then, as while a reply cannot be handed
+over, it asks its transport to stop reading, so the kernel's buffer and TCP
+flow control hold the rest, as libmodbus's server loop does. Frames already read wait in the framer, bounded by one
 read, and framed a slice at a time as room comes (framing a 64 KiB burst
 at once would hold the loop for tens of milliseconds). When the endpoint
 closes, its requests still waiting on the line are dropped, with the bytes
@@ -97,6 +99,7 @@ class RtuEndpoint:
         self._unfed = bytearray()  #: bytes read but not yet framed (all of one read, back to back)
         self._unfed_t = 0.0
         self._resumed_at = 0.0
+        self._at_limit = False  #: the stream had its limit of requests on the line when last collected
         self._just_resumed = False
         self._generation = 0  #: bumped when the stream's master goes: older requests are not answered
         self._respond_now = functools.partial(self._respond, 0)  #: the respond of this generation's requests
@@ -129,8 +132,10 @@ class RtuEndpoint:
         if self._closed:
             return
         now = time.perf_counter()
-        if self._just_resumed and self.framer.pending and not self._unfed:
-            # The first bytes read after a pause were held by us, not silent: they follow the buffered ones.
+        if (self._just_resumed or self._at_limit) and self.framer.pending and not self._unfed:
+            # The first bytes read after a pause were held by us, not silent, and so is the rest of a frame read
+            # while the stream is at its limit on the line (it would wait for the line): they follow the buffered
+            # ones.
             deadline = self.framer.deadline()
             assert deadline is not None
             now = min(now, deadline - self.framer.t35 + len(data) * char_time(self.framer.baud))
@@ -191,8 +196,15 @@ class RtuEndpoint:
         if self._tick is not None:
             self._tick.cancel()
             self._tick = None
-        # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once.
-        deadline = self._deadline() if self.framer.pending and not (self._unfed or self._paused) else None
+        # No silence is timed while bytes wait unframed or unread (paused): they follow the buffered ones at once;
+        # nor while the stream is at its limit on the line: the rest of a frame read meanwhile would wait for the
+        # line there anyway, and its silence counts from when the stream may send again.
+        at_limit = self._outstanding >= self.limit
+        if self._at_limit and not at_limit:
+            self._resumed_at = time.perf_counter()
+        self._at_limit = at_limit
+        waits = self._unfed or self._paused or at_limit
+        deadline = self._deadline() if self.framer.pending and not waits else None
         if deadline is not None:
             self._tick = self._loop.call_later(max(0.0, deadline - time.perf_counter()), self._on_silence)
 
@@ -224,7 +236,10 @@ class RtuEndpoint:
 
     def _flow(self) -> None:
         """Ask the transport to stop reading while the line or the stream has no room, and to read again."""
-        hold = self._held is not None or bool(self._unfed) or self._outstanding >= self.limit or self._write_blocked
+        # At its limit of requests on the line the stream is still read until its next request is framed (held):
+        # that request's arrival is stamped as it came, so a master that sends again before its reply (an early
+        # retry) is seen doing so, as a capture of the stream sees it; then nothing more is read.
+        hold = self._held is not None or bool(self._unfed) or self._write_blocked
         if hold and not self._paused and self._pause is not None:
             self._paused = True
             self._pause()
@@ -250,7 +265,7 @@ class RtuEndpoint:
         self._outstanding -= 1
         if self._closed:
             return
-        if self._held is not None or self._unfed or self._paused:
+        if self._held is not None or self._unfed or self._paused or self.framer.pending:
             self._schedule_collect()  # else nothing waits: the next read frames and submits by itself
         if reply is None:
             return

@@ -464,6 +464,10 @@ class Line:
                 event = dataclasses.replace(event, t=on_line)
             self._last_source, self._last_on_line = source, on_line
             self._in_hand = True  # a baud the bus tells now waits until this reply is handed over
+            # with bus timing the transaction starts on the line when it is free, and its reply's record is stamped
+            # at the transaction's end there: when the reply is handed over (its last byte leaves)
+            start = max(time.perf_counter(), self._held_until)
+            self.sim.bus.timed_from = (start, isinstance(respond, SelfTimed)) if self.bus_timing else None
             try:
                 reply = self.sim.handle(event)
             except Exception:
@@ -472,6 +476,8 @@ class Line:
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 self._announce_baud()
                 continue
+            finally:
+                self.sim.bus.timed_from = None  # a request served without the line (a scenario's) stamps as untimed
             hold = reply.delay if reply is not None else 0.0
             if self.bus_timing:
                 bus = self.sim.bus
@@ -485,7 +491,7 @@ class Line:
                     respond = _nothing
                 self._busy = True
                 self._in_hand = False
-                due = max(time.perf_counter(), self._held_until) + hold
+                due = start + hold if self.bus_timing else max(time.perf_counter(), self._held_until) + hold
                 self._held_until = due
                 self._timer = due_timer(self._loop(), due, self._release, reply, respond, asked)
                 return

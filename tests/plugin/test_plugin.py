@@ -102,7 +102,7 @@ def test_assert_written_shows_the_frames(pytester: pytest.Pytester) -> None:
             "E       AssertionError: drive 1: no accepted write of 1500 (0x05DC) to 2001H; writes to 2001H seen: 1400",
             "E       frames on the line:",
             "E         +  0.0000 s rx 01 06 20 01 05 78 D0 B8    write 2001H = 0578: 1400 rpm",
-            "E         +  0.00* s tx 01 06 20 01 05 78 D0 B8    write 2001H = 0578: 1400 rpm",
+            "E         +  0.014* s tx 01 06 20 01 05 78 D0 B8    write 2001H = 0578: 1400 rpm",
         ]
     )
 
