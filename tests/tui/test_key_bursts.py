@@ -10,6 +10,9 @@ the widget they were leaving: ``s`` of ``speed`` stopped the drive, the finder s
 
 from __future__ import annotations
 
+import asyncio
+
+import pytest
 from textual import events
 from textual.widgets import DataTable, Input, TabbedContent
 
@@ -69,6 +72,8 @@ async def test_an_edit_typed_at_once_writes_the_value(bench: Bench) -> None:
     editor = screen.query_one("#reg-edit", Input)
     burst(app, "f6", "down", "down", "down", "enter", "ctrl+u", *"1500", "enter", "f8")
     await until(lambda: screen.query_one(TabbedContent).active == "drill", "the drill tab")
+    written = "drive 1: 2001H = 1500"  # said once the write is done (it may land just after F8 took the focus)
+    await until(lambda: written in [str(n.message) for n in app._notifications], written)
     assert await bench.read(0x2001) == 1500
     assert editor.value == "1500" and not editor.has_focus
     assert screen.query_one("#drill-table", DataTable).has_focus
@@ -94,3 +99,38 @@ async def test_a_tab_key_does_not_switch_the_tab_behind_the_help(bench: Bench) -
     assert app.get_screen_main().query_one(TabbedContent).active == "frames"
     await bench.press("escape", "f6")
     assert app.get_screen_main().query_one(TabbedContent).active == "registers"
+
+
+async def test_keys_held_are_bounded_and_go_on_in_order(bench: Bench, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While a key is on its way the next ones wait, at most KEY_BACKLOG of them; the rest are dropped, said once."""
+    from c20sim.tui import keys
+
+    monkeypatch.setattr(keys, "KEY_BACKLOG", 3)
+    app = bench.app
+    t0 = bench.served.sim.now()
+    app._on_way = events.Key("f13", None)  # a key still on its way (never seen back: released by hand below)
+    burst(app, *"ttttt")
+    await until(lambda: app.keys_dropped == 2, "two keys dropped")
+    assert len(app._held) == 3
+    said = [str(n.message) for n in app._notifications if n.severity == "warning"]
+    assert said == ["keys come faster than they are handled: dropped beyond 3"]
+    assert bench.served.sim.now() == t0  # held: none has acted yet
+    app._next()  # the key on its way is done: the held ones go on, in turn
+    await until(lambda: bench.served.sim.now() == t0 + 3.0, "the virtual clock 3 s on (t three times)")
+    await until(lambda: app._on_way is None and not app._held, "no key left waiting")
+
+
+async def test_a_key_never_seen_back_holds_the_next_one_only_so_long(bench: Bench) -> None:
+    """A key stopped or handled where KeysInTurn cannot see it: the next key goes on after KEY_TURN_S at most."""
+    from c20sim.tui.keys import KEY_TURN_S
+
+    app = bench.app
+    t0 = bench.served.sim.now()
+    stuck = events.Key("f13", None)
+    app._on_way = stuck
+    app._watch = asyncio.create_task(app._until_handled(stuck))  # as on_event starts it for a key passed on
+    burst(app, "t")
+    await until(lambda: len(app._held) == 1, "t held behind the stuck key")
+    assert bench.served.sim.now() == t0
+    await until(lambda: bench.served.sim.now() == t0 + 1.0, f"t handled once the stuck key's {KEY_TURN_S} s ran out")
+    assert app._on_way is None and not app._held
