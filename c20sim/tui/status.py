@@ -189,15 +189,16 @@ _TITLE_LEVELS = (
 
 
 def clock_forms(t: float, virtual: bool, speed: float = 1.0, paused: bool = False) -> tuple[str, str, str]:
-    """How the clock runs, long to short: ``t 12.3 s ×2 realtime paused``, ``t 12.3 s ×2 paused``, ``×2 paused``
-    (``t 12.3 s virtual``, ``t 12.3 s virtual``, ``virtual``)."""
+    """How the clock runs, long to short: ``t 12.3 s ×2 realtime paused``, ``t 12.3 s ×2 paused``, ``paused``
+    (running: ``×2``, or ``realtime`` at ×1; ``t 12.3 s virtual``, ``t 12.3 s virtual``, ``virtual``). The
+    shortest fits beside a bare serve's three endpoints at 80 columns."""
     if virtual:
         return f"t {t:.1f} s virtual", f"t {t:.1f} s virtual", "virtual"
     state = " paused" if paused else ""
     return (
         f"t {t:.1f} s ×{speed:g} realtime{state}",
         f"t {t:.1f} s ×{speed:g}{state}",
-        f"×{speed:g} realtime{state}" if not paused else f"×{speed:g}{state}",
+        "paused" if paused else ("realtime" if speed == 1.0 else f"×{speed:g}"),
     )
 
 

@@ -33,10 +33,13 @@ def screen_line(app: Dashboard, row: int) -> str:
         (140, False, f" c20sim  connect: {THREE} │ t 1234.5 s ×2 realtime paused │ c20-400hr"),
         (120, False, f" c20sim  {THREE} │ t 1234.5 s ×2 paused │ c20-400hr"),
         (100, False, f" c20sim  {THREE} │ t 1234.5 s ×2 paused"),
-        (94, False, f" c20sim  {THREE} │ ×2 paused"),
-        (86, False, f" {THREE} │ ×2 paused"),
-        (80, False, f" {THREE} │ ×2 paus…"),
-        (100, True, f" server lost  {THREE} │ ×2 paused"),
+        (94, False, f" c20sim  {THREE} │ paused"),
+        (86, False, f" c20sim  {THREE} │ paused"),
+        (85, False, f" {THREE} │ paused"),
+        (80, False, f" {THREE} │ paused"),
+        (70, False, f" {THREE}…"),
+        (100, True, f" c20sim  server lost  {THREE} │ paused"),
+        (80, True, f" server lost  {THREE[:65]}…"),
     ],
 )
 def test_the_title_gives_up_parts_in_order_never_the_addresses_first(width: int, lost: bool, shown: str) -> None:
@@ -46,12 +49,9 @@ def test_the_title_gives_up_parts_in_order_never_the_addresses_first(width: int,
 
 
 def test_the_clock_in_three_lengths() -> None:
-    assert clock_forms(12.34, False, 1.0, False) == ("t 12.3 s ×1 realtime", "t 12.3 s ×1", "×1 realtime")
-    assert clock_forms(12.34, False, 0.5, True) == (
-        "t 12.3 s ×0.5 realtime paused",
-        "t 12.3 s ×0.5 paused",
-        "×0.5 paused",
-    )
+    assert clock_forms(12.34, False, 1.0, False) == ("t 12.3 s ×1 realtime", "t 12.3 s ×1", "realtime")
+    assert clock_forms(12.34, False, 2.0, False) == ("t 12.3 s ×2 realtime", "t 12.3 s ×2", "×2")
+    assert clock_forms(12.34, False, 0.5, True) == ("t 12.3 s ×0.5 realtime paused", "t 12.3 s ×0.5 paused", "paused")
     assert clock_forms(3.0, True) == ("t 3.0 s virtual", "t 3.0 s virtual", "virtual")
 
 
