@@ -140,5 +140,9 @@ def test_a_burst_of_keys_in_a_120_column_pane(tmp_path: Path) -> None:
         assert footer.startswith("f Fwd r Rev s Stop j Jog x Reset p Pause < Slower > Faster ? Help q Quit"), footer
         terminal.keys("F3", "Home", "C-k", "3", "6", "Enter", "F8")
         screen = terminal.wait_for_text("supply 36 V")
+        terminal.keys("F1")  # the usual help key: tmux sends it as the terminal does
+        terminal.wait_for_text("Keypad (works as on the drive)")
+        terminal.keys("F1")
+        wait_for("the help closed", lambda: "Keypad (works as on the drive)" not in terminal.screen())
         terminal.keys("q")
         assert terminal.exit_status() == "status 0"
