@@ -274,10 +274,10 @@ class Dashboard(KeysInTurn):
         )
 
     def connect_text(self) -> str:
-        """Where a master connects: every endpoint, as the ready line gives it."""
-        where = self.remote.endpoints
-        names = {"pty": "pty", "serial": "serial", "tcp": "RTU/TCP", "modbus_tcp": "Modbus TCP"}
-        parts = [f"{label} {where[key]}" for key, label in names.items() if key in where]
+        """Where a master connects: every endpoint the server has, in its transport rows' order, each by its word
+        here or else by its ready-file key (a transport row added later is shown by its key, never left out)."""
+        names = {"tcp": "RTU/TCP", "modbus_tcp": "Modbus TCP"}
+        parts = [f"{names.get(key, key)} {address}" for key, address in self.remote.endpoints.items()]
         return " · ".join(parts) if parts else "no endpoint (not serving)"
 
     # --- refreshing

@@ -117,3 +117,15 @@ async def test_f1_and_question_mark_open_the_help_and_close_it(key: str) -> None
             assert "`?`, `F1`" in app.screen.query_one(Markdown).source
             await pilot.press(key)
             await until(lambda: not isinstance(app.screen, HelpScreen), "the help closed")
+
+
+async def test_every_endpoint_the_server_has_is_in_the_title_a_new_transport_by_its_key() -> None:
+    with serving(modbus_tcp=True) as served:
+        async with attached(served) as (app, _pilot):
+            where = dict(app.remote.endpoints)
+            assert list(where) == ["tcp", "modbus_tcp"]
+            assert app.connect_text() == f"RTU/TCP {where['tcp']} · Modbus TCP {where['modbus_tcp']}"
+            app.remote.endpoints = {"pty": "/dev/pts/9", **where, "loop_tcp": "127.0.0.1:9"}  # as a new row's server
+            assert app.connect_text() == (
+                f"pty /dev/pts/9 · RTU/TCP {where['tcp']} · Modbus TCP {where['modbus_tcp']} · loop_tcp 127.0.0.1:9"
+            )
