@@ -29,13 +29,13 @@ from typing import Any, ClassVar, TypeVar
 from platformdirs import user_downloads_path
 from rich.text import Text
 from textual import on
-from textual.app import App, ComposeResult, ScreenStackError, SystemCommand
+from textual.app import ComposeResult, ScreenStackError, SystemCommand
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.reactive import reactive
 from textual.screen import Screen
-from textual.widgets import Footer, OptionList, Static, TabbedContent, TabPane
+from textual.widgets import Footer, OptionList, TabbedContent, TabPane
 from textual.widgets.option_list import Option
 
 from ..control import routes
@@ -43,9 +43,10 @@ from ..control.client import RemoteOps
 from ..control.ops import ControlError
 from ..wire.errors import C20SimError
 from ..wire.registers import RUN_CHANNELS
+from .keys import KeysInTurn
 from .messages import ConditionsChanged, SaveLogRequested, TelemetryUpdated
 from .screens import HelpScreen, SaveLogScreen
-from .status import STATUS_STYLES, DriveStatus, TrendPlot
+from .status import STATUS_STYLES, DriveStatus, TitleBar, TrendPlot, clock_forms
 from .tabs import tabs
 from .widgets import (
     DeviceFaultsPanel,
@@ -65,6 +66,10 @@ T = TypeVar("T")
 STREAM_BUFFER = 40
 FRAME_HZ = 5
 
+#: From this width on the footer shows the clock's second keys too (``<``/``>`` on a realtime clock, ``T`` on a
+#: virtual one); below it they would push ``q Quit`` off an 80-column footer, and the help (``?``, F1) lists them.
+FOOTER_WIDE = 100
+
 
 class MainScreen(Screen[None]):
     """The drive, its trends, and the bench panels."""
@@ -76,7 +81,7 @@ class MainScreen(Screen[None]):
     def compose(self) -> ComposeResult:
         bench = self.bench
         s, p, m = bench.profile.supply, bench.profile.protection, bench.profile.motor
-        yield Static(id="title")
+        yield TitleBar(id="title")
         with Horizontal(id="top"):
             drives = OptionList(*[Option(str(a), id=str(a)) for a in bench.addresses], id="drives")
             drives.display = len(bench.addresses) > 1
@@ -98,8 +103,11 @@ class MainScreen(Screen[None]):
         assert isinstance(app, Dashboard)
         app.attached(self)
 
+    def on_resize(self) -> None:
+        self.app.refresh_bindings()  # the footer's clock keys follow the width (FOOTER_WIDE)
 
-class Dashboard(App[int]):
+
+class Dashboard(KeysInTurn):
     """The c20sim dashboard of the simulator served at ``remote``'s control API."""
 
     CSS_PATH = "dashboard.tcss"
@@ -115,18 +123,24 @@ class Dashboard(App[int]):
         Binding("x", "keypad('reset')", "Reset"),
         Binding("m", "channel", "Channel", show=False),
         Binding("S", "speed_source", "Speed source", show=False),
-        Binding("p", "pause", "Pause clock", show=False),
+        # The clock's keys, in the footer on the clock they act on (check_action); those marked 'wide' only where the
+        # footer has room for them (FOOTER_WIDE), the key working all the same through its hidden twin below it.
+        Binding("p", "pause", "Pause"),
+        Binding("less_than_sign", "clock_speed(0.5, 'wide')", "Slower"),
         Binding("less_than_sign", "clock_speed(0.5)", "Clock slower", show=False),
+        Binding("greater_than_sign", "clock_speed(2, 'wide')", "Faster"),
         Binding("greater_than_sign", "clock_speed(2)", "Clock faster", show=False),
         Binding("plus", "keypad_speed(1)", "Speed +", show=False),
         Binding("minus", "keypad_speed(-1)", "Speed -", show=False),
         Binding("P", "power_cycle", "Power cycle", show=False),
         Binding("D", "restore_defaults", "Defaults", show=False),
         Binding("t", "advance(1)", "+1s"),
+        Binding("T", "advance(10, 'wide')", "+10s"),
         Binding("T", "advance(10)", "+10s", show=False),
         Binding("left_square_bracket", "drive(-1)", "Prev drive", show=False),
         Binding("right_square_bracket", "drive(1)", "Next drive", show=False),
         Binding("question_mark", "help", "Help"),
+        Binding("f1", "help", "Help", show=False),  # the usual help key of terminal programs (the footer shows ?)
         Binding("q", "quit", "Quit"),
     ]
 
@@ -135,7 +149,9 @@ class Dashboard(App[int]):
     def __init__(self, remote: RemoteOps, *, refresh_hz: float = 5.0) -> None:
         super().__init__()
         for tab in tabs():  # one key per tab row, bound when the dashboard is made
-            self.bind(tab.key, f"tab('{tab.id}')", description=tab.title, show=False)
+            # a priority key: taken, and the tab's focus moved, before the keys behind it in a burst (a paste, a
+            # tmux send-keys) are passed on, so they reach the tab's field and not the one it left
+            self._bindings.bind(tab.key, f"tab('{tab.id}')", tab.title, show=False, priority=True)
         self.remote = remote
         self.bench = Workbench(remote)
         self.refresh_hz = refresh_hz
@@ -143,7 +159,6 @@ class Dashboard(App[int]):
         self.views: dict[int, DriveView] = {}
         self._plotted: tuple[int, int] | None = None
         self._drive_labels: dict[int, str] = {}
-        self._title_shown = ""
         self.set_reactive(Dashboard.selected, next(iter(self.bench.addresses)))
         #: whether the stream is connected now; telemetry messages taken from it so far
         self.streaming = False
@@ -161,7 +176,7 @@ class Dashboard(App[int]):
     def attached(self, screen: MainScreen) -> None:
         """Start reading the stream (from the main screen's mount, once its widgets exist)."""
         self.watch_selected(self.selected)
-        screen.query_one("#title", Static).update(self._title())
+        self._show_title(screen)
         screen.query_one(FrameLog).focus()
         self._stream_task = asyncio.create_task(self._read_stream(screen.query_one(FrameLog)))
         loop = asyncio.get_running_loop()
@@ -172,6 +187,7 @@ class Dashboard(App[int]):
         self.refresh_views()
 
     async def on_unmount(self) -> None:
+        self.stop_keys()
         loop = asyncio.get_running_loop()
         for sig in self._signals:
             loop.remove_signal_handler(sig)
@@ -216,7 +232,7 @@ class Dashboard(App[int]):
                 f"lost the server at {self.remote.client.url}; trying again every second", severity="error", timeout=5
             )
         with contextlib.suppress(NoMatches, LookupError):
-            self.get_screen_main().query_one("#title", Static).update(self._title())
+            self._show_title(self.get_screen_main())
 
     def _take(self, data: dict[str, Any], framelog: FrameLog) -> None:
         kind = data.get("type")
@@ -242,39 +258,27 @@ class Dashboard(App[int]):
                 self._notices_shown.add(text)
                 self.notify(text, title="the server says", severity="warning", timeout=30)
 
-    def _title(self) -> Text:
-        bench = self.bench
-        # Where to connect comes first: at 80 columns the rest may be cut, never the addresses.
-        text = Text(" c20sim ", style="bold reverse")
-        text.append(" ")
-        text.append_text(self.connect_text())
-        text.append(" │ ")
-        text.append(self.clock_text(), style="bold")
-        text.append(f" │ {bench.profile.name}")
-        if self._stream_task is not None and not self.streaming:
-            text.append(" │ server lost", style="bold white on red")
-        text.no_wrap = True
-        text.overflow = "ellipsis"
-        return text
+    def _show_title(self, screen: MainScreen) -> None:
+        """The title bar: where a master connects, how the clock runs, the profile, and ``server lost`` while it is
+        (fitted to the bar's width by :func:`~c20sim.tui.status.title_line`)."""
+        lost = self._stream_task is not None and not self.streaming
+        screen.query_one(TitleBar).show(self.connect_text(), self.clock_forms(), self.bench.profile.name, lost)
 
-    def clock_text(self) -> str:
-        """The model's time and how the clock runs: ``t 12.3 s virtual`` or ``t 12.3 s ×1 realtime``."""
+    def clock_forms(self) -> tuple[str, str, str]:
+        """The model's time and how the clock runs, long to short: ``t 12.3 s ×1 realtime paused`` ..."""
         snapshot = self.remote.latest
         t = float(snapshot.get("t", 0.0))
-        if self.bench.virtual:
-            return f"t {t:.1f} s virtual"
         speed = snapshot.get("speed")
-        paused = " paused" if snapshot.get("paused") else ""
-        return f"t {t:.1f} s ×{float(speed) if speed is not None else 1.0:g} realtime{paused}"
+        return clock_forms(
+            t, self.bench.virtual, float(speed) if speed is not None else 1.0, bool(snapshot.get("paused"))
+        )
 
-    def connect_text(self) -> Text:
-        """Where a master connects: every endpoint, as the ready line gives it."""
-        where = self.remote.endpoints
-        names = {"pty": "pty", "serial": "serial", "tcp": "RTU/TCP", "modbus_tcp": "Modbus TCP"}
-        parts = [f"{label} {where[key]}" for key, label in names.items() if key in where]
-        text = Text("connect: ", style="bold")
-        text.append(" · ".join(parts) if parts else "no endpoint (not serving)")
-        return text
+    def connect_text(self) -> str:
+        """Where a master connects: every endpoint the server has, in its transport rows' order, each by its word
+        here or else by its ready-file key (a transport row added later is shown by its key, never left out)."""
+        names = {"tcp": "RTU/TCP", "modbus_tcp": "Modbus TCP"}
+        parts = [f"{names.get(key, key)} {address}" for key, address in self.remote.endpoints.items()]
+        return " · ".join(parts) if parts else "no endpoint (not serving)"
 
     # --- refreshing
 
@@ -315,10 +319,7 @@ class Dashboard(App[int]):
         if view is None:
             return
         screen.query_one(DriveStatus).view = view
-        title = self._title()
-        if title.plain != self._title_shown:  # the model's time moves on in the title bar
-            self._title_shown = title.plain
-            screen.query_one("#title", Static).update(title)
+        self._show_title(screen)
         history = self.bench.history[self.selected]
         plotted = (self.selected, history.samples)
         if plotted != self._plotted:  # the plots move on with each sample (2 a second), not each refresh
@@ -400,11 +401,15 @@ class Dashboard(App[int]):
             return False  # a realtime clock is not advanced by hand
         if action in ("pause", "clock_speed") and self.bench.virtual:
             return False  # a virtual clock stands still until advanced (t / T)
+        if "wide" in parameters and self.size.width < FOOTER_WIDE:
+            return False  # the footer has no room: its hidden twin takes the key
+        if action == "tab" and not isinstance(self.screen, MainScreen):
+            return False  # the help, the palette, the save question: not a tab switched behind them
         if action == "drive" and len(self.bench.addresses) < 2:
             return None
         return True
 
-    def action_advance(self, seconds: float) -> None:
+    def action_advance(self, seconds: float, _where: str = "") -> None:
         def advance() -> bool:
             self.bench.advance(float(seconds))
             return True
@@ -440,17 +445,22 @@ class Dashboard(App[int]):
     def action_tab(self, tab: str) -> None:
         screen = self.get_screen_main()
         screen.query_one(TabbedContent).active = tab
+        self._show()  # fill the tab's fields now: a value arriving later would write over what is typed next
         self._focus_tab(tab)
 
     @on(TabbedContent.TabActivated)
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
-        if event.pane.id is not None:
-            self._show()  # fill the tab's fields before one takes the focus
-            self._focus_tab(event.pane.id)
+        with contextlib.suppress(LookupError):  # closing: the screens are gone
+            focused = self.get_screen_main().focused
+            if event.pane.id is not None and (focused is None or event.pane not in focused.ancestors_with_self):
+                self._show()  # a tab clicked: fill its fields before one takes the focus
+                self._focus_tab(event.pane.id)
 
     def _focus_tab(self, tab: str) -> None:
         row = tabs()[tab]
-        self.get_screen_main().query_one(row.focus or f"#{row.panel_id}").focus()
+        screen = self.get_screen_main()
+        # now, not later (Widget.focus): the next key of a burst is passed on to the widget focused when it is read
+        screen.set_focus(screen.query_one(row.focus or f"#{row.panel_id}"))
 
     def action_pause(self) -> None:
         """The realtime clock: pause it, or resume it (the model stands still meanwhile; the wire still answers)."""
@@ -459,7 +469,7 @@ class Dashboard(App[int]):
         if state is not None:
             self.notify("clock " + ("paused: the model stands still" if state["paused"] else "running"), timeout=3)
 
-    def action_clock_speed(self, factor: float) -> None:
+    def action_clock_speed(self, factor: float, _where: str = "") -> None:
         speed = float(self.remote.latest.get("speed") or 1.0) * float(factor)
         state = self._call(lambda: self.bench.ops.call("set_speed", speed=speed))
         if state is not None:

@@ -81,7 +81,9 @@ class RegistersPanel(Vertical, can_focus=False):
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("escape", "cancel", "Cancel edit", show=False),
         # not in the footer: at 80 columns it would push q Quit off (the help, ?, lists it)
-        Binding("slash", "find", "Find register", show=False),
+        # a priority key (on the table only: check_action): taken, and the finder focused, before the keys behind it
+        # in a burst are passed on, so "/speed" typed at once (tmux send-keys, a paste) reaches the finder
+        Binding("slash", "find", "Find register", show=False, priority=True),
     ]
 
     #: the drive shown (the dashboard pushes it down)
@@ -151,6 +153,11 @@ class RegistersPanel(Vertical, can_focus=False):
         access = str(row["access"]) + (" lock" if row["locked"] else "")  # W/R* while running
         return str(row["text"]), access, f"{raw} (0x{raw:04X})"
 
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action == "find":
+            return self.screen.focused is self.query_one(DataTable)  # in the finder, / is typed
+        return True
+
     @on(DataTable.RowSelected)
     def _edit(self, event: DataTable.RowSelected) -> None:
         register = event.row_key.value
@@ -162,7 +169,7 @@ class RegistersPanel(Vertical, can_focus=False):
         field = self.query_one("#reg-edit", Input)
         field.value = raw
         self.query_one("#reg-editor").add_class("-editing")
-        self.call_after_refresh(field.focus)  # once shown: a hidden widget takes no focus
+        self.screen.set_focus(field)  # now: the digits typed next are passed on to the field
 
     @on(Input.Submitted, "#reg-edit")
     def _write(self, event: Input.Submitted) -> None:
@@ -187,7 +194,7 @@ class RegistersPanel(Vertical, can_focus=False):
         field = self.query_one("#reg-find", Input)
         field.value = ""
         self.query_one("#reg-finder").add_class("-finding")
-        self.call_after_refresh(field.focus)
+        self.screen.set_focus(field)  # now: the name typed next is passed on to the field
 
     @on(Input.Submitted, "#reg-find")
     def _find(self, event: Input.Submitted) -> None:
@@ -214,4 +221,6 @@ class RegistersPanel(Vertical, can_focus=False):
         self._editing = None
         self.query_one("#reg-editor").remove_class("-editing")
         self.query_one("#reg-finder").remove_class("-finding")
-        self.query_one(DataTable).focus()
+        focused = self.screen.focused
+        if focused is None or self in focused.ancestors:  # not when a key after it took the focus elsewhere (F8)
+            self.screen.set_focus(self.query_one(DataTable))  # now, as the finder and the editor take it

@@ -1,4 +1,4 @@
-"""The dashboard's modal screens: the help (``?``) and the frame log's "save to" question."""
+"""The dashboard's modal screens: the help (``?`` or F1) and the frame log's "save to" question."""
 
 from __future__ import annotations
 
@@ -43,10 +43,10 @@ endpoints in the top line; the drive answers there while you watch it here.
 """
 HELP_TAIL = """\
 | `[` / `]` | previous / next drive |
-| `t` / `T` | virtual clock only: time +1 s / +10 s |
-| `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled |
+| `t` / `T` | virtual clock only: time +1 s / +10 s (`T` in the footer from 100 columns) |
+| `p`, `<` / `>` | realtime clock only: pause or resume the model; its speed halved / doubled (`<` `>` in the footer from 100 columns) |
 | `ctrl+p` | the command palette: every action by name |
-| `?` | this help; `q` quits |
+| `?`, `F1` | this help (either closes it, as Escape does); `q` quits |
 """
 
 
@@ -56,7 +56,7 @@ def help_text() -> str:
 
 
 class HelpScreen(ModalScreen[None]):
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark", "dismiss", "Close")]
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape,q,question_mark,f1", "dismiss", "Close")]
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(id="help"):

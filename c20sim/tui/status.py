@@ -19,7 +19,16 @@ from ..drive.terminals import Output
 from ..wire.registers import RUN_CHANNELS, SPEED_SOURCES, STATUS_WORDS
 from .workbench import DriveView
 
-__all__ = ["STATUS_STYLES", "DriveStatus", "TrendPlot", "record_row", "status2_short"]
+__all__ = [
+    "STATUS_STYLES",
+    "DriveStatus",
+    "TitleBar",
+    "TrendPlot",
+    "clock_forms",
+    "record_row",
+    "status2_short",
+    "title_line",
+]
 
 #: Status word 1 -> the colour it is shown in.
 STATUS_STYLES = {
@@ -162,3 +171,74 @@ def _resample(values: Sequence[float], width: int) -> list[float]:
         lo, hi = i * n // width, (i + 1) * n // width
         out.append(max(values[lo:hi]))
     return out
+
+
+#: The title's parts, given up in this order as the width shrinks (docs/dashboard.md, "The title"): the word
+#: ``connect:``, the word ``realtime``, the profile's name, the model's time, the ``c20sim`` badge. Where a master
+#: connects and how the clock runs (``paused``, ``×2``, ``virtual``) are kept to the last; ``server lost`` comes
+#: first of all when it is said.
+_TITLE_LEVELS = (
+    # (the word "connect:", the clock's form (0 long, 1 short, 2 shortest), the profile, the badge)
+    (True, 0, True, True),
+    (False, 0, True, True),
+    (False, 1, True, True),
+    (False, 1, False, True),
+    (False, 2, False, True),
+    (False, 2, False, False),
+)
+
+
+def clock_forms(t: float, virtual: bool, speed: float = 1.0, paused: bool = False) -> tuple[str, str, str]:
+    """How the clock runs, long to short: ``t 12.3 s ×2 realtime paused``, ``t 12.3 s ×2 paused``, ``paused``
+    (running: ``×2``, or ``realtime`` at ×1; ``t 12.3 s virtual``, ``t 12.3 s virtual``, ``virtual``). The
+    shortest fits beside a bare serve's three endpoints at 80 columns."""
+    if virtual:
+        return f"t {t:.1f} s virtual", f"t {t:.1f} s virtual", "virtual"
+    state = " paused" if paused else ""
+    return (
+        f"t {t:.1f} s ×{speed:g} realtime{state}",
+        f"t {t:.1f} s ×{speed:g}{state}",
+        "paused" if paused else ("realtime" if speed == 1.0 else f"×{speed:g}"),
+    )
+
+
+def title_line(width: int, where: str, clock: tuple[str, str, str], profile: str, lost: bool) -> Text:
+    """The title at ``width`` columns: every part whole at the first level that fits (:data:`_TITLE_LEVELS`); cut
+    with an ellipsis only if even the last does not."""
+    text = Text()
+    for label, form, with_profile, badge in _TITLE_LEVELS:
+        text = Text(" c20sim ", style="bold reverse") if badge else Text()
+        if lost:
+            text.append(" server lost ", style="bold white on red")
+        text.append(" ")
+        if label:
+            text.append("connect: ", style="bold")
+        text.append(where)
+        text.append(" │ ")
+        text.append(clock[form], style="bold")
+        if with_profile:
+            text.append(f" │ {profile}")
+        if text.cell_len <= width:
+            break
+    text.truncate(max(1, width), overflow="ellipsis")
+    text.no_wrap = True
+    text.overflow = "ellipsis"
+    return text
+
+
+class TitleBar(Static):
+    """The dashboard's top line: where a master connects, how the clock runs, the profile; fitted to its width
+    (:func:`title_line`), so what is given up at 80 columns is a chosen part, never the end of the line."""
+
+    def __init__(self, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self._parts: tuple[str, tuple[str, str, str], str, bool] = ("", ("", "", ""), "", False)
+
+    def show(self, where: str, clock: tuple[str, str, str], profile: str, lost: bool) -> None:
+        parts = (where, clock, profile, lost)
+        if parts != self._parts:  # the model's time moves on: redrawn when a part changed, not at each refresh
+            self._parts = parts
+            self.refresh()
+
+    def render(self) -> Text:
+        return title_line(self.size.width, *self._parts)

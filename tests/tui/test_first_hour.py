@@ -23,7 +23,8 @@ def footer(app: Dashboard) -> dict[str, str]:
 
 @pytest.mark.parametrize(("clock", "advance"), [(VirtualClock(), True), (RealtimeClock(), False)])
 async def test_the_footer_offers_t_only_on_a_virtual_clock(clock: Clock, advance: bool) -> None:
-    """``t +1s`` advances a virtual clock; on a realtime clock it did nothing and was offered all the same."""
+    """``t +1s`` advances a virtual clock; on a realtime clock it did nothing and was offered all the same. There
+    the footer offers ``p Pause`` and ``<``/``>`` instead (tests/tui/test_title_footer.py: at 80 and 120 columns)."""
     with serving(clock=clock) as served:
         async with attached(served) as (app, pilot):
             await pilot.pause()
@@ -34,7 +35,12 @@ async def test_the_footer_offers_t_only_on_a_virtual_clock(clock: Clock, advance
                 "s": "Stop",
                 "j": "Jog",
                 "x": "Reset",
-                **({"t": "+1s"} if advance else {}),
+                # the clock's keys (at 100 columns, wide enough for its second keys: FOOTER_WIDE)
+                **(
+                    {"t": "+1s", "T": "+10s"}
+                    if advance
+                    else {"p": "Pause", "less_than_sign": "Slower", "greater_than_sign": "Faster"}
+                ),
                 "question_mark": "Help",
                 "q": "Quit",  # the frame log's space (pause) is in its own header: at 80 columns it pushed Quit off
                 "ctrl+p": "palette",

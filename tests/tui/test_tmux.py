@@ -119,3 +119,30 @@ def test_a_signal_gives_the_terminal_back(tmp_path: Path, sig: signal.Signals) -
         assert terminal.pane("#{alternate_on} #{mouse_any_flag}") == "0 0"
         wait_for("the link to go", lambda: not link.is_symlink())
         wait_for("the ready file to go", lambda: not ready.exists())
+
+
+def test_a_burst_of_keys_in_a_120_column_pane(tmp_path: Path) -> None:
+    """A new user's pane: 120x40, a realtime clock paused from the keyboard, keys sent in one send-keys call.
+
+    The title shows the addresses, the clock's state and the profile whole; the footer the realtime clock's keys;
+    ``F3 Home C-k 36 Enter F8`` in one burst sets the supply to 36 V and ends on the Drill tab (it ended blank)."""
+    ready = tmp_path / "ready.json"
+    command = f"{sys.executable} -m c20sim dashboard --tcp 127.0.0.1:0 --modbus-tcp 127.0.0.1:0 --ready-file {ready}"
+    with terminal_running(tmp_path / "status", command, size=(120, 40)) as terminal:
+        wait_for("the ready file", ready.exists)
+        where = json.loads(ready.read_text())
+        terminal.wait_for_text("STOPPED")
+        terminal.keys("p")
+        screen = terminal.wait_for_text("realtime paused │ c20-400hr")
+        title = screen.splitlines()[0]
+        assert f"connect: RTU/TCP {where['tcp']} · Modbus TCP {where['modbus_tcp']} │ t " in title, title
+        footer = " ".join(screen.splitlines()[-1].split())
+        assert footer.startswith("f Fwd r Rev s Stop j Jog x Reset p Pause < Slower > Faster ? Help q Quit"), footer
+        terminal.keys("F3", "Home", "C-k", "3", "6", "Enter", "F8")
+        screen = terminal.wait_for_text("supply 36 V")
+        terminal.keys("F1")  # the usual help key: tmux sends it as the terminal does
+        terminal.wait_for_text("Keypad (works as on the drive)")
+        terminal.keys("F1")
+        wait_for("the help closed", lambda: "Keypad (works as on the drive)" not in terminal.screen())
+        terminal.keys("q")
+        assert terminal.exit_status() == "status 0"
