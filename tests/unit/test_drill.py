@@ -4,6 +4,7 @@ here (each check passing and failing with its figure)."""
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -141,8 +142,6 @@ def test_every_incident_names_known_checks_and_a_source() -> None:
 
 def test_every_incident_and_check_has_a_row_in_the_docs() -> None:
     """docs/drill.md's tables: a row for each incident of the table and each check (`` | `name` | ``)."""
-    from pathlib import Path
-
     text = (Path(__file__).resolve().parents[2] / "docs" / "drill.md").read_text()
     missing = [name for name in [*INCIDENTS, *CHECKS] if f"| `{name}` |" not in text]
     assert missing == [], "docs/drill.md has no row for " + ", ".join(missing)
@@ -616,3 +615,42 @@ def test_the_auto_reset_incident_sets_and_puts_back_f08_28_and_f08_29() -> None:
     ]
     with pytest.raises(C20SimError, match=r"p.toml: drill 1: interval: 0.1 is outside 0.2-30"):
         read_plan({"drill": [{"incident": "auto-reset", "interval": 0.1}]}, "p.toml")
+
+
+# -- the command that judges a run's frame log again
+
+
+def _drill_args(*argv: str) -> object:
+    import argparse
+
+    from c20sim.drillcli import add_drill_command
+
+    parser = argparse.ArgumentParser()
+    add_drill_command(parser.add_subparsers())
+    return parser.parse_args(["drill", *argv])
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        # the standard plan is built in: no plan file, the transport's standard plan
+        ((), "c20sim drill --judge {cwd}/frames.jsonl --transport tcp"),
+        (("--transport", "pty", "--seed", "7"), "c20sim drill --judge {cwd}/frames.jsonl --transport pty --seed 7"),
+        (
+            ("--plan", "my plan.toml", "--transport", "pty"),
+            "c20sim drill --judge {cwd}/frames.jsonl --plan '{cwd}/my plan.toml'",
+        ),
+        (
+            ("--plan", "/p/plan.toml", "--profile", "mine.toml"),
+            "c20sim drill --judge {cwd}/frames.jsonl --plan /p/plan.toml --profile {cwd}/mine.toml",
+        ),
+    ],
+)
+def test_the_judge_command_names_what_the_run_judged_by(
+    argv: tuple[str, ...], expected: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c20sim.drillcli import judge_command
+
+    monkeypatch.chdir(tmp_path)  # relative paths are made absolute: the command works from anywhere
+    command = judge_command(_drill_args(*argv), "frames.jsonl")  # type: ignore[arg-type]
+    assert command == expected.format(cwd=tmp_path)
