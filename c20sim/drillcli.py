@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 import tempfile
 
@@ -26,11 +27,11 @@ from .drillrun import (
     text_report,
     write_file,
 )
-from .drive.profile import DEFAULT_PROFILE, load_profile
+from .drive.profile import DEFAULT_PROFILE, available_profiles, load_profile
 from .testing import C20Sim
 from .wire.errors import C20SimError
 
-__all__ = ["add_drill_command", "run_drill"]
+__all__ = ["add_drill_command", "judge_command", "run_drill"]
 
 
 def _endpoints(sim: C20Sim) -> dict[str, str]:
@@ -58,6 +59,23 @@ def run_drill(options: RunOptions) -> tuple[Judgement, str]:
         return play(sim, options, _endpoints(sim))
     finally:
         sim.close()
+
+
+def judge_command(args: argparse.Namespace, log_path: str) -> str:
+    """The ``c20sim drill --judge`` command that judges the frame log of the run ``args`` asked for exactly as the
+    run did: the same plan (the file given, or the built-in standard plan of the same transport), seed and
+    profile; paths made absolute, so that it works from any directory."""
+    words = ["c20sim", "drill", "--judge", os.path.abspath(log_path)]
+    if args.plan is not None:
+        words += ["--plan", os.path.abspath(args.plan)]
+    else:
+        words += ["--transport", args.transport]  # the standard plan is the transport's: what it can carry
+    if args.seed is not None:
+        words += ["--seed", str(args.seed)]
+    if args.profile != DEFAULT_PROFILE:
+        shipped = args.profile in available_profiles()
+        words += ["--profile", args.profile if shipped else os.path.abspath(args.profile)]
+    return shlex.join(words)
 
 
 def cmd_drill(args: argparse.Namespace) -> int:
@@ -100,7 +118,7 @@ def cmd_drill(args: argparse.Namespace) -> int:
         write_file(args.report, markdown(judgement, plan, plot, early).encode(), "--report")
     sys.stdout.write(json_report(judgement, early) if args.format == "json" else text_report(judgement, early))
     if not args.judge and not args.quiet:
-        print(f"drill: frame log {log_path} (c20sim drill --judge {log_path} --plan PLAN)", file=sys.stderr)
+        print(f"drill: frame log {log_path}; judged again by: {judge_command(args, log_path)}", file=sys.stderr)
     return 0 if judgement.passed and not early else 1
 
 

@@ -8,16 +8,15 @@ name and the judge runs.
 from __future__ import annotations
 
 import itertools
-import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from ..audit.findings import FrameRef
 from ..drive.faultrecord import CURRENT_CONTEXT, FAULT_TYPES
-from ..wire.protocol import crc_ok, transaction_time
 from ..wire.registers import Command, Reg
 from .incidents import SOURCES, Learned
 from .plan import Drill
+from .transactions import _Line, _Txn
 
 #: Retries of one request in a row a robust master stops at; assumed (the guide gives no figure; 3 is the usual
 #: default of masters and gateways).
@@ -30,6 +29,10 @@ RECOVER_POLLS = 5
 NOTICE_POLLS = 3
 #: Seconds more a drive incident is watched, for a reset and a run; assumed.
 RESET_WATCH = 3.0
+#: A master that polls one request (it asks it again after a good reply when all is well) and repeats a failed
+#: request within this share of its poll period retries it; a repeat later than that is its next poll. Assumed:
+#: it leaves a quarter of the period to the jitter of a master's scheduling.
+POLL_SHARE = 0.75
 #: Times closer than this are one (a frame log rounds them to the microsecond).
 _EPSILON = 2e-6
 
@@ -57,86 +60,6 @@ class CheckResult:
             "frames": [{"seq": f.seq, "t": round(f.t, 6)} for f in self.frames],
             "source": self.source,
         }
-
-
-@dataclass(slots=True)
-class _Txn:
-    seq: int
-    t: float
-    request: bytes
-    reply: bytes | None = None
-    reply_t: float = 0.0
-    reply_seq: int = 0
-    status: str = "failed"  #: good, refused (an exception other than 0x06), failed (none, broken, 0x06)
-    code: int = -1
-
-    @property
-    def ref(self) -> FrameRef:
-        return FrameRef(self.seq, self.t)
-
-    def settle(self) -> None:
-        data = self.reply
-        if not data:
-            self.status = "failed"
-            return
-        request = self.request
-        if len(data) > len(request) and data.startswith(request):
-            data = data[len(request) :]  # the master's own echo, then the reply
-        if (
-            len(data) < 5
-            or not crc_ok(data)
-            or len(request) < 2
-            or data[0] != request[0]
-            or data[1] & 0x7F != request[1]
-        ):
-            self.status = "failed"
-        elif data[1] & 0x80:
-            self.code = data[2]
-            self.status = "failed" if data[2] == 0x06 else "refused"
-        else:
-            self.status = "good"
-
-    def written(self) -> tuple[int, int] | None:
-        """(register, value) of a single or first multiple write, else None."""
-        r = self.request
-        if len(r) == 8 and r[1] == 0x06:
-            reg, value = struct.unpack_from(">HH", r, 2)
-            return reg, value
-        if len(r) >= 11 and r[1] == 0x10:
-            return struct.unpack_from(">H", r, 2)[0], struct.unpack_from(">H", r, 7)[0]
-        return None
-
-    def reads(self, register: int) -> bool:
-        r = self.request
-        if len(r) != 8 or r[1] not in (0x03, 0x04):
-            return False
-        start, count = struct.unpack_from(">HH", r, 2)
-        return bool(start <= register < start + count)
-
-
-def _transactions(frames: Iterable[tuple[float, str, bytes]]) -> list[_Txn]:
-    txns: list[_Txn] = []
-    for seq, (t, direction, data) in enumerate(frames, 1):
-        if direction == "rx":
-            txns.append(_Txn(seq, t, data))
-        elif txns and txns[-1].reply is None:
-            last = txns[-1]
-            last.reply, last.reply_t, last.reply_seq = data, t, seq
-    for txn in txns:
-        txn.settle()
-    return txns
-
-
-class _Line:
-    def __init__(self, baud: int, bits: int, turnaround: float) -> None:
-        self.baud, self.bits, self.turnaround = baud, bits, turnaround
-
-    def time(self, request: bytes) -> float:
-        """The transaction's time on the line: the request, the turnaround and its usual reply."""
-        reply = 8
-        if len(request) == 8 and request[1] in (0x03, 0x04):
-            reply = 5 + 2 * struct.unpack_from(">H", request, 4)[0]
-        return transaction_time(len(request), reply, self.baud, self.bits, self.turnaround)
 
 
 def _check(name: str, passed: bool, figure: str, value: float, frames: Iterable[FrameRef] = ()) -> CheckResult:
@@ -171,13 +94,21 @@ class _Drill:
         i = self.all.index(txn)
         return self.all[i + 1] if i + 1 < len(self.all) and self.all[i + 1].t <= self.watched + _EPSILON else None
 
+    def _repeats(self, a: _Txn, b: _Txn) -> bool:
+        """``b`` asks ``a``'s failed request again (a retry or, for a master that polls it, its next poll)."""
+        return a.status == "failed" and b.request == a.request
+
+    def _polls(self, a: _Txn, b: _Txn) -> bool:
+        """``b`` repeats ``a``'s failed request at the master's own rhythm, not sooner: its next poll, no retry.
+
+        Only a master that asks one request in a row when all is well (:attr:`repeats_when_warm`) polls the same
+        request again; it retries when the repeat comes sooner than :data:`POLL_SHARE` of its poll period (the
+        warm-up's). Another master's repeat right after a failure is a retry, however late it comes."""
+        return self.repeats_when_warm and b.t - a.t >= POLL_SHARE * self.learned.period - _EPSILON
+
     def _retries(self) -> list[tuple[_Txn, _Txn]]:
         """(failed request, its retry) pairs in the drill's span."""
-        out = []
-        for a, b in zip(self.span, self.span[1:], strict=False):
-            if a.status == "failed" and b.request == a.request:
-                out.append((a, b))
-        return out
+        return [(a, b) for a, b in itertools.pairwise(self.span) if self._repeats(a, b) and not self._polls(a, b)]
 
     def retries(self) -> CheckResult:
         failed = [x for x in self.during if x.status == "failed"]
@@ -237,9 +168,12 @@ class _Drill:
         return _check("no-storm", True, f"{rate:.1f} requests/s, {ratio:.1f}x its usual", ratio)
 
     def bounded(self) -> CheckResult:
-        longest, run, where = 0, 0, None
-        for a, b in zip(self.span, self.span[1:], strict=False):
-            if a.status == "failed" and b.request == a.request:
+        longest, run, where, polls = 0, 0, None, 0
+        for a, b in itertools.pairwise(self.span):
+            if self._repeats(a, b) and self._polls(a, b):
+                polls += 1
+                run = 0  # its next poll: the retries of the poll before it are over
+            elif self._repeats(a, b):
                 run += 1
                 if run > longest:
                     longest, where = run, b
@@ -247,6 +181,11 @@ class _Drill:
                 run = 0
         passed = longest <= MAX_RETRIES
         figure = f"at most {longest} retries of one request in a row (limit {MAX_RETRIES})"
+        if polls:
+            figure += (
+                f"; {polls} repeats of a failed request {1000 * POLL_SHARE * self.learned.period:.0f} ms or more "
+                f"after it are polls at its own period ({1000 * self.learned.period:.0f} ms), not retries"
+            )
         return _check("bounded", passed, figure, longest, [where.ref] if where else [])
 
     def takes_replies(self) -> CheckResult:
@@ -521,7 +460,13 @@ CHECKS: dict[str, Check] = {
             "guide",
             _Drill.no_storm,
         ),
-        Check("bounded", "at most 3 retries of one request in a row", "assumed", _Drill.bounded),
+        Check(
+            "bounded",
+            "at most 3 retries of one request in a row (a repeat at the poll period of a master that polls one "
+            "request is its next poll)",
+            "assumed",
+            _Drill.bounded,
+        ),
         Check(
             "takes-replies",
             "asks no request again whose reply was good (a split or late reply is taken)",

@@ -25,11 +25,10 @@ from .checks import (
     CheckResult,
     _check,
     _Drill,
-    _Line,
-    _transactions,
 )
 from .incidents import SOURCES, Learned
 from .plan import Drill, Plan
+from .transactions import _Line, _transactions
 
 __all__ = [
     "MAX_RETRIES",

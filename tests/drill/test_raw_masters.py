@@ -77,4 +77,10 @@ def test_the_stormy_master_fails_the_storms_and_the_dead_link(tmp_path: Path) ->
         drilled.figure("5 offline", "backs-off"),
     )
     assert rate is not None and int(rate.group(2)) > 200
+    # it retries at once, far sooner than its own poll period, without end: retries, not polls
+    bounded = re.fullmatch(
+        r"at most (\d+) retries of one request in a row \(limit 3\)", drilled.figure("5 offline", "bounded")
+    )
+    assert bounded is not None and int(bounded.group(1)) > 20
+    assert "bounded" in failed["5 offline"]
     assert drilled.code == 1

@@ -1,4 +1,4 @@
-"""Every reference master (raw sockets, pymodbus, mbpoll in a shell loop) earns exactly its verdicts on the pty,
+"""Every reference master (raw sockets, pymodbus, mbpoll in a shell loop, of two registers or one) earns exactly its verdicts on the pty,
 RTU over TCP and Modbus TCP. (The raw masters over RTU over TCP, with their figures: test_raw_masters.py.)"""
 
 from __future__ import annotations
@@ -80,6 +80,27 @@ def test_mbpoll_in_a_shell_loop(tmp_path: Path, transport: str) -> None:
     where = "tcp 127.0.0.1 {modbus_tcp_port}" if transport == "modbus-tcp" else "rtu {pty}"
     failed = drill(tmp_path, f"{MBPOLL} {where}", "--transport", transport, plan=plan).failed()
     assert failed == _expect(MBPOLL_LOOP, transport)
+
+
+ONE_REGISTER_PLAN = """\
+warmup = 2.0
+[[drill]]
+incident = "offline"
+[[drill]]
+incident = "echo"
+"""
+
+
+@pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed")
+def test_mbpoll_polling_one_register_in_a_shell_loop_on_the_pty(tmp_path: Path) -> None:
+    """One request polled, one try a process: through the outage it polls at its own rhythm (no retry, so
+    `bounded` passes, saying why); behind the echo libmodbus does not skip its own request and each poll waits out
+    the frame it cannot complete, so it keeps under half its rate."""
+    drilled = drill(tmp_path, f"{MBPOLL} one rtu {{pty}}", "--transport", "pty", plan=ONE_REGISTER_PLAN)
+    assert drilled.failed() == {"1 offline": [], "2 echo": ["keeps-polling"]}
+    bounded = drilled.figure("1 offline", "bounded")
+    assert bounded.startswith("at most 0 retries of one request in a row (limit 3); ")
+    assert "are polls at its own period" in bounded
 
 
 WIRE_PLAN = """\

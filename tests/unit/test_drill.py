@@ -4,6 +4,7 @@ here (each check passing and failing with its figure)."""
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -141,8 +142,6 @@ def test_every_incident_names_known_checks_and_a_source() -> None:
 
 def test_every_incident_and_check_has_a_row_in_the_docs() -> None:
     """docs/drill.md's tables: a row for each incident of the table and each check (`` | `name` | ``)."""
-    from pathlib import Path
-
     text = (Path(__file__).resolve().parents[2] / "docs" / "drill.md").read_text()
     missing = [name for name in [*INCIDENTS, *CHECKS] if f"| `{name}` |" not in text]
     assert missing == [], "docs/drill.md has no row for " + ", ".join(missing)
@@ -399,6 +398,79 @@ def test_takes_replies_says_when_it_cannot_tell() -> None:
     assert takes.passed and takes.figure == "cannot tell: the master asks the same request in a row when all is well"
 
 
+def _one_request_warm_up(s: Stream, timeout: float) -> None:
+    """A master that polls 2100H alone every 100 ms; the probe's unanswered request asked again after ``timeout``."""
+    s.mark("warmup")
+    for _ in range(20):
+        start = s.t
+        s.ask(STATUS, STATUS_OK)
+        s.t = start + 0.1
+    s.mark("probe")
+    start = s.t
+    s.ask(STATUS, None, 0.002)
+    s.t = start + timeout
+    s.ask(STATUS, STATUS_OK)
+    s.mark("learned")
+    s.t = start + timeout + 0.1
+
+
+def _offline(s: Stream, gaps: list[float]) -> dict[str, tuple[bool, str]]:
+    """The drive silent while the master asks 2100H at ``gaps`` apart, then answers again; the offline verdict."""
+    s.mark("start", 1, "offline")
+    for gap in gaps:
+        start = s.t
+        s.ask(STATUS, None, 0.002)
+        s.t = start + gap
+    s.mark("end", 1, "offline")
+    for _ in range(10):
+        start = s.t
+        s.ask(STATUS, STATUS_OK)
+        s.t = start + 0.1
+    return _played("offline", s, seconds=sum(gaps))
+
+
+@pytest.mark.parametrize(
+    ("timeout", "gap"),
+    [
+        (0.35, 0.35),  # mbpoll in a shell loop: one try, its 250 ms timeout, then the loop's 100 ms sleep
+        (0.1, 0.1),  # a master on a fixed 100 ms schedule whose timeout ends before its next poll
+    ],
+)
+def test_a_poller_repeating_one_request_through_an_outage_is_bounded(timeout: float, gap: float) -> None:
+    s = Stream()
+    _one_request_warm_up(s, timeout)
+    checks = _offline(s, [gap] * 9)
+    # 9 failed requests, each asked again (the last by the first poll after the outage): all polls, as before the
+    # outage
+    assert checks["bounded"] == (
+        True,
+        "at most 0 retries of one request in a row (limit 3); 9 repeats of a failed request 75 ms or more after it "
+        "are polls at its own period (100 ms), not retries",
+    )
+
+
+def test_a_one_request_master_retrying_8_times_at_10_ms_fails_bounded() -> None:
+    s = Stream()
+    _one_request_warm_up(s, 0.01)
+    checks = _offline(s, [0.01] * 8 + [0.1] + [0.01] * 8 + [0.1])
+    passed, figure = checks["bounded"]
+    assert not passed
+    # each poll (100 ms on) starts a new run of retries: 8 in a row, never 17; the polls are the one in the outage
+    # and the first after it
+    assert figure == (
+        "at most 8 retries of one request in a row (limit 3); 2 repeats of a failed request 75 ms or more after it "
+        "are polls at its own period (100 ms), not retries"
+    )
+
+
+def test_a_master_polling_two_requests_retries_when_it_asks_one_again_however_late() -> None:
+    """Its warm-up never asks one request twice in a row: a repeat 350 ms after a failure is a retry."""
+    s = Stream()
+    s.warm()
+    checks = _offline(s, [0.35] * 5)
+    assert checks["bounded"] == (False, "at most 5 retries of one request in a row (limit 3)")
+
+
 # -- the drive's own behaviours: the automatic reset (F08.28/F08.29) and the fault record (F07.27-F07.48)
 
 FAULTED = _with_crc(b"\x01\x03\x02\x00\x04")  # 2100H = 4
@@ -543,3 +615,42 @@ def test_the_auto_reset_incident_sets_and_puts_back_f08_28_and_f08_29() -> None:
     ]
     with pytest.raises(C20SimError, match=r"p.toml: drill 1: interval: 0.1 is outside 0.2-30"):
         read_plan({"drill": [{"incident": "auto-reset", "interval": 0.1}]}, "p.toml")
+
+
+# -- the command that judges a run's frame log again
+
+
+def _drill_args(*argv: str) -> object:
+    import argparse
+
+    from c20sim.drillcli import add_drill_command
+
+    parser = argparse.ArgumentParser()
+    add_drill_command(parser.add_subparsers())
+    return parser.parse_args(["drill", *argv])
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        # the standard plan is built in: no plan file, the transport's standard plan
+        ((), "c20sim drill --judge {cwd}/frames.jsonl --transport tcp"),
+        (("--transport", "pty", "--seed", "7"), "c20sim drill --judge {cwd}/frames.jsonl --transport pty --seed 7"),
+        (
+            ("--plan", "my plan.toml", "--transport", "pty"),
+            "c20sim drill --judge {cwd}/frames.jsonl --plan '{cwd}/my plan.toml'",
+        ),
+        (
+            ("--plan", "/p/plan.toml", "--profile", "mine.toml"),
+            "c20sim drill --judge {cwd}/frames.jsonl --plan /p/plan.toml --profile {cwd}/mine.toml",
+        ),
+    ],
+)
+def test_the_judge_command_names_what_the_run_judged_by(
+    argv: tuple[str, ...], expected: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c20sim.drillcli import judge_command
+
+    monkeypatch.chdir(tmp_path)  # relative paths are made absolute: the command works from anywhere
+    command = judge_command(_drill_args(*argv), "frames.jsonl")  # type: ignore[arg-type]
+    assert command == expected.format(cwd=tmp_path)
