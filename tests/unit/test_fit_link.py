@@ -1,0 +1,129 @@
+"""fit tells the link of a capture from its times: robust to late transactions (a queue, a timer, the machine's
+load), and a refusal says which reason and its figures (c20sim/traffic/fitlink.py; docs/fit.md, "What each link
+adds")."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from c20sim.traffic.fitlink import LINKS, PORT_LINKS, Timing, choose_link
+from c20sim.wire.errors import C20SimError
+
+#: the groups of the capture in the report (exercise --dialect, 45 s, RTU over TCP): reads of one register (7
+#: bytes back), the exceptions exercise asks for at the start (5 bytes), writes of one register (an 8-byte echo)
+SHAPE = {(8, 7): 592, (8, 5): 20, (8, 8): 6}
+
+
+def capture(
+    link: str,
+    turnaround: float,
+    seed: int,
+    *,
+    late_share: float = 0.15,
+    jitter: float = 0.0008,
+    shape: dict[tuple[int, int], int] = SHAPE,
+    baud: int = 19200,
+    late_group: tuple[int, int] | None = (8, 8),
+) -> list[Timing]:
+    """Transactions carried by ``link``: its arithmetic, the turnaround, a jitter of up to ``jitter`` s (serve's
+    millisecond timer), a share late by 1-20 ms, and one small group late as a whole by 0.7 ms (as the writes of
+    the capture in the report were: 0.6 ms)."""
+    rng = random.Random(seed)
+    model = LINKS[link]
+    out = []
+    t = 0.0
+    keys = [key for key, n in shape.items() for _ in range(n)]
+    rng.shuffle(keys)
+    for q, r in keys:
+        elapsed = model.fixed(q, r, baud, 10) + turnaround + rng.uniform(0.0, jitter)
+        if rng.random() < late_share:
+            elapsed += rng.uniform(0.001, 0.020)
+        if (q, r) == late_group:
+            elapsed += 0.0007
+        out.append(Timing(t, t + elapsed, q, r))
+        t += 0.05
+    return out
+
+
+CASES = [(port, truth) for port in ("pty", "tcp", "modbus-tcp") for truth in PORT_LINKS[port]]
+
+
+@pytest.mark.parametrize(("port", "truth"), CASES)
+@pytest.mark.parametrize("seed", range(20))
+def test_the_link_is_told_with_a_share_of_late_transactions(port: str, truth: str, seed: int) -> None:
+    # a bare link with a long turnaround: the others' arithmetic does not leave it a negative one, so the times'
+    # growth with the reply's length, not their floor, tells it
+    turnaround = 0.002 if truth != "bare" else 0.015
+    timings = capture(truth, turnaround, seed)
+    assert sum(t.elapsed > LINKS[truth].fixed(t.request_len, t.reply_len, 19200, 10) + 0.004 for t in timings) > 30
+    link, why = choose_link(timings, PORT_LINKS[port], 19200, 10, "capture.jsonl")
+    assert link.name == truth, why
+    other = next(name for name in PORT_LINKS[port] if name != truth)
+    assert why.startswith(f"replies of 3 lengths (5, 7, 8 bytes): their times fit {truth} within "), why
+    assert f"ms rms, {other} within " in why
+
+
+@pytest.mark.parametrize("late_share", [0.0, 0.3, 0.5])
+def test_device_server_is_told_whatever_the_share_late(late_share: float) -> None:
+    for seed in range(10):
+        timings = capture("device-server", 0.002, seed, late_share=late_share)
+        link, why = choose_link(timings, ("device-server", "bare"), 19200, 10, "c.jsonl")
+        assert link.name == "device-server", why
+
+
+def test_the_figures_of_a_clean_capture() -> None:
+    # no jitter, none late, the writes not late: the floors are the arithmetic exactly
+    timings = capture("device-server", 0.002, 0, late_share=0.0, jitter=0.0, late_group=None)
+    link, why = choose_link(timings, ("device-server", "bare"), 19200, 10, "c.jsonl")
+    assert link.name == "device-server"
+    assert why.startswith(
+        "replies of 3 lengths (5, 7, 8 bytes): their times fit device-server within 0.00 ms rms, bare within "
+    )
+    # 5 to 8 bytes back: 3 characters of 0.521 ms
+    assert why.endswith("they grow by 1.00 of what device-server's arithmetic adds over bare's (1.56 ms across them)")
+
+
+def test_replies_of_one_length_are_refused_saying_so() -> None:
+    timings = capture("device-server", 0.002, 1, shape={(8, 7): 50, (8, 5): 2})
+    with pytest.raises(C20SimError) as caught:
+        choose_link(timings, ("device-server", "bare"), 19200, 10, "c.jsonl")
+    assert str(caught.value) == (
+        "c.jsonl: cannot tell how the capture was carried (device-server or bare): its replies are of one length "
+        "(7 bytes, in groups of 6 or more of one request and reply length; 52 answered): give --link "
+        "device-server or another (docs/fit.md, 'What each link adds')"
+    )
+
+
+def test_replies_too_close_at_a_high_baud_are_refused_with_the_figures() -> None:
+    timings = capture("device-server", 0.002, 1, shape={(8, 7): 50, (8, 5): 10}, baud=115200, late_group=None)
+    with pytest.raises(C20SimError) as caught:
+        choose_link(timings, ("device-server", "bare"), 115200, 10, "c.jsonl")
+    message = str(caught.value)
+    assert message.startswith(
+        "c.jsonl: cannot tell how the capture was carried (device-server or bare): its replies of 2 lengths "
+        "(5, 7 bytes) are too close in length at 115200 baud: "
+    ), message
+    # two characters of 10/115200 s
+    assert message.endswith(
+        " put them 0.17 ms apart, under 0.6 ms: give --link device-server or another "
+        "(docs/fit.md, 'What each link adds')"
+    ), message
+
+
+def test_times_that_fit_neither_are_refused_with_the_figures() -> None:
+    # times halfway between a bare link's and a device server's: they grow by half what the device server adds
+    bare, server = LINKS["bare"], LINKS["device-server"]
+    timings = [
+        Timing(i, i + 0.015 + 0.55 * (server.fixed(q, r, 19200, 10) - bare.fixed(q, r, 19200, 10)), q, r)
+        for i, (q, r) in enumerate([(8, 7)] * 30 + [(8, 5)] * 30)
+    ]
+    with pytest.raises(C20SimError) as caught:
+        choose_link(timings, ("device-server", "bare"), 19200, 10, "c.jsonl")
+    assert str(caught.value) == (
+        "c.jsonl: cannot tell how the capture was carried (device-server or bare): its replies of 2 lengths (5, 7 "
+        "bytes): their times fit device-server within 0.23 ms rms, bare within 0.29 ms; they grow by 0.55 of what "
+        "device-server's arithmetic adds over bare's (1.04 ms across them), not within 0.4 of 1 (device-server) "
+        "or of 0 (bare): give --link device-server or another (docs/fit.md, 'What each link adds')"
+    )
