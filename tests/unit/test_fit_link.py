@@ -5,6 +5,7 @@ adds")."""
 from __future__ import annotations
 
 import random
+import re
 
 import pytest
 
@@ -63,6 +64,11 @@ def test_the_link_is_told_with_a_share_of_late_transactions(port: str, truth: st
     other = next(name for name in PORT_LINKS[port] if name != truth)
     assert why.startswith(f"replies of 3 lengths (5, 7, 8 bytes): their times fit {truth} within "), why
     assert f"ms rms, {other} within " in why
+    # the slope is of what the link keeping the line's time adds over the bare one: near 1 or near 0
+    keeps = truth if truth != "bare" else other
+    found = re.search(rf"they grow by (-?[0-9.]+) of what {keeps}'s arithmetic adds over bare's ", why)
+    assert found is not None, why
+    assert abs(float(found.group(1)) - (truth != "bare")) <= 0.4, why
 
 
 @pytest.mark.parametrize("late_share", [0.0, 0.3, 0.5])
