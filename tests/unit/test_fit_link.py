@@ -4,13 +4,17 @@ adds")."""
 
 from __future__ import annotations
 
+import json
 import random
 import re
+from pathlib import Path
 
 import pytest
 
-from c20sim.traffic.fitlink import LINKS, PORT_LINKS, Timing, choose_link
+from c20sim.cli import main
+from c20sim.traffic.fitlink import LINKS, PORT_LINKS, LinkModel, Timing, choose_link
 from c20sim.wire.errors import C20SimError
+from c20sim.wire.protocol import ExceptionCode, ExceptionResponse, ReadRequest, ReadResponse, encode
 
 #: the groups of the capture in the report (exercise --dialect, 45 s, RTU over TCP): reads of one register (7
 #: bytes back), the exceptions exercise asks for at the start (5 bytes), writes of one register (an 8-byte echo)
@@ -148,3 +152,32 @@ def test_the_capture_of_the_report_is_told_device_server() -> None:
         "replies of 3 lengths (5, 7, 8 bytes): their times fit device-server within 0.06 ms rms, bare within "
         "0.22 ms; they grow by 1.11 of what device-server's arithmetic adds over bare's (1.56 ms across them)"
     )
+
+
+def test_a_link_grows_by_one_row(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a throwaway link (a hub that stamps each frame at its last byte and adds its own t3.5 after the reply) and
+    # the port a capture's header names for it: one row each, no other edit. fit's --link offers it, and a capture
+    # whose header names its port is told from the times as that link, not the bare one
+    hub = LinkModel("hub", "a throwaway hub: t3.5, turnaround, reply, t3.5", False, 2, 1)
+    monkeypatch.setitem(LINKS, "hub", hub)
+    monkeypatch.setitem(PORT_LINKS, "hub-port", ("hub", "bare"))
+    read, value = encode(ReadRequest(1, 0x3008, 1)), encode(ReadResponse(1, (480,)))
+    refused = encode(ReadRequest(1, 0x3FF0, 1)), encode(ExceptionResponse(1, 0x03, ExceptionCode.ILLEGAL_ADDRESS))
+    lines = [json.dumps({"t": 0.0, "dir": "rx", "hex": "", "kind": "link", "note": "link hub-port 19200 8N1"})]
+    for i, (request, reply) in enumerate([(read, value)] * 20 + [refused] * 8):
+        t = 0.1 * (i + 1)
+        elapsed = 0.0035 + hub.fixed(len(request), len(reply), 19200, 10) + (0.005 if i % 7 == 3 else 0.0)
+        lines.append(json.dumps({"t": t, "dir": "rx", "hex": request.hex()}))
+        lines.append(json.dumps({"t": t + elapsed, "dir": "tx", "hex": reply.hex()}))
+    path = tmp_path / "hub.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["fit", str(path), "--out", str(tmp_path / "told.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "  link: hub, 19200 baud, 10-bit characters (replies of 2 lengths (5, 7 bytes): their times fit hub " in out
+    assert "they grow by 1.00 of what hub's arithmetic adds over bare's (1.04 ms across them)" in out
+    # the hub's arithmetic taken away, the turnaround is the drive's 3.5 ms (the base's is 2)
+    assert re.search(r"\n  protocol\.turnaround_ms +3\.5 ms +\+-0\.5 +\(base 2\)\n", out), out
+    assert main(["fit", str(path), "--out", str(tmp_path / "given.toml"), "--link", "hub"]) == 0
+    assert "  link: hub, 19200 baud, 10-bit characters (as --link says)" in capsys.readouterr().out
