@@ -259,6 +259,13 @@ def choose_link(
     more, less = sorted((best.link, second.link), key=lambda link: -_growth(link, baud, bits))
     k, apart = slope(more, less, groups, baud, bits)
     span = f"replies of {len(lengths)} lengths ({', '.join(map(str, lengths))} bytes)"
+    if apart < 1e-9:
+        alike = [f.link.name for f in fits if slope(best.link, f.link, groups, baud, bits)[1] < 1e-9]
+        raise C20SimError(
+            f"{head}: {', '.join(alike[:-1])} and {alike[-1]} add the same time to each of its {span} (less a "
+            f"constant, which the turnaround takes): the times cannot tell them apart: give --link {alike[0]} or "
+            "another (docs/fit.md, 'What each link adds')"
+        )
     if apart < SEPARATION:
         raise C20SimError(
             f"{head}: its {span} are too close in length at {baud} baud: {more.name} and "

@@ -181,3 +181,28 @@ def test_a_link_grows_by_one_row(
     assert re.search(r"\n  protocol\.turnaround_ms +3\.5 ms +\+-0\.5 +\(base 2\)\n", out), out
     assert main(["fit", str(path), "--out", str(tmp_path / "given.toml"), "--link", "hub"]) == 0
     assert "  link: hub, 19200 baud, 10-bit characters (as --link says)" in capsys.readouterr().out
+
+
+def test_links_that_add_the_same_time_are_refused_saying_so() -> None:
+    # no header: every link is a candidate; a line-timed pty's times are a serial line's exactly
+    timings = capture("pty", 0.002, 3)
+    with pytest.raises(C20SimError) as caught:
+        choose_link(timings, tuple(LINKS), 19200, 10, "c.jsonl")
+    message = str(caught.value)
+    assert message.startswith(
+        "c.jsonl: cannot tell how the capture was carried (bare or pty or serial or sniffer or device-server or "
+        "gateway): "
+    ), message
+    # what a device server adds is a pty's and one more t3.5, and a sniffer's a pty's less the request's 8
+    # characters (every request here is 8 bytes): the same for every length, so all five alike; bare is not
+    alike = message.split("): ")[1].split(" add the same")[0].replace(" and ", ", ").split(", ")
+    assert sorted(alike) == ["device-server", "gateway", "pty", "serial", "sniffer"], message
+    assert message.endswith(
+        " add the same time to each of its replies of 3 lengths (5, 7, 8 bytes) (less a constant, which the "
+        f"turnaround takes): the times cannot tell them apart: give --link {alike[0]} or another (docs/fit.md, "
+        "'What each link adds')"
+    ), message
+    # a sniffer's, told from a bare link's by the times even with no header: the others' arithmetic leaves its
+    # replies sooner than their bytes take, and the slope tells sniffer from bare
+    link, why = choose_link(capture("sniffer", 0.002, 3), tuple(LINKS), 19200, 10, "c.jsonl")
+    assert link.name == "sniffer", why
