@@ -13,6 +13,7 @@ drive's turnaround (docs/fit.md, "What each link adds").
 
 from __future__ import annotations
 
+import itertools
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,7 +21,17 @@ from dataclasses import dataclass
 from ..wire.errors import C20SimError
 from ..wire.protocol import char_time, silence_times
 
-__all__ = ["LINKS", "PORT_LINKS", "LinkModel", "Timing", "choose_link", "format_bits", "turnaround_of"]
+__all__ = [
+    "LINKS",
+    "PORT_LINKS",
+    "Group",
+    "LinkModel",
+    "Timing",
+    "choose_link",
+    "format_bits",
+    "slope",
+    "turnaround_of",
+]
 
 
 @dataclass(frozen=True)
@@ -122,8 +133,11 @@ LOW = 0.1
 
 
 def low_quantile(values: Sequence[float]) -> float:
+    """The :data:`LOW` quantile of ``values``, and never the least of two or more: one early reply (0.9 ms before
+    the nine others of its length, through serve's Modbus TCP on a loaded machine) is not the floor."""
     ordered = sorted(values)
-    return ordered[int(LOW * (len(ordered) - 1))]
+    index = int(LOW * (len(ordered) - 1))
+    return ordered[max(index, 1) if len(ordered) > 1 else 0]
 
 
 def format_bits(text: str) -> int:
@@ -147,18 +161,83 @@ class Timing:
         return self.reply_t - self.request_t
 
 
-def _groups(timings: Sequence[Timing]) -> dict[tuple[int, int], list[float]]:
+#: A group of transactions (one request length, one reply length) counts towards telling the link from this many.
+GROUP = 6
+
+#: What a capture's times may grow by, as a share of what one link's arithmetic adds over another's between its
+#: replies of different lengths, and still be that link (1 is the link, 0 the other): the 40 % / 60 % of
+#: docs/fit.md ("What each link adds").
+SLOPE = 0.4
+
+
+@dataclass(frozen=True)
+class Group:
+    """The transactions of one request length and one reply length: how many, and the low envelope of their times
+    (:func:`low_quantile`: the link's arithmetic and the turnaround are a floor; lateness only adds)."""
+
+    request_len: int
+    reply_len: int
+    count: int
+    floor: float
+
+
+def _groups(timings: Sequence[Timing]) -> list[Group]:
     groups: dict[tuple[int, int], list[float]] = {}
     for t in timings:
         groups.setdefault((t.request_len, t.reply_len), []).append(t.elapsed)
-    return {key: values for key, values in groups.items() if len(values) >= 6}
+    return [Group(q, r, len(v), low_quantile(v)) for (q, r), v in sorted(groups.items()) if len(v) >= GROUP]
+
+
+@dataclass(frozen=True)
+class Fit:
+    """How the groups' floors fit a link: its turnaround (the count-weighted mean of what it leaves of each
+    floor) and the count-weighted rms of what is left over (s)."""
+
+    link: LinkModel
+    turnaround: float
+    rms: float
+
+
+def _fit(link: LinkModel, groups: Sequence[Group], baud: int, bits: int) -> Fit:
+    net = [(g.floor - link.fixed(g.request_len, g.reply_len, baud, bits), g.count) for g in groups]
+    total = sum(n for _, n in net)
+    mean = sum(x * n for x, n in net) / total
+    return Fit(link, mean, (sum((x - mean) ** 2 * n for x, n in net) / total) ** 0.5)
+
+
+def slope(a: LinkModel, b: LinkModel, groups: Sequence[Group], baud: int, bits: int) -> tuple[float, float]:
+    """How much of what ``a``'s arithmetic adds over ``b``'s the groups' floors grow by (1: ``a``, 0: ``b``): the
+    weighted median of the slopes between each two groups, each pair weighted by its smaller group's count and
+    how far apart the links put the two (a small group late as a whole moves it not at all, unless the pairs
+    it is in hold half the weight); and how far apart the two links put the groups (s, the largest gap less the
+    smallest)."""
+    x = [
+        a.fixed(g.request_len, g.reply_len, baud, bits) - b.fixed(g.request_len, g.reply_len, baud, bits)
+        for g in groups
+    ]
+    y = [g.floor - b.fixed(g.request_len, g.reply_len, baud, bits) for g in groups]
+    pairs = []
+    for i, j in itertools.combinations(range(len(groups)), 2):
+        dx = x[j] - x[i]
+        if abs(dx) > 1e-9:
+            pairs.append(((y[j] - y[i]) / dx, min(groups[i].count, groups[j].count) * abs(dx)))
+    apart = max(x) - min(x) if x else 0.0
+    if not pairs:
+        return 0.0, apart
+    pairs.sort()
+    half, total = sum(w for _, w in pairs) / 2, 0.0
+    for k, w in pairs:
+        total += w
+        if total >= half:
+            return k, apart
+    return pairs[-1][0], apart
 
 
 def choose_link(
     timings: Sequence[Timing], candidates: Sequence[str], baud: int, bits: int, where: str
 ) -> tuple[LinkModel, str]:
     """The link among ``candidates`` that the capture's times fit, and in words why; C20SimError (asking for
-    ``--link``) when the times cannot tell."""
+    ``--link``, saying which reason and its figures) when the times cannot tell."""
     links = [LINKS[name] for name in candidates]
     if len(links) == 1 or not timings:
         return links[0], "as the capture's header says" if len(links) == 1 else "no answered request to tell by"
@@ -175,30 +254,53 @@ def choose_link(
             f"{where}: the replies come sooner than any link ({', '.join(candidates)}) allows: is the baud right? "
             "give --baud, or --link"
         )
-    groups = {key: low_quantile(values) for key, values in _groups(timings).items()}
-    spread: dict[str, float] = {}
-    for link in possible:
-        net = [m - link.fixed(q, r, baud, bits) for (q, r), m in groups.items()]
-        spread[link.name] = max(net) - min(net) if net else 0.0
-    ranked = sorted(possible, key=lambda link: spread[link.name])
-    best, second = ranked[0], ranked[1]
-    apart = _separation(best, second, list(groups), baud, bits)
-    if apart >= SEPARATION and spread[best.name] <= 0.4 * apart and spread[second.name] >= 0.6 * apart:
-        return best, (
-            f"replies of {len({r for _, r in groups})} lengths: their times fit {best.name} within "
-            f"{spread[best.name] * 1000:.2f} ms, {second.name} within {spread[second.name] * 1000:.2f} ms only"
+    groups = _groups(timings)
+    ask = f"give --link {possible[0].name} or another (docs/fit.md, 'What each link adds')"
+    names = " or ".join(link.name for link in possible)
+    head = f"{where}: cannot tell how the capture was carried ({names})"
+    lengths = sorted({g.reply_len for g in groups})
+    if len({(g.request_len, g.reply_len) for g in groups}) < 2:
+        counted = f"{lengths[0]} bytes" if lengths else "none"
+        raise C20SimError(
+            f"{head}: its replies are of one length ({counted}, in groups of {GROUP} or more of one request and "
+            f"reply length; {len(timings)} answered): {ask}"
         )
+    fits = sorted((_fit(link, groups, baud, bits) for link in possible), key=lambda f: f.rms)
+    best, second = fits[0], fits[1]
+    # the slope is of the link whose arithmetic grows more with the frames' lengths over the other's: 1 is it, 0 the
+    # other, whichever fits better
+    more, less = sorted((best.link, second.link), key=lambda link: -_growth(link, baud, bits))
+    k, apart = slope(more, less, groups, baud, bits)
+    span = f"replies of {len(lengths)} lengths ({', '.join(map(str, lengths))} bytes)"
+    if apart < 1e-9:
+        alike = [f.link.name for f in fits if slope(best.link, f.link, groups, baud, bits)[1] < 1e-9]
+        raise C20SimError(
+            f"{head}: {', '.join(alike[:-1])} and {alike[-1]} add the same time to each of its {span} (less a "
+            f"constant, which the turnaround takes): the times cannot tell them apart: give --link {alike[0]} or "
+            "another (docs/fit.md, 'What each link adds')"
+        )
+    if apart < SEPARATION:
+        raise C20SimError(
+            f"{head}: its {span} are too close in length at {baud} baud: {more.name} and "
+            f"{less.name} put them {apart * 1000:.2f} ms apart, under {SEPARATION * 1000:.1f} ms: {ask}"
+        )
+    figures = (
+        f"their times fit {best.link.name} within {best.rms * 1000:.2f} ms rms, {second.link.name} within "
+        f"{second.rms * 1000:.2f} ms; they grow by {k:.2f} of what {more.name}'s arithmetic adds over "
+        f"{less.name}'s ({apart * 1000:.2f} ms across them)"
+    )
+    if abs(k - 1) <= SLOPE:
+        return more, f"{span}: {figures}"
+    if abs(k) <= SLOPE:
+        return less, f"{span}: {figures}"
     raise C20SimError(
-        f"{where}: cannot tell how the capture was carried ({' or '.join(link.name for link in possible)}): "
-        f"its replies are of one length, or too close in length at {baud} baud, or their times fit each; give --link "
-        f"{possible[0].name} or another (docs/fit.md, 'What each link adds')"
+        f"{head}: its {span}: {figures}, not within {SLOPE:.1f} of 1 ({more.name}) or of 0 ({less.name}): {ask}"
     )
 
 
-def _separation(a: LinkModel, b: LinkModel, keys: Sequence[tuple[int, int]], baud: int, bits: int) -> float:
-    """How far apart two links' arithmetic puts the transactions of the lengths ``keys`` (s)."""
-    gaps = [a.fixed(q, r, baud, bits) - b.fixed(q, r, baud, bits) for q, r in keys]
-    return max(gaps) - min(gaps) if gaps else 0.0
+def _growth(link: LinkModel, baud: int, bits: int) -> float:
+    """How much more of a transaction's time the link's arithmetic holds for long frames than for short (s)."""
+    return link.fixed(256, 256, baud, bits) - link.fixed(8, 5, baud, bits)
 
 
 def turnaround_of(timings: Sequence[Timing], link: LinkModel, baud: int, bits: int) -> tuple[float, float, int]:

@@ -300,9 +300,9 @@ def test_the_turnaround_on_a_sniffed_line_needs_the_link_said(
     path = _timed_log(tmp_path, 0.002 + frame_time(len(reply), 19200))  # a sniffer on the line: t3.5 and 7 bytes
     # no header, replies of one length: a line's times, or a bare link's with a longer turnaround
     assert _fit_error(path, capsys, tmp_path) == (
-        f"c20sim: {path}: cannot tell how the capture was carried (bare or sniffer): its replies "
-        "are of one length, or too close in length at 19200 baud, or their "
-        "times fit each; give --link bare or another (docs/fit.md, 'What each link adds')\n"
+        f"c20sim: {path}: cannot tell how the capture was carried (bare or sniffer): its replies are of one length "
+        "(7 bytes, in groups of 6 or more of one request and reply length; 20 answered): give --link bare or "
+        "another (docs/fit.md, 'What each link adds')\n"
     )
     base = load_profile()
     result = fit(load_capture(str(path), base, link="sniffer"), base)
