@@ -167,7 +167,12 @@ def with_dashboard(profile: Path, tmp: Path) -> Iterator[tuple[dict[str, str], l
     assert TMUX is not None
     ready = tmp / f"ready-{uuid.uuid4().hex[:6]}.json"
     session = f"c20bench-{uuid.uuid4().hex[:6]}"
-    command = f"{sys.executable} -m c20sim dashboard --profile {profile} --tcp 127.0.0.1:0 --ready-file {ready}"
+    # --no-bus-timing as for the headless serve: bus timing became the default (issue 27), and with it every read
+    # waits out its RS485 time (about 80 reads/s), which is the line, not the dashboard
+    command = (
+        f"{sys.executable} -m c20sim dashboard --profile {profile} --tcp 127.0.0.1:0 --no-bus-timing"
+        f" --ready-file {ready}"
+    )
     subprocess.run([TMUX, "new-session", "-d", "-s", session, "-x", "120", "-y", "40"], check=True, cwd=ROOT)
     subprocess.run([TMUX, "set-option", "-w", "-t", session, "remain-on-exit", "on"], check=True)
     subprocess.run([TMUX, "respawn-pane", "-k", "-t", session, "-c", str(ROOT), command], check=True)
