@@ -468,16 +468,19 @@ class Line:
             # at the transaction's end there: when the reply is handed over (its last byte leaves)
             start = max(time.perf_counter(), self._held_until)
             self.sim.bus.timed_from = (start, isinstance(respond, SelfTimed)) if self.bus_timing else None
+            failed = False
             try:
                 reply = self.sim.handle(event)
             except Exception:
                 log.exception("bug while serving %s; the simulator keeps serving", event)
+                reply, failed = None, True
+            finally:
+                self.sim.bus.timed_from = None  # a request served without the line (a scenario's) stamps as untimed
+            if failed:  # (not a continue inside the finally's try: mypyc, which compiles this module, has none)
                 self._in_hand = False
                 _deliver(respond, None)  # the line stays silent, and whoever waits learns it at once
                 self._announce_baud()
                 continue
-            finally:
-                self.sim.bus.timed_from = None  # a request served without the line (a scenario's) stamps as untimed
             hold = reply.delay if reply is not None else 0.0
             if self.bus_timing:
                 bus = self.sim.bus

@@ -136,8 +136,13 @@ def test_a_burst_of_keys_in_a_120_column_pane(tmp_path: Path) -> None:
         screen = terminal.wait_for_text("realtime paused │ c20-400hr")
         title = screen.splitlines()[0]
         assert f"connect: RTU/TCP {where['tcp']} · Modbus TCP {where['modbus_tcp']} │ t " in title, title
-        footer = " ".join(screen.splitlines()[-1].split())
-        assert footer.startswith("f Fwd r Rev s Stop j Jog x Reset p Pause < Slower > Faster ? Help q Quit"), footer
+
+        def footer() -> str:  # the screen's last line drawn (a capture may come mid-draw: wait for it)
+            lines = [line for line in terminal.screen().splitlines() if line.strip()]
+            return " ".join(lines[-1].split()) if lines else ""
+
+        keys = "f Fwd r Rev s Stop j Jog x Reset p Pause < Slower > Faster ? Help q Quit"
+        wait_for("the realtime clock's footer", lambda: footer().startswith(keys), show=footer)
         terminal.keys("F3", "Home", "C-k", "3", "6", "Enter", "F8")
         screen = terminal.wait_for_text("supply 36 V")
         terminal.keys("F1")  # the usual help key: tmux sends it as the terminal does
