@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import itertools
 import tomllib
 from pathlib import Path
 
 import pytest
 
+from c20sim.core.bus import Direction
 from c20sim.core.clock import VirtualClock
 from c20sim.core.simulator import Simulator
 from c20sim.drive.profile import Profile, load_profile, parse_profile
@@ -122,9 +124,12 @@ def test_password_with_the_gate_open(tmp_path: Path) -> None:
 
 
 def test_the_probe_changes_nothing_on_the_drive(tmp_path: Path) -> None:
-    """Every register reads the same after the probe; nothing is written to EEPROM; a RAM write only of the value
-    the code held (the gate open, so that the RAM-only write is taken)."""
-    sim = Simulator(SHIPPED, [1], clock=VirtualClock())
+    """Every register reads the same after the probe; nothing is written to EEPROM (the state file, where every
+    EEPROM write is saved, is as before); the one write the drive takes is the RAM-only write of the value the
+    code held (the gate open, so that it is taken). Judged from outside the drive, so that it holds on the
+    compiled core too."""
+    state = tmp_path / "state.json"
+    sim = Simulator(SHIPPED, [1], clock=VirtualClock(), state=state)
     slave = sim.slaves[1]
     slave.handle(WriteSingleRequest(1, 0x200E, 1), sim.now())
 
@@ -137,19 +142,21 @@ def test_the_probe_changes_nothing_on_the_drive(tmp_path: Path) -> None:
         return out
 
     before = snapshot()
-    drive = sim.drive(1)
-    writes: list[tuple[str, int, int]] = []
-    real_ram = drive.write_ram
-    drive.write = lambda address, value: writes.append(("eeprom", address, value))  # type: ignore[method-assign]
-
-    def ram(address: int, value: int) -> None:
-        writes.append(("ram", address, value))
-        real_ram(address, value)
-
-    drive.write_ram = ram  # type: ignore[method-assign]
+    saved = state.read_bytes() if state.exists() else None
+    sim.bus.records.clear()
     master = Master(SimulatedLink(sim), SHIPPED.registers, 1, clock=SimulatedTime(sim), log=io.StringIO())
     probe(Prober(master.probe, 1, SHIPPED, rtu=True))
-    assert writes == [("ram", 0x000A, before[0x000A])]
+    records = list(sim.bus.records)
+    taken = [
+        (int.from_bytes(request.data[2:4], "big"), int.from_bytes(request.data[4:6], "big"))
+        for request, reply in itertools.pairwise(records)
+        if request.direction is Direction.RX
+        and reply.direction is Direction.TX
+        and request.data[1] in (0x06, 0x10)
+        and not reply.data[1] & 0x80
+    ]
+    assert taken == [(0x800A, before[0x000A])]
+    assert (state.read_bytes() if state.exists() else None) == saved
     assert snapshot() == before
 
 
