@@ -242,6 +242,8 @@ class FrameRing(Generic[R]):
         else:
             slot = self._start
             self._start = (self._start + 1) % self._maxlen
+        if slot == self._rx_slot:  # the last request's slot is taken over: a reply can no longer share its frame
+            self._rx_slot, self._rx_words = -1, None
         words = record.words
         kept: bytes | str
         if isinstance(words, str):
@@ -356,6 +358,8 @@ class FrameRing(Generic[R]):
             raise IndexError("pop from an empty frame ring")
         slot = self._start
         record = self._record(slot)
+        if slot == self._rx_slot:  # the last request is gone: a reply appended next keeps a frame of its own
+            self._rx_slot, self._rx_words = -1, None
         self._data[slot] = self._request[slot] = b""
         self._words[slot] = self._note[slot] = ""
         self._start = (slot + 1) % self._maxlen

@@ -218,6 +218,29 @@ def test_popleft_drains_oldest_first(profile: Profile) -> None:
         ring.popleft()
 
 
+def test_a_reply_appended_after_its_request_was_drained_keeps_its_request(profile: Profile) -> None:
+    """The frame log's writer may drain a request before the bus appends its reply (a CI run's writer thread did,
+    and the reply read back from the emptied slot broke the writer): the reply keeps a request of its own."""
+    bus = make_bus(profile, (1,))
+    ring: FrameRing[FrameRecord] = FrameRing(4, FrameRecord)
+    made: list[FrameRecord] = []
+    bus.subscribe(made.append)
+    bus.subscribe(lambda record: ring.append(record) if record.direction == "rx" else None)
+    line = Line(bus)
+    line.send(encode(WriteSingleRequest(1, Reg.SPEED_SETPOINT, 300)))
+    request = ring.popleft()  # drained before its reply reaches the ring
+    assert request.direction == "rx" and len(ring) == 0
+    ring.append(made[1])  # the reply
+    reply = ring.popleft()
+    same(reply, made[1])
+    assert reply.request == WriteSingleRequest(1, Reg.SPEED_SETPOINT, 300)
+    for _ in range(5):  # and a slot taken over by later records: each reply still reads its own request
+        line.send(encode(ReadRequest(1, Reg.STATUS1, 1)))
+        assert ring.popleft().direction == "rx"  # the request, drained first again
+        ring.append(made[-1])
+        assert ring.popleft().request == ReadRequest(1, Reg.STATUS1, 1)
+
+
 def test_what_waits_for_the_frame_log_writer_is_no_tracked_object(profile: Profile, tmp_path: Any) -> None:
     """--log-frames: records queued for the writer thread (here not started: a sink that has not taken them)
     add nothing the collector walks, up to the buffer's bound and past it (the newest refused, counted)."""
