@@ -329,6 +329,7 @@ async def wait_for(condition: Any, timeout: float = 5.0) -> None:
         await asyncio.sleep(0.005)
 
 
+@pytest.mark.sources_only  # it counts reads of Bus.line_baud by patching the property
 async def test_a_baud_change_reaches_every_listener_without_a_poll(baud_reads: list[int]) -> None:
     sim = Simulator(load_profile(), (1,), clock=VirtualClock())
     server = Server(sim, ServeOptions(tcp="127.0.0.1:0", modbus_tcp="127.0.0.1:0", bus_timing=True))
